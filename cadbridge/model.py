@@ -1,0 +1,183 @@
+"""The CAD model that flows out of the IGES reader: faces (exact NURBS + trims), units, notes.
+
+Everything here is plain data: numpy arrays inside `NurbsSurface` / `NurbsCurve`, small
+dataclasses around them. No OCC objects, no global state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = ["Diagnostic", "Face", "Model", "TrimLoop", "Trim", "Units", "points_in_polygon"]
+
+
+@dataclass(frozen=True)
+class Diagnostic:
+    """A reader warning: where it was found and what it says."""
+
+    message: str
+    line: int | None = None  # 1-based line number in the file
+    de: int | None = None  # directory entry sequence number (odd, 1-based)
+    entity_type: int | None = None
+
+    def __str__(self) -> str:
+        where = []
+        if self.line is not None:
+            where.append(f"line {self.line}")
+        if self.de is not None:
+            where.append(f"DE {self.de}")
+        if self.entity_type is not None:
+            where.append(f"entity {self.entity_type}")
+        return (", ".join(where) + ": " if where else "") + self.message
+
+
+@dataclass(frozen=True)
+class Units:
+    """Model units from the IGES Global section (fields 14-15).
+
+    ``flag`` is the IGES units flag (1 inch, 2 mm, ... 6 m, ...), ``name`` its name and
+    ``to_mm`` the factor that converts one model unit to millimetres.
+    """
+
+    flag: int = 2
+    name: str = "MM"
+    to_mm: float = 1.0
+
+
+@dataclass
+class TrimLoop:
+    """One closed boundary loop in the (u, v) parameter space of a face.
+
+    ``curves`` are 2D `NurbsCurve` pieces (control points (n, 2) in (u, v)), joined end to
+    start in order. ``model_curves`` optionally keeps the 3D model-space counterparts.
+    """
+
+    curves: list[NurbsCurve]
+    model_curves: list[NurbsCurve] | None = None
+
+    def polygon(self, samples_per_span: int = 16) -> np.ndarray:
+        """Polyline through the loop, (M, 2) in (u, v); first point not repeated at the end."""
+        pieces = []
+        for c in self.curves:
+            t = c.sample_parameters(samples_per_span)
+            pts = c.evaluate(t)[:, :2]
+            pieces.append(pts[:-1])  # the last point is the next curve's first
+        if not pieces:
+            return np.zeros((0, 2))
+        return np.concatenate(pieces, axis=0)
+
+
+@dataclass
+class Trim:
+    """Trimming of a face (IGES 144 / 143): an outer loop and holes.
+
+    ``outer`` None means the outer boundary is the boundary of the surface domain.
+    """
+
+    outer: TrimLoop | None
+    inner: list[TrimLoop] = field(default_factory=list)
+
+    def contains(self, u: np.ndarray, v: np.ndarray, samples_per_span: int = 16) -> np.ndarray:
+        """Whether each (u, v) lies inside the trimmed region (even-odd rule). (N,) bool."""
+        uv = np.column_stack([np.ravel(u), np.ravel(v)]).astype(float)
+        inside = np.ones(len(uv), dtype=bool)
+        if self.outer is not None:
+            inside &= points_in_polygon(uv, self.outer.polygon(samples_per_span))
+        for hole in self.inner:
+            inside &= ~points_in_polygon(uv, hole.polygon(samples_per_span))
+        return inside
+
+
+def points_in_polygon(points: np.ndarray, polygon: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Crossing-number test of (N, 2) points against a closed (M, 2) polygon. Returns (N,) bool."""
+    points = np.asarray(points, dtype=float)
+    poly = np.asarray(polygon, dtype=float)
+    if len(poly) < 3:
+        return np.zeros(len(points), dtype=bool)
+    a = poly
+    b = np.roll(poly, -1, axis=0)
+    out = np.empty(len(points), dtype=bool)
+    for s in range(0, len(points), chunk):
+        p = points[s : s + chunk, None, :]
+        ay, by = a[None, :, 1], b[None, :, 1]
+        straddle = (ay > p[..., 1]) != (by > p[..., 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x_cross = a[None, :, 0] + (p[..., 1] - ay) * (b[None, :, 0] - a[None, :, 0]) / (by - ay)
+        crossings = straddle & (p[..., 0] < x_cross)
+        out[s : s + chunk] = (np.count_nonzero(crossings, axis=1) % 2) == 1
+    return out
+
+
+@dataclass
+class Face:
+    """One face of the model: an exact NURBS surface in model coordinates (after transforms).
+
+    ``de`` is the directory entry number of the entity the face came from (the 144/143/128/...
+    at the top level), ``surface_de`` that of the underlying surface entity.
+    """
+
+    surface: NurbsSurface
+    de: int
+    name: str | None = None
+    color: tuple[float, float, float] | None = None  # RGB in 0..1
+    level: int = 0
+    trims: Trim | None = None
+    entity_type: int = 128  # IGES type of the top-level entity (128, 144, 143, 108, 118, 120, 122)
+    surface_de: int | None = None
+    surface_type: int = 128  # IGES type of the underlying surface entity
+
+    def contains(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Whether (u, v) (arrays (N,)) lie inside the face: in the domain and inside the trims."""
+        u = np.asarray(u, dtype=float)
+        v = np.asarray(v, dtype=float)
+        u0, u1, v0, v1 = self.surface.domain
+        tol_u = 1e-12 * max(1.0, abs(u1 - u0))
+        tol_v = 1e-12 * max(1.0, abs(v1 - v0))
+        ok = (u >= u0 - tol_u) & (u <= u1 + tol_u) & (v >= v0 - tol_v) & (v <= v1 + tol_v)
+        if self.trims is not None and np.any(ok):
+            ok[ok] = self.trims.contains(u[ok], v[ok])
+        return ok
+
+
+@dataclass
+class Model:
+    """What `read_iges` returns.
+
+    faces          list[Face], in directory order of the top-level faces
+    units          `Units`
+    resolution     minimum user-intended resolution (Global field 19), model units
+    entity_counts  {entity type: count} over all directory entries
+    raw            {DE number: (entity type, form, parameter list)} for entities not interpreted
+    diagnostics    reader warnings with line numbers
+    """
+
+    faces: list[Face] = field(default_factory=list)
+    units: Units = field(default_factory=Units)
+    resolution: float | None = None
+    filename: str | None = None
+    author: str | None = None
+    organization: str | None = None
+    system: str | None = None
+    preprocessor: str | None = None
+    product_id: str | None = None
+    global_params: list = field(default_factory=list)
+    entity_counts: dict[int, int] = field(default_factory=dict)
+    raw: dict[int, tuple] = field(default_factory=dict)
+    diagnostics: list[Diagnostic] = field(default_factory=list)
+
+    def bbox(self) -> np.ndarray:
+        """Axis-aligned box of all faces, (2, 3): [min, max] (from the control nets)."""
+        if not self.faces:
+            raise ValueError("empty model: no faces")
+        boxes = np.array([f.surface.bbox() for f in self.faces])
+        return np.array([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
+
+    def size(self) -> float:
+        """Diagonal of the bounding box (model units); the length scale for tolerances."""
+        b = self.bbox()
+        return float(np.linalg.norm(b[1] - b[0]))

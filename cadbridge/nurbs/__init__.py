@@ -1,0 +1,7 @@
+"""NURBS engine: basis functions, surfaces, curves, projection, search."""
+
+from cadbridge.nurbs.basis import basis_funs, ders_basis_funs, find_span
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = ["NurbsCurve", "NurbsSurface", "basis_funs", "ders_basis_funs", "find_span"]

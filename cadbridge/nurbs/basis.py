@@ -1,0 +1,117 @@
+"""B-spline basis functions, vectorised over parameters (Piegl & Tiller A2.1-A2.3).
+
+All functions take a knot vector ``knots`` (m+1,), a degree ``p`` and parameters ``u`` (N,)
+and work on all N parameters at once; loops run only over the (small) degree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["find_span", "basis_funs", "ders_basis_funs", "validate_knots"]
+
+
+def validate_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str = "knots") -> None:
+    """Raise ValueError unless ``knots`` is a valid knot vector for ``n_ctrl`` control points.
+
+    Checks: length n_ctrl + degree + 1, finite, non-decreasing, no interior knot of
+    multiplicity above ``degree`` + 1 and a non-empty domain [knots[p], knots[n_ctrl]].
+    """
+    knots = np.asarray(knots, dtype=float)
+    if degree < 1:
+        raise ValueError(f"{what}: degree must be >= 1, got {degree}")
+    if n_ctrl < degree + 1:
+        raise ValueError(f"{what}: {n_ctrl} control points is fewer than degree + 1 = {degree + 1}")
+    if knots.ndim != 1 or len(knots) != n_ctrl + degree + 1:
+        raise ValueError(
+            f"{what}: expected {n_ctrl + degree + 1} knots for {n_ctrl} control points of "
+            f"degree {degree}, got {knots.size}"
+        )
+    if not np.all(np.isfinite(knots)):
+        raise ValueError(f"{what}: knots must be finite")
+    diffs = np.diff(knots)
+    if np.any(diffs < 0):
+        i = int(np.argmax(diffs < 0))
+        raise ValueError(f"{what}: knots decrease at index {i + 1} ({knots[i]!r} > {knots[i + 1]!r})")
+    if not knots[n_ctrl] > knots[degree]:
+        raise ValueError(f"{what}: empty parameter domain [{knots[degree]!r}, {knots[n_ctrl]!r}]")
+    # multiplicity check on the domain part (the ends may carry up to p+1 equal knots)
+    inner = knots[degree + 1 : n_ctrl]
+    if inner.size:
+        _, counts = np.unique(inner, return_counts=True)
+        if counts.max() > degree:
+            raise ValueError(f"{what}: an interior knot has multiplicity {counts.max()} > degree {degree}")
+
+
+def find_span(knots: np.ndarray, p: int, u: np.ndarray) -> np.ndarray:
+    """Knot span index i with knots[i] <= u < knots[i+1] for each u (A2.1), (N,) int.
+
+    Parameters outside the domain are clamped to the first/last span, and u at the right end
+    of the domain belongs to the last non-empty span, so no basis function is lost there.
+    """
+    knots = np.asarray(knots, dtype=float)
+    n = len(knots) - p - 2  # index of the last control point
+    span = np.searchsorted(knots, np.asarray(u, dtype=float), side="right") - 1
+    return np.clip(span, p, n)
+
+
+def basis_funs(span: np.ndarray, u: np.ndarray, p: int, knots: np.ndarray) -> np.ndarray:
+    """The p+1 non-zero basis functions N_{span-p..span, p}(u) (A2.2). Returns (N, p+1)."""
+    return ders_basis_funs(span, u, p, knots, 0)[:, 0, :]
+
+
+def ders_basis_funs(span: np.ndarray, u: np.ndarray, p: int, knots: np.ndarray, n: int) -> np.ndarray:
+    """Non-zero basis functions and their derivatives up to order ``n`` (A2.3).
+
+    Returns (N, n+1, p+1): [:, k, j] = d^k N_{span-p+j, p} / du^k at u. Orders above p are zero.
+    """
+    knots = np.asarray(knots, dtype=float)
+    u = np.asarray(u, dtype=float)
+    span = np.asarray(span)
+    npts = u.shape[0]
+    ndu = np.empty((npts, p + 1, p + 1))
+    ndu[:, 0, 0] = 1.0
+    left = np.empty((npts, p + 1))
+    right = np.empty((npts, p + 1))
+    for j in range(1, p + 1):
+        left[:, j] = u - knots[span + 1 - j]
+        right[:, j] = knots[span + j] - u
+        saved = np.zeros(npts)
+        for r in range(j):
+            ndu[:, j, r] = right[:, r + 1] + left[:, j - r]  # knot differences (lower triangle)
+            temp = ndu[:, r, j - 1] / ndu[:, j, r]
+            ndu[:, r, j] = saved + right[:, r + 1] * temp  # basis functions (upper triangle)
+            saved = left[:, j - r] * temp
+        ndu[:, j, j] = saved
+
+    ders = np.zeros((npts, n + 1, p + 1))
+    ders[:, 0, :] = ndu[:, :, p]
+    nd = min(n, p)
+    if nd == 0:
+        return ders
+    a = np.zeros((npts, 2, p + 1))
+    for r in range(p + 1):
+        s1, s2 = 0, 1
+        a[:] = 0.0
+        a[:, 0, 0] = 1.0
+        for k in range(1, nd + 1):
+            d = np.zeros(npts)
+            rk, pk = r - k, p - k
+            if r >= k:
+                a[:, s2, 0] = a[:, s1, 0] / ndu[:, pk + 1, rk]
+                d += a[:, s2, 0] * ndu[:, rk, pk]
+            j1 = 1 if rk >= -1 else -rk
+            j2 = k - 1 if r - 1 <= pk else p - r
+            for j in range(j1, j2 + 1):
+                a[:, s2, j] = (a[:, s1, j] - a[:, s1, j - 1]) / ndu[:, pk + 1, rk + j]
+                d += a[:, s2, j] * ndu[:, rk + j, pk]
+            if r <= pk:
+                a[:, s2, k] = -a[:, s1, k - 1] / ndu[:, pk + 1, r]
+                d += a[:, s2, k] * ndu[:, r, pk]
+            ders[:, k, r] = d
+            s1, s2 = s2, s1
+    factor = float(p)
+    for k in range(1, nd + 1):
+        ders[:, k, :] *= factor
+        factor *= p - k
+    return ders

@@ -1,0 +1,241 @@
+"""Rational B-spline (NURBS) surfaces: exact evaluation, analytic derivatives, unit normals."""
+
+from __future__ import annotations
+
+from math import comb
+
+import numpy as np
+
+from cadbridge.nurbs.basis import ders_basis_funs, find_span, validate_knots
+
+__all__ = ["NurbsSurface"]
+
+_CHUNK = 32768  # points per evaluation block (bounds temporary memory)
+
+
+class NurbsSurface:
+    """A NURBS surface S(u, v) = sum R_ij(u, v) P_ij (Piegl & Tiller eq. 4.15).
+
+    Parameters
+    ----------
+    degree_u, degree_v : int
+        Degrees p, q (IGES M1, M2).
+    knots_u, knots_v : (nu + p + 1,), (nv + q + 1,)
+        Knot vectors (IGES S and T).
+    control_points : (nu, nv, 3)
+        Control net, [i, j] with i along u (IGES order: first index fastest).
+    weights : (nu, nv), optional
+        Positive weights; None or all equal means polynomial.
+    domain : (u0, u1, v0, v1), optional
+        Parameter range of the surface (IGES U0, U1, V0, V1); defaults to the knot domain.
+
+    Instances are treated as immutable: arrays are copied and made read-only.
+    """
+
+    def __init__(
+        self,
+        degree_u: int,
+        degree_v: int,
+        knots_u,
+        knots_v,
+        control_points,
+        weights=None,
+        domain=None,
+    ) -> None:
+        p, q = int(degree_u), int(degree_v)
+        cp = np.array(control_points, dtype=float)
+        if cp.ndim != 3 or cp.shape[2] != 3:
+            raise ValueError(f"control_points must have shape (nu, nv, 3), got {cp.shape}")
+        nu, nv = cp.shape[:2]
+        ku = np.array(knots_u, dtype=float)
+        kv = np.array(knots_v, dtype=float)
+        validate_knots(ku, p, nu, "knots_u")
+        validate_knots(kv, q, nv, "knots_v")
+        if not np.all(np.isfinite(cp)):
+            raise ValueError("control points must be finite")
+        if weights is None:
+            w = np.ones((nu, nv))
+        else:
+            w = np.array(weights, dtype=float)
+            if w.shape != (nu, nv):
+                raise ValueError(f"weights must have shape {(nu, nv)}, got {w.shape}")
+            if not np.all(np.isfinite(w)) or np.any(w <= 0):
+                raise ValueError("weights must be finite and positive")
+        full = (ku[p], ku[nu], kv[q], kv[nv])
+        if domain is None:
+            dom = full
+        else:
+            dom = tuple(float(x) for x in domain)
+            if len(dom) != 4:
+                raise ValueError("domain must be (u0, u1, v0, v1)")
+            tol_u = 1e-9 * max(1.0, full[1] - full[0])
+            tol_v = 1e-9 * max(1.0, full[3] - full[2])
+            if not (full[0] - tol_u <= dom[0] < dom[1] <= full[1] + tol_u):
+                raise ValueError(f"u range [{dom[0]!r}, {dom[1]!r}] not inside knot domain [{full[0]!r}, {full[1]!r}]")
+            if not (full[2] - tol_v <= dom[2] < dom[3] <= full[3] + tol_v):
+                raise ValueError(f"v range [{dom[2]!r}, {dom[3]!r}] not inside knot domain [{full[2]!r}, {full[3]!r}]")
+            dom = (max(dom[0], full[0]), min(dom[1], full[1]), max(dom[2], full[2]), min(dom[3], full[3]))
+        self.degree_u, self.degree_v = p, q
+        self.knots_u, self.knots_v = ku, kv
+        self.control_points = cp
+        self.weights = w
+        self.domain: tuple[float, float, float, float] = dom
+        self.rational = bool(np.ptp(w) > 0.0)
+        pw = np.empty((nu, nv, 4))
+        if self.rational:
+            pw[..., :3] = cp * w[..., None]
+            pw[..., 3] = w
+        else:
+            pw[..., :3] = cp
+            pw[..., 3] = 1.0
+        self._pw = pw
+        for a in (ku, kv, cp, w, pw):
+            a.flags.writeable = False
+
+    # ------------------------------------------------------------------ basic properties
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Number of control points (nu, nv)."""
+        return self.control_points.shape[:2]
+
+    def __repr__(self) -> str:
+        nu, nv = self.shape
+        kind = "rational" if self.rational else "polynomial"
+        return f"NurbsSurface(degrees=({self.degree_u}, {self.degree_v}), ctrl=({nu}, {nv}), {kind}, domain={self.domain})"
+
+    def same_as(self, other: "NurbsSurface") -> bool:
+        """Bit-for-bit equality of degrees, knots, control points, weights and domain."""
+        return (
+            self.degree_u == other.degree_u
+            and self.degree_v == other.degree_v
+            and np.array_equal(self.knots_u, other.knots_u)
+            and np.array_equal(self.knots_v, other.knots_v)
+            and np.array_equal(self.control_points, other.control_points)
+            and np.array_equal(self.weights, other.weights)
+            and tuple(self.domain) == tuple(other.domain)
+        )
+
+    # ------------------------------------------------------------------ evaluation
+    def derivatives(self, u, v, order: int = 2) -> np.ndarray:
+        """All partial derivatives up to ``order`` in each direction, analytically.
+
+        u, v : (N,) parameters. Returns (N, order+1, order+1, 3) with
+        [:, k, l] = d^(k+l) S / du^k dv^l (rational quotient rule, P&T A4.4).
+        """
+        u = np.atleast_1d(np.asarray(u, dtype=float))
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        u, v = np.broadcast_arrays(u, v)
+        u, v = u.ravel(), v.ravel()
+        out = np.empty((u.size, order + 1, order + 1, 3))
+        for s in range(0, u.size, _CHUNK):
+            out[s : s + _CHUNK] = self._derivatives_block(u[s : s + _CHUNK], v[s : s + _CHUNK], order)
+        return out
+
+    def _homogeneous_derivatives(self, u: np.ndarray, v: np.ndarray, d: int) -> np.ndarray:
+        """Derivatives of the homogeneous surface Sw = (wx, wy, wz, w): (N, d+1, d+1, 4)."""
+        p, q = self.degree_u, self.degree_v
+        su = find_span(self.knots_u, p, u)
+        sv = find_span(self.knots_v, q, v)
+        nu_d = ders_basis_funs(su, u, p, self.knots_u, d)  # (N, d+1, p+1)
+        nv_d = ders_basis_funs(sv, v, q, self.knots_v, d)  # (N, d+1, q+1)
+        iu = su[:, None] - p + np.arange(p + 1)
+        iv = sv[:, None] - q + np.arange(q + 1)
+        pw = self._pw[iu[:, :, None], iv[:, None, :]]  # (N, p+1, q+1, 4)
+        tmp = np.einsum("nlb,nabc->nalc", nv_d, pw)  # (N, p+1, d+1, 4)
+        return np.einsum("nka,nalc->nklc", nu_d, tmp)  # (N, d+1, d+1, 4)
+
+    def _derivatives_block(self, u: np.ndarray, v: np.ndarray, d: int) -> np.ndarray:
+        aw = self._homogeneous_derivatives(u, v, d)
+        if not self.rational:
+            return aw[..., :3].copy()
+        a = aw[..., :3]
+        w = aw[..., 3]
+        skl = np.empty_like(a)
+        w0 = w[:, 0, 0][:, None]
+        for k in range(d + 1):
+            for l in range(d + 1):
+                val = a[:, k, l].copy()
+                for j in range(1, l + 1):
+                    val -= comb(l, j) * w[:, 0, j][:, None] * skl[:, k, l - j]
+                for i in range(1, k + 1):
+                    val -= comb(k, i) * w[:, i, 0][:, None] * skl[:, k - i, l]
+                    for j in range(1, l + 1):
+                        val -= comb(k, i) * comb(l, j) * w[:, i, j][:, None] * skl[:, k - i, l - j]
+                skl[:, k, l] = val / w0
+        return skl
+
+    def evaluate(self, u, v) -> np.ndarray:
+        """Points S(u, v): u, v (N,) -> (N, 3)."""
+        return self.derivatives(u, v, order=0)[:, 0, 0]
+
+    __call__ = evaluate
+
+    def normal(self, u, v, return_flags: bool = False):
+        """Unit normals in the direction of Su x Sv: u, v (N,) -> (N, 3).
+
+        At degenerate points (a collapsed edge or pole, where Su or Sv vanishes or they are
+        parallel) the limit normal approached from inside the domain is returned: with Sv = 0
+        it is +-Su x Suv, with Su = 0 it is +-Suv x Sv. With ``return_flags`` the (N,) bool
+        array saying which points were degenerate is returned as well.
+        """
+        der = self.derivatives(u, v, order=1)
+        su, sv, suv = der[:, 1, 0], der[:, 0, 1], der[:, 1, 1]
+        n = np.cross(su, sv)
+        ln = np.linalg.norm(n, axis=1)
+        lu = np.linalg.norm(su, axis=1)
+        lv = np.linalg.norm(sv, axis=1)
+        scale = np.maximum(lu, lv)
+        degenerate = ln <= 1e-10 * scale**2
+        if np.any(degenerate):
+            uu = np.broadcast_to(np.asarray(u, dtype=float), (len(n),))[degenerate]
+            vv = np.broadcast_to(np.asarray(v, dtype=float), (len(n),))[degenerate]
+            u0, u1, v0, v1 = self.domain
+            su_d, sv_d, suv_d = su[degenerate], sv[degenerate], suv[degenerate]
+            sv_vanishes = lv[degenerate] <= lu[degenerate]
+            sign_u = np.where(uu - u0 <= u1 - uu, 1.0, -1.0)  # moving into the domain along u
+            sign_v = np.where(vv - v0 <= v1 - vv, 1.0, -1.0)
+            lim = np.where(
+                sv_vanishes[:, None],
+                sign_u[:, None] * np.cross(su_d, suv_d),
+                sign_v[:, None] * np.cross(suv_d, sv_d),
+            )
+            # still nothing (e.g. both derivatives vanish): step a little into the domain
+            bad = np.linalg.norm(lim, axis=1) <= 1e-300
+            if np.any(bad):
+                du = 1e-7 * (u1 - u0) * sign_u[bad]
+                dv = 1e-7 * (v1 - v0) * sign_v[bad]
+                dd = self.derivatives(uu[bad] + du, vv[bad] + dv, order=1)
+                lim[bad] = np.cross(dd[:, 1, 0], dd[:, 0, 1])
+            n[degenerate] = lim
+            ln = np.linalg.norm(n, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            n = n / ln[:, None]
+        return (n, degenerate) if return_flags else n
+
+    # ------------------------------------------------------------------ geometry helpers
+    def bbox(self) -> np.ndarray:
+        """Axis-aligned box of the control net, (2, 3) [min, max]; contains the surface
+        (convex hull property, weights > 0)."""
+        pts = self.control_points.reshape(-1, 3)
+        return np.array([pts.min(axis=0), pts.max(axis=0)])
+
+    def grid(self, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
+        """Parameters of a uniform nu x nv grid over the domain, each (nu*nv,) (u fastest)."""
+        u0, u1, v0, v1 = self.domain
+        uu, vv = np.meshgrid(np.linspace(u0, u1, nu), np.linspace(v0, v1, nv), indexing="xy")
+        return uu.ravel(), vv.ravel()
+
+    def transformed(self, rotation, translation) -> "NurbsSurface":
+        """The surface under x -> R x + t (exact: affine maps act on control points)."""
+        r = np.asarray(rotation, dtype=float).reshape(3, 3)
+        t = np.asarray(translation, dtype=float).reshape(3)
+        cp = self.control_points @ r.T + t
+        return NurbsSurface(
+            self.degree_u, self.degree_v, self.knots_u, self.knots_v, cp, self.weights, self.domain
+        )
+
+    def with_domain(self, domain) -> "NurbsSurface":
+        """The same surface restricted to another parameter range."""
+        return NurbsSurface(
+            self.degree_u, self.degree_v, self.knots_u, self.knots_v, self.control_points, self.weights, domain
+        )
