@@ -1,0 +1,246 @@
+"""Tests of the existing NURBS engine (basis.py, surface.py, curve.py).
+
+References: exact identities of B-spline bases (partition of unity, derivative sum zero),
+central finite differences, OpenCASCADE (OCP Geom_BSplineSurface / Geom_BSplineCurve built
+from the same poles, weights and knots) and the analytic sphere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cadbridge.nurbs import NurbsCurve, NurbsSurface
+from cadbridge.nurbs.basis import basis_funs, ders_basis_funs, find_span
+
+occ = pytest.importorskip("OCP")
+from OCP.Geom import Geom_BSplineCurve, Geom_BSplineSurface  # noqa: E402
+from OCP.gp import gp_Pnt, gp_Vec  # noqa: E402
+from OCP.TColgp import TColgp_Array1OfPnt, TColgp_Array2OfPnt  # noqa: E402
+from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal, TColStd_Array2OfReal  # noqa: E402
+
+HYP = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+# ---------------------------------------------------------------------------- helpers
+@st.composite
+def knot_vectors(draw, max_degree: int = 5):
+    """(p, clamped knots): degree 1..max_degree, up to 5 interior knots of multiplicity 1..p."""
+    p = draw(st.integers(1, max_degree))
+    k = draw(st.integers(0, 5))
+    vals = sorted(set(round(x, 6) for x in draw(st.lists(st.floats(0.02, 0.98), min_size=k, max_size=k))))
+    mults = [draw(st.integers(1, p)) for _ in vals]
+    a = draw(st.floats(-3, 3))
+    L = draw(st.floats(0.5, 4))
+    inner = np.repeat(a + L * np.array(vals, dtype=float), mults)
+    return p, np.concatenate([[a] * (p + 1), inner, [a + L] * (p + 1)])
+
+
+def random_surface(rng, p=3, q=2, nu=6, nv=5, rational=True):
+    ku = np.concatenate([[0] * (p + 1), np.sort(rng.uniform(0.1, 0.9, nu - p - 1)), [1] * (p + 1)])
+    kv = np.concatenate([[0] * (q + 1), np.sort(rng.uniform(0.1, 0.9, nv - q - 1)), [1] * (q + 1)])
+    cp = rng.uniform(-1, 1, (nu, nv, 3))
+    w = rng.uniform(0.5, 2.0, (nu, nv)) if rational else None
+    return NurbsSurface(p, q, ku, kv, cp, w)
+
+
+def _knots_mults(knots):
+    vals, mults = np.unique(knots, return_counts=True)
+    kv = TColStd_Array1OfReal(1, len(vals))  # OCC arrays are 1-based
+    km = TColStd_Array1OfInteger(1, len(vals))
+    for i, (x, m) in enumerate(zip(vals, mults), start=1):
+        kv.SetValue(i, float(x))
+        km.SetValue(i, int(m))
+    return kv, km
+
+
+def occ_surface(s: NurbsSurface) -> Geom_BSplineSurface:
+    nu, nv = s.shape
+    poles = TColgp_Array2OfPnt(1, nu, 1, nv)
+    wts = TColStd_Array2OfReal(1, nu, 1, nv)
+    for i in range(nu):
+        for j in range(nv):
+            poles.SetValue(i + 1, j + 1, gp_Pnt(*map(float, s.control_points[i, j])))
+            wts.SetValue(i + 1, j + 1, float(s.weights[i, j]))
+    ku, mu = _knots_mults(s.knots_u)
+    kv, mv = _knots_mults(s.knots_v)
+    return Geom_BSplineSurface(poles, wts, ku, kv, mu, mv, s.degree_u, s.degree_v, False, False)
+
+
+def occ_curve(c: NurbsCurve) -> Geom_BSplineCurve:
+    n = len(c.control_points)
+    poles = TColgp_Array1OfPnt(1, n)
+    wts = TColStd_Array1OfReal(1, n)
+    for i in range(n):
+        poles.SetValue(i + 1, gp_Pnt(*map(float, c.control_points[i])))
+        wts.SetValue(i + 1, float(c.weights[i]))
+    k, m = _knots_mults(c.knots)
+    return Geom_BSplineCurve(poles, wts, k, m, c.degree, False)
+
+
+def occ_d2(g, u, v):
+    P, D1U, D1V, D2U, D2V, D2UV = gp_Pnt(), gp_Vec(), gp_Vec(), gp_Vec(), gp_Vec(), gp_Vec()
+    g.D2(float(u), float(v), P, D1U, D1V, D2U, D2V, D2UV)
+    xyz = lambda a: np.array([a.X(), a.Y(), a.Z()])  # noqa: E731
+    return xyz(P), xyz(D1U), xyz(D1V), xyz(D2U), xyz(D2V), xyz(D2UV)
+
+
+# ---------------------------------------------------------------------------- basis identities
+@HYP
+@given(knot_vectors())
+def test_partition_of_unity_including_right_end(pk):
+    """Reference: sum_i N_i,p(u) = 1 on the whole domain, the right end included (1e-14);
+    a curve at the right end equals its last control point (no lost basis function)."""
+    p, knots = pk
+    n = len(knots) - p - 1
+    u = np.concatenate([np.linspace(knots[0], knots[-1], 97), np.unique(knots)])
+    N = basis_funs(find_span(knots, p, u), u, p, knots)
+    assert np.abs(N.sum(axis=1) - 1.0).max() < 1e-14
+    assert np.all(N >= -1e-15)
+    cp = np.random.default_rng(0).uniform(-1, 1, (n, 3))
+    c = NurbsCurve(p, knots, cp)
+    np.testing.assert_allclose(c(np.array([knots[-1], knots[0]])), cp[[-1, 0]], atol=1e-14)
+
+
+@HYP
+@given(knot_vectors())
+def test_basis_derivatives_sum_to_zero(pk):
+    """Reference: d^k/du^k sum_i N_i,p = 0 for k >= 1 (derivative of a constant)."""
+    p, knots = pk
+    u = np.linspace(knots[0], knots[-1], 61)
+    D = ders_basis_funs(find_span(knots, p, u), u, p, knots, p + 1)
+    scale = np.abs(D).max(axis=(0, 2)) + 1.0
+    for k in range(1, p + 2):
+        assert np.abs(D[:, k].sum(axis=1)).max() <= 1e-12 * scale[k]
+    assert np.all(D[:, p + 1 :] == 0)
+
+
+# ---------------------------------------------------------------------------- derivatives
+def _span_interior_params(knots, p, rng, n, margin):
+    vals = np.unique(knots)
+    spans = [(a, b) for a, b in zip(vals[:-1], vals[1:]) if b - a > 4 * margin]
+    idx = rng.integers(0, len(spans), n)
+    lo = np.array([spans[i][0] for i in idx]) + margin
+    hi = np.array([spans[i][1] for i in idx]) - margin
+    return rng.uniform(lo, hi)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rational_surface_derivatives_vs_finite_differences(seed):
+    """Reference: central finite differences of S (1st: h=1e-5, 2nd and mixed: h=1e-4),
+    at parameters inside knot spans (where S is smooth)."""
+    rng = np.random.default_rng(seed)
+    s = random_surface(rng, p=3, q=3, nu=7, nv=6)
+    u = _span_interior_params(s.knots_u, 3, rng, 40, 1e-3)
+    v = _span_interior_params(s.knots_v, 3, rng, 40, 1e-3)
+    d = s.derivatives(u, v, order=2)
+    f = s.evaluate
+    h = 1e-5
+    su = (f(u + h, v) - f(u - h, v)) / (2 * h)
+    sv = (f(u, v + h) - f(u, v - h)) / (2 * h)
+    h = 1e-4
+    suu = (f(u + h, v) - 2 * f(u, v) + f(u - h, v)) / h**2
+    svv = (f(u, v + h) - 2 * f(u, v) + f(u, v - h)) / h**2
+    suv = (f(u + h, v + h) - f(u + h, v - h) - f(u - h, v + h) + f(u - h, v - h)) / (4 * h * h)
+    for got, ref, tol in [
+        (d[:, 1, 0], su, 1e-7),
+        (d[:, 0, 1], sv, 1e-7),
+        (d[:, 2, 0], suu, 1e-4),
+        (d[:, 0, 2], svv, 1e-4),
+        (d[:, 1, 1], suv, 1e-4),
+    ]:
+        scale = np.abs(ref).max()
+        assert np.abs(got - ref).max() <= tol * scale
+
+
+@HYP
+@given(knot_vectors(), knot_vectors(), st.integers(0, 2**31 - 1), st.booleans())
+def test_surface_vs_occ_d2(pku, pkv, seed, rational):
+    """Reference: OpenCASCADE Geom_BSplineSurface.D2 built from the same poles, weights,
+    knots and multiplicities: positions to 1e-12 x size, derivatives 1e-8 relative."""
+    (p, ku), (q, kv) = pku, pkv
+    rng = np.random.default_rng(seed)
+    nu, nv = len(ku) - p - 1, len(kv) - q - 1
+    cp = rng.uniform(-1, 1, (nu, nv, 3))
+    w = rng.uniform(0.3, 3.0, (nu, nv)) if rational else None
+    s = NurbsSurface(p, q, ku, kv, cp, w)
+    g = occ_surface(s)
+    u = np.concatenate([rng.uniform(ku[0], ku[-1], 12), [ku[0], ku[-1], ku[-1]]])
+    v = np.concatenate([rng.uniform(kv[0], kv[-1], 12), [kv[0], kv[-1], kv[0]]])
+    d = s.derivatives(u, v, order=2)
+    size = np.linalg.norm(np.ptp(cp.reshape(-1, 3), axis=0))
+    for i in range(len(u)):
+        P, Du, Dv, Duu, Dvv, Duv = occ_d2(g, u[i], v[i])
+        assert np.linalg.norm(d[i, 0, 0] - P) <= 1e-12 * size
+        for got, ref in [(d[i, 1, 0], Du), (d[i, 0, 1], Dv), (d[i, 2, 0], Duu), (d[i, 0, 2], Dvv), (d[i, 1, 1], Duv)]:
+            # at a knot of low continuity both sides are valid limits; OCC and we pick the same
+            # (right-hand) span except at the right end, where both take the last span
+            ref_scale = max(np.linalg.norm(ref), np.linalg.norm(d[i, 1:, 1:]), 1.0)
+            assert np.linalg.norm(got - ref) <= 1e-8 * ref_scale
+
+
+@HYP
+@given(knot_vectors(), st.integers(0, 2**31 - 1))
+def test_curve_vs_occ(pk, seed):
+    """Reference: OpenCASCADE Geom_BSplineCurve.D2 from the same data (rational 3D curve)."""
+    p, kn = pk
+    rng = np.random.default_rng(seed)
+    n = len(kn) - p - 1
+    c = NurbsCurve(p, kn, rng.uniform(-1, 1, (n, 3)), rng.uniform(0.3, 3.0, n))
+    g = occ_curve(c)
+    t = np.concatenate([rng.uniform(kn[0], kn[-1], 15), [kn[0], kn[-1]]])
+    d = c.derivatives(t, order=2)
+    for i, ti in enumerate(t):
+        P, V1, V2 = gp_Pnt(), gp_Vec(), gp_Vec()
+        g.D2(float(ti), P, V1, V2)
+        ref = np.array([[P.X(), P.Y(), P.Z()], [V1.X(), V1.Y(), V1.Z()], [V2.X(), V2.Y(), V2.Z()]])
+        sc = max(np.abs(ref).max(), 1.0)
+        assert np.abs(d[i, 0] - ref[0]).max() <= 1e-12 * 4
+        assert np.abs(d[i, 1:] - ref[1:]).max() <= 1e-8 * sc
+
+
+def test_geomdl_agrees_on_rational_surface():
+    """Reference: geomdl (NURBS-Python) evaluation of the same rational surface."""
+    geomdl = pytest.importorskip("geomdl")
+    from geomdl import NURBS
+
+    rng = np.random.default_rng(7)
+    s = random_surface(rng, p=3, q=2, nu=6, nv=5)
+    g = NURBS.Surface()
+    g.degree_u, g.degree_v = 3, 2
+    nu, nv = s.shape
+    pw = s._pw.reshape(-1, 4)  # geomdl takes weighted points (w x, w y, w z, w), v fastest
+    g.set_ctrlpts(pw.tolist(), nu, nv)
+    g.knotvector_u = list(s.knots_u)
+    g.knotvector_v = list(s.knots_v)
+    uv = rng.uniform(0, 1, (30, 2))
+    ref = np.array(g.evaluate_list(uv.tolist()))
+    np.testing.assert_allclose(s(uv[:, 0], uv[:, 1]), ref, atol=1e-12)
+
+
+# ---------------------------------------------------------------------------- degenerate normals
+def test_sphere_pole_normal_is_axis_and_flagged():
+    """Reference: the analytic sphere; at the poles (collapsed rows of the revolved NURBS)
+    the limit normal is -+z (our sphere_patch has Su x Sv towards the centre) and the points
+    are flagged degenerate; elsewhere normals are -P/R to 1e-12 rad."""
+    from cadbridge.nurbs.construct import sphere_patch
+
+    R = 2.5
+    s = sphere_patch(R)
+    u0, u1, v0, v1 = s.domain
+    v = np.linspace(v0, v1, 13)
+    n, flags = s.normal(np.full_like(v, u0), v, return_flags=True)
+    assert flags.all()
+    np.testing.assert_allclose(n, np.tile([0, 0, 1.0], (len(v), 1)), atol=1e-12)
+    n, flags = s.normal(np.full_like(v, u1), v, return_flags=True)
+    assert flags.all()
+    np.testing.assert_allclose(n, np.tile([0, 0, -1.0], (len(v), 1)), atol=1e-12)
+    u, vv = s.grid(15, 17)
+    inner = (u > u0) & (u < u1)
+    n, flags = s.normal(u[inner], vv[inner], return_flags=True)
+    assert not flags.any()
+    ref = -s(u[inner], vv[inner]) / R
+    ang = np.arctan2(np.linalg.norm(np.cross(n, ref), axis=1), np.sum(n * ref, axis=1))
+    assert ang.max() < 1e-12
