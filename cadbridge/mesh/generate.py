@@ -1,0 +1,501 @@
+"""Mesh IGES CAD with gmsh (OpenCASCADE kernel): triangles or quads, free or structured.
+
+gmsh is imported lazily inside the functions; this is the only module of the mesh layer
+that touches gmsh. Every call owns a fresh gmsh model: it initialises gmsh (or, if the
+caller already did, adds a private model and restores every option it changed), and always
+finalises / removes it in ``finally`` — no gmsh state survives a call.
+
+Parametric information per node (``Mesh.point_data``)
+-----------------------------------------------------
+``node_entity`` (N,) int64
+    gmsh surface tag of the face the node is attributed to, or -1. Tags are those of the
+    OCC import (``gmsh.model.occ.importShapes``), i.e. 1-based in the order OCC lists the
+    file's faces (after sewing, when ``sew=True``). A node on an edge shared by several
+    faces is attributed to the face with the lowest tag.
+``node_uv`` (N, 2) float64
+    (u, v) of the node in gmsh's parametrisation of that face (the OCC surface parameters,
+    i.e. the underlying surface's own (u, v), not normalised; for IGES NURBS faces those are
+    the knot-vector parameters). NaN where ``node_entity`` is -1.
+``cell_data["element_entity"]`` (E,) int64
+    gmsh surface tag each element was meshed on.
+
+Structured mode and fillets
+---------------------------
+With ``structured=True`` every face bounded by exactly four curves (one loop) gets a
+transfinite (mapped) mesh. Opposite curves of such faces must have equal node counts and
+a curve shared by two faces has a single count, so curves are grouped into classes by
+union-find over "opposite sides of a structured face", and each class gets one count:
+
+1. ``radius_divisions`` if it contains the curved sides (across the radius) of a fillet;
+2. else ``length_divisions`` (if given) if it contains the straight sides of a fillet;
+3. else ``divisions`` (if given);
+4. else ``ceil(longest curve in the class / size)`` (at least 1).
+
+A *fillet face* is a four-sided face whose one pair of opposite curves are circular arcs
+(constant curvature, sampled with ``gmsh.model.getCurvature`` at 7 points, relative spread
+< 1e-6) and whose other pair are straight (curvature * length < 1e-9) or arcs of larger
+radius (toroidal fillets). It qualifies as a fillet when the arc radius is <=
+``fillet_max_radius``; when that is None, when the arcs are shorter than the other pair of
+curves (a strip that is narrow across the radius). The arcs are the "radius" direction,
+the other pair the "length" direction. This works for any surface type (cylinder, torus,
+revolution, NURBS) since it looks only at the boundary curves.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
+
+__all__ = ["mesh_cad", "FaceInfo", "GmshSession"]
+
+_LOCK = threading.RLock()  # gmsh is a process-wide singleton
+
+
+class GmshSession:
+    """Context manager owning gmsh for one call: initialise (or add a private model if the
+    caller holds gmsh already), track changed options, and undo everything on exit."""
+
+    def __init__(self, verbose: bool = False) -> None:
+        self.verbose = verbose
+        self._owner = False
+        self._saved_num: dict[str, float] = {}
+        self._saved_str: dict[str, str] = {}
+        self._model = "cadbridge-mesh"
+        self._prev_model: str | None = None
+
+    def __enter__(self):
+        import gmsh
+
+        _LOCK.acquire()
+        try:
+            if gmsh.isInitialized():
+                self._prev_model = gmsh.model.getCurrent()
+            else:
+                gmsh.initialize(readConfigFiles=False, interruptible=False)
+                self._owner = True
+            self.set("General.Terminal", 1 if self.verbose else 0)
+            self.set("General.Verbosity", 5 if self.verbose else 1)
+            gmsh.model.add(self._model)
+        except BaseException:
+            self._cleanup()
+            raise
+        return self
+
+    @property
+    def gmsh(self):
+        import gmsh
+
+        return gmsh
+
+    def set(self, name: str, value: float | str) -> None:
+        """Set a gmsh option, remembering its old value (restored on exit)."""
+        import gmsh
+
+        if isinstance(value, str):
+            if name not in self._saved_str and not self._owner:
+                self._saved_str[name] = gmsh.option.getString(name)
+            gmsh.option.setString(name, value)
+        else:
+            if name not in self._saved_num and not self._owner:
+                self._saved_num[name] = gmsh.option.getNumber(name)
+            gmsh.option.setNumber(name, float(value))
+
+    def _cleanup(self) -> None:
+        import gmsh
+
+        try:
+            if self._owner:
+                if gmsh.isInitialized():
+                    gmsh.finalize()
+            elif gmsh.isInitialized():
+                try:
+                    gmsh.model.setCurrent(self._model)
+                    gmsh.model.remove()
+                except Exception:
+                    pass
+                for k, v in self._saved_num.items():
+                    gmsh.option.setNumber(k, v)
+                for k, v in self._saved_str.items():
+                    gmsh.option.setString(k, v)
+                if self._prev_model:
+                    try:
+                        gmsh.model.setCurrent(self._prev_model)
+                    except Exception:
+                        pass
+        finally:
+            _LOCK.release()
+
+    def __exit__(self, *exc) -> None:
+        self._cleanup()
+
+
+class FaceInfo:
+    """Classification of one gmsh surface for structured meshing.
+
+    tag: gmsh surface tag; curves: boundary curve tags in loop order (4 for a structured
+    face); kind: "fillet", "four-sided" or "other"; radius_pair / length_pair: for fillets,
+    the index (0 -> curves 0 and 2, 1 -> curves 1 and 3) of the arc pair and of the other
+    pair; radius: arc radius (model units) for fillets.
+    """
+
+    __slots__ = ("tag", "surface_type", "curves", "kind", "radius_pair", "length_pair", "radius")
+
+    def __init__(self, tag: int, surface_type: str, curves: list[int]) -> None:
+        self.tag = tag
+        self.surface_type = surface_type
+        self.curves = curves
+        self.kind = "four-sided" if len(curves) == 4 and len(set(curves)) == 4 else "other"
+        self.radius_pair: int | None = None
+        self.length_pair: int | None = None
+        self.radius: float | None = None
+
+    def __repr__(self) -> str:
+        r = f", radius={self.radius:.6g}, radius_pair={self.radius_pair}" if self.kind == "fillet" else ""
+        return f"FaceInfo(tag={self.tag}, type={self.surface_type!r}, kind={self.kind!r}, curves={self.curves}{r})"
+
+
+def _curve_shape(gmsh, c: int) -> tuple[str, float, float]:
+    """('line' | 'arc' | 'curve', radius or inf, length) of curve c."""
+    lo, hi = gmsh.model.getParametrizationBounds(1, c)
+    ts = np.linspace(lo[0], hi[0], 7)
+    k = np.abs(np.asarray(gmsh.model.getCurvature(1, c, ts), dtype=float))
+    length = float(gmsh.model.occ.getMass(1, c))
+    if np.all(k * max(length, 1e-300) < 1e-9):
+        return "line", math.inf, length
+    km = float(k.mean())
+    if km > 0 and float(k.max() - k.min()) <= 1e-6 * km:
+        return "arc", 1.0 / km, length
+    return "curve", math.nan, length
+
+
+def _classify(gmsh, fillet_max_radius: float | None) -> tuple[list[FaceInfo], dict[int, tuple[str, float, float]]]:
+    faces: list[FaceInfo] = []
+    shapes: dict[int, tuple[str, float, float]] = {}
+    for _, s in gmsh.model.getEntities(2):
+        loops = gmsh.model.getBoundary([(2, s)], combined=False, oriented=True, recursive=False)
+        curves = [abs(t) for d, t in loops if d == 1]
+        fi = FaceInfo(s, gmsh.model.getType(2, s), curves)
+        for c in curves:
+            if c not in shapes:
+                shapes[c] = _curve_shape(gmsh, c)
+        if fi.kind == "four-sided":
+            pair = [(shapes[curves[0]], shapes[curves[2]]), (shapes[curves[1]], shapes[curves[3]])]
+            cands = []
+            for p in (0, 1):
+                (ka, ra, la), (kb, rb, lb) = pair[p]
+                (kc, rc, lc), (kd, rd, ld) = pair[1 - p]
+                if ka == kb == "arc" and abs(ra - rb) <= 1e-6 * max(ra, rb) and kc in ("line", "arc") and kd in ("line", "arc"):
+                    other_r = min(rc, rd)
+                    if other_r <= ra:  # the other pair must be straighter
+                        continue
+                    if fillet_max_radius is not None:
+                        ok = ra <= fillet_max_radius
+                    else:
+                        ok = max(la, lb) < min(lc, ld)
+                    if ok:
+                        cands.append((ra, p))
+            if cands:
+                r, p = min(cands)
+                fi.kind, fi.radius_pair, fi.length_pair, fi.radius = "fillet", p, 1 - p, r
+        faces.append(fi)
+    return faces, shapes
+
+
+def _structured_counts(
+    faces: list[FaceInfo],
+    shapes: dict[int, tuple[str, float, float]],
+    *,
+    size: float,
+    divisions: int | None,
+    radius_divisions: int,
+    length_divisions: int | None,
+) -> dict[int, int]:
+    """Curve tag -> number of elements (segments), one count per union-find class."""
+    parent: dict[int, int] = {}
+
+    def find(a: int) -> int:
+        parent.setdefault(a, a)
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    def union(a: int, b: int) -> None:
+        parent[find(a)] = find(b)
+
+    for f in faces:
+        if f.kind in ("four-sided", "fillet"):
+            c = f.curves
+            union(c[0], c[2])
+            union(c[1], c[3])
+    role: dict[int, set[str]] = {}
+    for f in faces:
+        if f.kind == "fillet":
+            c = f.curves
+            rp, lp = f.radius_pair, f.length_pair
+            role.setdefault(find(c[rp]), set()).add("radius")
+            role.setdefault(find(c[lp]), set()).add("length")
+    members: dict[int, list[int]] = {}
+    for c in list(parent):
+        members.setdefault(find(c), []).append(c)
+    counts: dict[int, int] = {}
+    for root, cs in members.items():
+        r = role.get(root, set())
+        if "radius" in r:
+            if "length" in r:
+                warnings.warn(
+                    f"curves {sorted(cs)} are across the radius of one fillet and along another; "
+                    f"using radius_divisions={radius_divisions}",
+                    stacklevel=3,
+                )
+            n = radius_divisions
+        elif "length" in r and length_divisions is not None:
+            n = length_divisions
+        elif divisions is not None:
+            n = divisions
+        else:
+            n = max(1, math.ceil(max(shapes[c][2] for c in cs) / size - 1e-9))
+        for c in cs:
+            counts[c] = int(n)
+    return counts
+
+
+def mesh_cad(
+    path: str | Path,
+    *,
+    element: str = "tri",
+    size: float | None = None,
+    structured: bool = False,
+    divisions: int | None = None,
+    radius_divisions: int = 3,
+    length_divisions: int | None = None,
+    fillet_max_radius: float | None = None,
+    sew: bool = True,
+    sew_tolerance: float = 1e-4,
+    curvature_elements: int = 0,
+    target_unit: str | None = None,
+    parametric: bool = True,
+    verbose: bool = False,
+) -> Mesh:
+    """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
+
+    path : CAD file read by ``gmsh.model.occ.importShapes``.
+    element : "tri" (Frontal-Delaunay, gmsh algorithm 6) or "quad" (Frontal-Delaunay for
+        quads, algorithm 8, recombined with Blossom; remaining triangles, if any, are
+        removed by falling back to gmsh's all-quad subdivision at twice the size).
+    size : target element size in model units (``Mesh.MeshSizeMax``); default bounding-box
+        diagonal / 20.
+    structured : transfinite (mapped) meshes on four-sided faces (see module docs).
+    divisions : elements per curve of structured faces (default from ``size``).
+    radius_divisions : elements across the radius of a fillet face (structured mode).
+    length_divisions : elements along a fillet's straight direction (default: from
+        ``divisions`` / ``size``); the thesis' U-shape die uses ``radius_divisions=3,
+        length_divisions=1``.
+    fillet_max_radius : arc radius below which a four-sided face with arc sides counts as a
+        fillet; None -> narrow-strip criterion (module docs).
+    sew : ``Geometry.OCCSewFaces`` so neighbouring faces share curves (conforming mesh).
+    sew_tolerance : ``Geometry.Tolerance`` used by the sewing, model units after import (mm
+        by default). OCC's IGES export of a cylinder leaves its circles ~1e-5 apart, so the
+        gmsh default 1e-8 does not sew it; 1e-4 does.
+    curvature_elements : if > 0, ``Mesh.MeshSizeFromCurvature`` (elements per 2*pi).
+    target_unit : ``Geometry.OCCTargetUnit`` (e.g. "M"); None keeps OCC's default (mm).
+    parametric : store ``node_entity`` / ``node_uv`` in point_data (module docs).
+
+    Returns a `Mesh` with one triangle and/or one quad block (in that order), element
+    orientation as gmsh gives it (following each OCC face's orientation), unused nodes
+    dropped, ``cell_data["element_entity"]`` and (if ``parametric``) the node data above.
+    Raises `MeshError` naming the file on import / meshing failure.
+    """
+    path = Path(path)
+    if element not in ("tri", "quad"):
+        raise MeshError(f"element must be 'tri' or 'quad', got {element!r}")
+    if not path.is_file():
+        raise MeshError(f"{path}: no such file")
+    if size is not None and not (size > 0 and math.isfinite(size)):
+        raise MeshError(f"size must be a positive number, got {size!r}")
+    for nm, v in (("divisions", divisions), ("radius_divisions", radius_divisions), ("length_divisions", length_divisions)):
+        if v is not None and (int(v) != v or v < 1):
+            raise MeshError(f"{nm} must be a positive integer, got {v!r}")
+
+    import gmsh
+
+    with GmshSession(verbose) as sess:
+        try:
+            return _mesh_in_session(
+                sess, path, element=element, size=size, structured=structured, divisions=divisions,
+                radius_divisions=radius_divisions, length_divisions=length_divisions,
+                fillet_max_radius=fillet_max_radius, sew=sew, sew_tolerance=sew_tolerance,
+                curvature_elements=curvature_elements,
+                target_unit=target_unit, parametric=parametric,
+            )
+        except MeshError:
+            raise
+        except Exception as exc:
+            last = ""
+            try:
+                last = gmsh.logger.getLastError()
+            except Exception:
+                pass
+            msg = str(exc) or last or type(exc).__name__
+            raise MeshError(f"{path}: gmsh failed: {msg}") from exc
+
+
+def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
+    g = sess.gmsh
+    opts: dict[str, float | str] = {
+        "Geometry.OCCSewFaces": 1 if kw["sew"] else 0,
+        "Geometry.Tolerance": kw["sew_tolerance"],
+        "Geometry.OCCImportLabels": 0,
+    }
+    if kw["target_unit"]:
+        opts["Geometry.OCCTargetUnit"] = kw["target_unit"]
+    _apply(sess, opts)
+    try:
+        with _quiet_stdout(not sess.verbose):  # OCC's IGES reader prints to fd 1
+            g.model.occ.importShapes(str(path))
+        g.model.occ.synchronize()
+    except Exception as exc:
+        raise MeshError(f"{path}: gmsh/OCC cannot import the file: {exc}") from exc
+    surfaces = [t for _, t in g.model.getEntities(2)]
+    if not surfaces:
+        raise MeshError(f"{path}: no surfaces found in the CAD file")
+    bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
+    diag = float(np.linalg.norm(bb[3:] - bb[:3]))
+    size = kw["size"] if kw["size"] is not None else diag / 20.0
+    if not size > 0:
+        raise MeshError(f"{path}: degenerate bounding box {bb.tolist()}")
+    mopts: dict[str, float | str] = {
+        "Mesh.MeshSizeMax": size,
+        "Mesh.MeshSizeMin": 0.0,
+        "Mesh.MeshSizeFromPoints": 0,
+        "Mesh.MeshSizeFromCurvature": kw["curvature_elements"],
+        "Mesh.ElementOrder": 1,
+        "Mesh.Algorithm": 8 if kw["element"] == "quad" else 6,
+        "Mesh.RecombineAll": 1 if kw["element"] == "quad" else 0,
+        "Mesh.RecombinationAlgorithm": 1,
+        "Mesh.SubdivisionAlgorithm": 0,
+    }
+    _apply(sess, mopts)
+    if kw["structured"]:
+        faces, shapes = _classify(g, kw["fillet_max_radius"])
+        counts = _structured_counts(
+            faces, shapes, size=size, divisions=kw["divisions"],
+            radius_divisions=kw["radius_divisions"], length_divisions=kw["length_divisions"],
+        )
+        for c, n in counts.items():
+            g.model.mesh.setTransfiniteCurve(c, n + 1)
+        for f in faces:
+            if f.kind in ("four-sided", "fillet"):
+                g.model.mesh.setTransfiniteSurface(f.tag)
+                if kw["element"] == "quad":
+                    g.model.mesh.setRecombine(2, f.tag)
+    g.model.mesh.generate(2)
+    mesh = _collect(g, surfaces, kw["parametric"], path)
+    if kw["element"] == "quad" and len(mesh.triangles):
+        # recombination left triangles: gmsh's all-quad subdivision (splits every element
+        # into quads, halving the size) on a mesh made at twice the target size.
+        g.model.mesh.clear()
+        _apply(sess, {"Mesh.MeshSizeMax": 2 * size, "Mesh.SubdivisionAlgorithm": 1})
+        if kw["structured"]:
+            for c, n in counts.items():
+                g.model.mesh.setTransfiniteCurve(c, max(1, math.ceil(n / 2)) + 1)
+        g.model.mesh.generate(2)
+        mesh = _collect(g, surfaces, kw["parametric"], path)
+        if len(mesh.triangles):
+            raise MeshError(f"{path}: gmsh left {len(mesh.triangles)} triangles in quad mode")
+    return mesh
+
+
+class _quiet_stdout:
+    """Redirect file descriptor 1 to /dev/null (C++ code printing to std::cout)."""
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled
+        self._saved: int | None = None
+
+    def __enter__(self) -> None:
+        import os
+        import sys
+
+        if not self.enabled:
+            return
+        try:
+            sys.stdout.flush()
+            self._saved = os.dup(1)
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, 1)
+            os.close(devnull)
+        except OSError:
+            self._saved = None
+
+    def __exit__(self, *exc) -> None:
+        import os
+
+        if self._saved is not None:
+            os.dup2(self._saved, 1)
+            os.close(self._saved)
+
+
+def _apply(sess: GmshSession, opts: dict[str, float | str]) -> None:
+    for k, v in opts.items():
+        sess.set(k, v)
+
+
+def _collect(g, surfaces: list[int], parametric: bool, path: Path) -> Mesh:
+    tags, xyz, _ = g.model.mesh.getNodes()
+    tags = np.asarray(tags, dtype=np.int64)
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    if tags.size == 0:
+        raise MeshError(f"{path}: gmsh produced no nodes")
+    index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
+    index[tags] = np.arange(tags.size)
+    tri, quad, tri_ent, quad_ent = [], [], [], []
+    for s in surfaces:
+        etypes, _, enodes = g.model.mesh.getElements(2, s)
+        for et, en in zip(etypes, enodes):
+            en = np.asarray(en, dtype=np.int64)
+            if et == 2:
+                tri.append(index[en].reshape(-1, 3))
+                tri_ent.append(np.full(len(en) // 3, s, dtype=np.int64))
+            elif et == 3:
+                quad.append(index[en].reshape(-1, 4))
+                quad_ent.append(np.full(len(en) // 4, s, dtype=np.int64))
+            else:
+                name = g.model.mesh.getElementProperties(et)[0]
+                raise MeshError(f"{path}: gmsh produced unsupported element type {name!r} on surface {s}")
+    blocks, ent = [], []
+    if tri:
+        blocks.append(CellBlock("triangle", np.concatenate(tri)))
+        ent += tri_ent
+    if quad:
+        blocks.append(CellBlock("quad", np.concatenate(quad)))
+        ent += quad_ent
+    if not blocks:
+        raise MeshError(f"{path}: gmsh produced no surface elements")
+    pd: dict[str, np.ndarray] = {}
+    if parametric:
+        node_entity = np.full(tags.size, -1, dtype=np.int64)
+        node_uv = np.full((tags.size, 2), np.nan)
+        for s in sorted(surfaces):  # lowest surface tag wins on shared curves
+            st, sx, uv = g.model.mesh.getNodes(2, s, includeBoundary=True, returnParametricCoord=True)
+            st = np.asarray(st, dtype=np.int64)
+            uv = np.asarray(uv, dtype=np.float64)
+            if st.size == 0:
+                continue
+            if uv.size != 2 * st.size:
+                # gmsh keeps no (u, v) for some nodes (e.g. after quad subdivision): invert the
+                # surface parametrisation at the node coordinates instead.
+                uv = np.asarray(g.model.getParametrization(2, s, np.asarray(sx, dtype=float)), dtype=float)
+            i = index[st]
+            new = node_entity[i] < 0
+            node_entity[i[new]] = s
+            node_uv[i[new]] = uv.reshape(-1, 2)[new]
+        pd = {"node_entity": node_entity, "node_uv": node_uv}
+    m = Mesh(xyz, blocks, point_data=pd, cell_data={"element_entity": np.concatenate(ent)}, name=path.stem)
+    return m.remove_unused_nodes()[0]
