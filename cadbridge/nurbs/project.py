@@ -1,0 +1,581 @@
+"""Orthogonal projection of points onto one NURBS surface (point inversion).
+
+Newton-Raphson on f = Su.r, g = Sv.r with r = S(u, v) - P and the full Jacobian
+(Neto 2010, appendix B, eqs. 32-36; Piegl & Tiller section 6.1), vectorised over points:
+every iteration evaluates the surface derivatives of all still-active points at once.
+
+Start values come from the nearest point of a sample grid whose density follows the knot
+spans and degrees (a KD-tree over the samples, cached per surface). Bounds are handled as a
+projected Newton method: a direction whose minimum lies outside the domain is clamped to the
+edge and the remaining variable is solved by Newton on that iso-curve (status ON_BOUNDARY);
+closed (periodic) directions wrap instead of clamping.
+
+Convergence (P&T 6.1): point coincidence |r| <= eps1, or zero cosine |Su.r|/(|Su||r|) <= eps2
+and |Sv.r|/(|Sv||r|) <= eps2 (directions clamped at an edge count as satisfied), or a step
+|(u'-u) Su + (v'-v) Sv| <= eps1; at most ``max_iter`` iterations. eps1 = eps2 = tol (eps1
+is scaled by the surface size).
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = [
+    "CONVERGED",
+    "ON_BOUNDARY",
+    "BEYOND_TOLERANCE",
+    "FAILED",
+    "STATUS_NAMES",
+    "SurfaceProjection",
+    "SurfaceSamples",
+    "project_to_surface",
+    "surface_samples",
+    "sample_parameters",
+    "closed_directions",
+    "derivatives2",
+]
+
+CONVERGED: int = 0  # interior stationary point of the distance (foot is orthogonal)
+ON_BOUNDARY: int = 1  # minimum lies outside the domain: nearest point on the domain edge
+BEYOND_TOLERANCE: int = 2  # valid foot, but farther than the caller's max_distance
+FAILED: int = 3  # no converged foot (iteration cap, non-finite values); normal is NaN
+STATUS_NAMES: dict[int, str] = {
+    CONVERGED: "CONVERGED",
+    ON_BOUNDARY: "ON_BOUNDARY",
+    BEYOND_TOLERANCE: "BEYOND_TOLERANCE",
+    FAILED: "FAILED",
+}
+
+_SAMPLES_PER_DIRECTION_CAP = 256  # per parametric direction
+_SAMPLES_TOTAL_CAP = 16384  # per surface
+
+
+@dataclass
+class SurfaceProjection:
+    """Result of `project_to_surface` for N points.
+
+    u, v       (N,) parameters of the foot point
+    foot       (N, 3) S(u, v)
+    distance   (N,) |P - foot|
+    normal     (N, 3) unit normal along Su x Sv (limit normal at poles); NaN where FAILED
+    status     (N,) int8: CONVERGED, ON_BOUNDARY, BEYOND_TOLERANCE or FAILED
+    iterations (N,) int: Newton iterations used per point
+    """
+
+    u: np.ndarray
+    v: np.ndarray
+    foot: np.ndarray
+    distance: np.ndarray
+    normal: np.ndarray
+    status: np.ndarray
+    iterations: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.u)
+
+
+# ---------------------------------------------------------------------------- sampling
+def sample_parameters(knots: np.ndarray, degree: int, lo: float, hi: float, per_span: int) -> np.ndarray:
+    """Parameters in [lo, hi]: ``per_span`` intervals in every non-empty knot span (knots
+    included), (M,) increasing."""
+    knots = np.asarray(knots, dtype=float)
+    brk = np.unique(knots[(knots > lo) & (knots < hi)])
+    edges = np.concatenate([[lo], brk, [hi]])
+    per_span = max(int(per_span), 1)
+    parts = [np.linspace(a, b, per_span + 1)[:-1] for a, b in zip(edges[:-1], edges[1:])]
+    return np.concatenate(parts + [[hi]])
+
+
+def _n_spans(knots: np.ndarray, lo: float, hi: float) -> int:
+    return int(np.count_nonzero((np.unique(knots) > lo) & (np.unique(knots) < hi))) + 1
+
+
+@dataclass
+class SurfaceSamples:
+    """Sample grid of a surface used for start values (cached per surface object).
+
+    us (mu,), vs (mv,): grid parameters; uv (M, 2), points (M, 3); tree: cKDTree of points;
+    size: control-net box diagonal; closed_u/closed_v: periodic directions.
+    """
+
+    us: np.ndarray
+    vs: np.ndarray
+    uv: np.ndarray
+    points: np.ndarray
+    tree: cKDTree
+    size: float
+    closed_u: bool
+    closed_v: bool
+    spacing: np.ndarray  # (M,) largest distance from each sample to its grid neighbours
+    pw: np.ndarray  # (nu, nv, 4) homogeneous control net (w x, w y, w z, w)
+
+
+_CACHE: "weakref.WeakKeyDictionary[NurbsSurface, SurfaceSamples]" = weakref.WeakKeyDictionary()
+
+
+def closed_directions(surface: NurbsSurface, n: int = 33, rel_tol: float = 1e-10) -> tuple[bool, bool]:
+    """Whether S(u0, v) == S(u1, v) for all v (closed in u) and S(u, v0) == S(u, v1) (closed
+    in v), detected on ``n`` samples within ``rel_tol`` x surface size."""
+    u0, u1, v0, v1 = surface.domain
+    b = surface.bbox()
+    tol = rel_tol * max(float(np.linalg.norm(b[1] - b[0])), 1e-300)
+    t = np.linspace(0.0, 1.0, n)
+    vs = v0 + (v1 - v0) * t
+    us = u0 + (u1 - u0) * t
+    a = surface.evaluate(np.full(n, u0), vs)
+    c = surface.evaluate(np.full(n, u1), vs)
+    closed_u = bool(np.max(np.linalg.norm(a - c, axis=1)) <= tol)
+    a = surface.evaluate(us, np.full(n, v0))
+    c = surface.evaluate(us, np.full(n, v1))
+    closed_v = bool(np.max(np.linalg.norm(a - c, axis=1)) <= tol)
+    return closed_u, closed_v
+
+
+def surface_samples(surface: NurbsSurface) -> SurfaceSamples:
+    """The (cached) start-value grid: 2 (p+1) samples per non-empty knot span in u and
+    2 (q+1) in v, capped at 256 per direction and 16384 in total."""
+    hit = _CACHE.get(surface)
+    if hit is not None:
+        return hit
+    u0, u1, v0, v1 = surface.domain
+    p, q = surface.degree_u, surface.degree_v
+    su, sv = _n_spans(surface.knots_u, u0, u1), _n_spans(surface.knots_v, v0, v1)
+    per_u, per_v = 2 * (p + 1), 2 * (q + 1)
+    per_u = max(1, min(per_u, _SAMPLES_PER_DIRECTION_CAP // su))
+    per_v = max(1, min(per_v, _SAMPLES_PER_DIRECTION_CAP // sv))
+    while (su * per_u + 1) * (sv * per_v + 1) > _SAMPLES_TOTAL_CAP and max(per_u, per_v) > 1:
+        if per_u >= per_v:
+            per_u -= 1
+        else:
+            per_v -= 1
+    us = sample_parameters(surface.knots_u, p, u0, u1, per_u)
+    vs = sample_parameters(surface.knots_v, q, v0, v1, per_v)
+    uu, vv = np.meshgrid(us, vs, indexing="ij")
+    uv = np.column_stack([uu.ravel(), vv.ravel()])
+    pts = surface.evaluate(uv[:, 0], uv[:, 1])
+    b = surface.bbox()
+    size = float(np.linalg.norm(b[1] - b[0]))
+    cu, cv = closed_directions(surface)
+    g = pts.reshape(len(us), len(vs), 3)
+    h = np.zeros((len(us), len(vs)))
+    if len(us) > 1:
+        du = np.linalg.norm(np.diff(g, axis=0), axis=2)
+        h[:-1] = np.maximum(h[:-1], du)
+        h[1:] = np.maximum(h[1:], du)
+    if len(vs) > 1:
+        dv = np.linalg.norm(np.diff(g, axis=1), axis=2)
+        h[:, :-1] = np.maximum(h[:, :-1], dv)
+        h[:, 1:] = np.maximum(h[:, 1:], dv)
+    h = h.ravel()
+    pw = np.empty(surface.control_points.shape[:2] + (4,))
+    pw[..., :3] = surface.control_points * surface.weights[..., None]
+    pw[..., 3] = surface.weights
+    s = SurfaceSamples(us, vs, uv, pts, cKDTree(pts), size, cu, cv, h, pw)
+    _CACHE[surface] = s
+    return s
+
+
+
+# ---------------------------------------------------------------------------- numba kernel
+@numba.njit(cache=True, inline="always")
+def _ders_basis(span: int, t: float, p: int, knots: np.ndarray, out: np.ndarray) -> None:
+    """P&T A2.3 for one parameter, derivatives up to 2: out (3, p+1)."""
+    ndu = np.empty((p + 1, p + 1))
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    ndu[0, 0] = 1.0
+    for j in range(1, p + 1):
+        left[j] = t - knots[span + 1 - j]
+        right[j] = knots[span + j] - t
+        saved = 0.0
+        for r in range(j):
+            ndu[j, r] = right[r + 1] + left[j - r]
+            temp = ndu[r, j - 1] / ndu[j, r]
+            ndu[r, j] = saved + right[r + 1] * temp
+            saved = left[j - r] * temp
+        ndu[j, j] = saved
+    for k in range(3):
+        for j in range(p + 1):
+            out[k, j] = 0.0
+    for j in range(p + 1):
+        out[0, j] = ndu[j, p]
+    nd = min(2, p)
+    a = np.zeros((2, p + 1))
+    for r in range(p + 1):
+        s1, s2 = 0, 1
+        for i in range(p + 1):
+            a[0, i] = 0.0
+            a[1, i] = 0.0
+        a[0, 0] = 1.0
+        for k in range(1, nd + 1):
+            d = 0.0
+            rk, pk = r - k, p - k
+            if r >= k:
+                a[s2, 0] = a[s1, 0] / ndu[pk + 1, rk]
+                d = a[s2, 0] * ndu[rk, pk]
+            j1 = 1 if rk >= -1 else -rk
+            j2 = k - 1 if r - 1 <= pk else p - r
+            for j in range(j1, j2 + 1):
+                a[s2, j] = (a[s1, j] - a[s1, j - 1]) / ndu[pk + 1, rk + j]
+                d += a[s2, j] * ndu[rk + j, pk]
+            if r <= pk:
+                a[s2, k] = -a[s1, k - 1] / ndu[pk + 1, r]
+                d += a[s2, k] * ndu[r, pk]
+            out[k, r] = d
+            s1, s2 = s2, s1
+    fac = float(p)
+    for k in range(1, nd + 1):
+        for j in range(p + 1):
+            out[k, j] *= fac
+        fac *= p - k
+
+
+@numba.njit(cache=True, parallel=True)
+def _ders2_kernel(pw, ku, kv, p, q, u, v):  # pragma: no cover - compiled
+    """Rational surface derivatives up to order 2 in u and v (P&T A4.4) at (N,) points:
+    (N, 3, 3, 3) with [:, k, l] = d^(k+l)S/du^k dv^l. pw (nu, nv, 4) homogeneous net."""
+    n = u.shape[0]
+    nu, nv = pw.shape[0], pw.shape[1]
+    out = np.empty((n, 3, 3, 3))
+    binom = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 2.0, 1.0]])
+    for t in numba.prange(n):
+        su = np.searchsorted(ku, u[t], side="right") - 1
+        su = min(max(su, p), nu - 1)
+        sv = np.searchsorted(kv, v[t], side="right") - 1
+        sv = min(max(sv, q), nv - 1)
+        bu = np.empty((3, p + 1))
+        bv = np.empty((3, q + 1))
+        _ders_basis(su, u[t], p, ku, bu)
+        _ders_basis(sv, v[t], q, kv, bv)
+        aw = np.zeros((3, 3, 4))
+        tmp = np.empty((3, 4))
+        for a in range(p + 1):
+            for l in range(3):
+                for c in range(4):
+                    tmp[l, c] = 0.0
+            for b in range(q + 1):
+                row = pw[su - p + a, sv - q + b]
+                for l in range(3):
+                    w = bv[l, b]
+                    for c in range(4):
+                        tmp[l, c] += w * row[c]
+            for k in range(3):
+                w = bu[k, a]
+                for l in range(3):
+                    for c in range(4):
+                        aw[k, l, c] += w * tmp[l, c]
+        w0 = aw[0, 0, 3]
+        for k in range(3):
+            for l in range(3):
+                for c in range(3):
+                    val = aw[k, l, c]
+                    for j in range(1, l + 1):
+                        val -= binom[l, j] * aw[0, j, 3] * out[t, k, l - j, c]
+                    for i in range(1, k + 1):
+                        val -= binom[k, i] * aw[i, 0, 3] * out[t, k - i, l, c]
+                        for j in range(1, l + 1):
+                            val -= binom[k, i] * binom[l, j] * aw[i, j, 3] * out[t, k - i, l - j, c]
+                    out[t, k, l, c] = val / w0
+    return out
+
+
+def derivatives2(surface: NurbsSurface, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Same as ``surface.derivatives(u, v, order=2)`` (N, 3, 3, 3), by a compiled kernel."""
+    smp = surface_samples(surface)
+    u = np.ascontiguousarray(u, dtype=float)
+    v = np.ascontiguousarray(v, dtype=float)
+    return _ders2_kernel(smp.pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v, u, v)
+
+
+# ---------------------------------------------------------------------------- projection
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.einsum("ij,ij->i", a, b)
+
+
+def project_to_surface(
+    surface: NurbsSurface,
+    points,
+    *,
+    uv0=None,
+    tol: float = 1e-12,
+    max_iter: int = 30,
+    max_distance: float | None = None,
+    n_starts: int = 1,
+    global_check: bool = True,
+) -> SurfaceProjection:
+    """Project points onto ``surface``: the nearest point of S over its domain.
+
+    points (N, 3); uv0 optional (N, 2) start parameters (else the nearest grid sample);
+    tol: eps1 = tol x surface size (point coincidence, step size) and eps2 = tol (zero
+    cosine); max_iter: Newton iterations; max_distance: feet farther than that get
+    BEYOND_TOLERANCE; n_starts: start from the n nearest grid samples and keep the best
+    (guards against local minima on strongly curved surfaces); global_check: after Newton,
+    restart from grid samples (other than the first start) that are discrete local minima
+    of the distance and are within sqrt(d^2 + (2h)^2) of the point (d: distance found, h: grid
+    spacing at the first start), keeping the nearest result — a cheap guard against local minima that costs
+    nothing for points close to the surface.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim == 1:
+        pts = pts.reshape(1, 3)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
+    n = len(pts)
+    samples = surface_samples(surface)
+    if uv0 is not None:
+        uv_start = np.asarray(uv0, dtype=float).reshape(n, 2)
+        reps = 1
+        seeds_pts = pts
+    else:
+        k = max(1, min(int(n_starts), len(samples.uv)))
+        _, idx = samples.tree.query(pts, k=k)
+        idx = np.asarray(idx).reshape(n, k)
+        uv_start = samples.uv[idx.reshape(-1)]
+        reps = k
+        seeds_pts = np.repeat(pts, k, axis=0) if k > 1 else pts
+    res = _newton(surface, samples, seeds_pts, uv_start[:, 0].copy(), uv_start[:, 1].copy(), tol, max_iter)
+    if reps > 1:
+        d = res.distance.reshape(n, reps).copy()
+        d[res.status.reshape(n, reps) == FAILED] = np.inf
+        best = np.argmin(np.where(np.isnan(d), np.inf, d), axis=1)
+        pick = np.arange(n) * reps + best
+        res = SurfaceProjection(
+            res.u[pick], res.v[pick], res.foot[pick], res.distance[pick], res.normal[pick],
+            res.status[pick], res.iterations.reshape(n, reps).sum(axis=1),
+        )
+    if uv0 is None and global_check:
+        _global_check(surface, samples, pts, res, tol, max_iter)
+    if max_distance is not None:
+        far = (res.status != FAILED) & (res.distance > max_distance)
+        res.status[far] = BEYOND_TOLERANCE
+    return res
+
+
+_CHECK_K = 16  # nearest samples examined by the global check
+_CHECK_SEEDS = 4  # extra Newton starts per point at most
+
+
+def _global_check(
+    surface: NurbsSurface, samples: SurfaceSamples, pts: np.ndarray, res: SurfaceProjection, tol: float, max_iter: int
+) -> None:
+    """Restart Newton from other local minima of the sampled distance; update ``res`` in place
+    where a nearer valid foot is found."""
+    n = len(pts)
+    m = len(samples.uv)
+    mu, mv = len(samples.us), len(samples.vs)
+    k = min(_CHECK_K, m)
+    if n == 0 or m < 2:
+        return
+    d = np.where(res.status == FAILED, np.inf, res.distance)
+    d = np.where(np.isfinite(d), d, np.inf)
+    dk, ik = samples.tree.query(pts, k=k)
+    dk, ik = dk.reshape(n, k), ik.reshape(n, k)
+    # grid spacing around the first start (twice, for neighbouring cells of other sizes)
+    rad = np.sqrt(d * d + (2.0 * samples.spacing[ik[:, 0]]) ** 2)
+    cand = dk <= rad[:, None]
+    if not np.any(cand):
+        return
+    ii, jj = np.divmod(ik, mv)
+    # discrete local minimum over the 4 grid neighbours (wrapping in closed directions)
+    is_min = cand.copy()
+    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        ni, nj = ii + di, jj + dj
+        if samples.closed_u:
+            ni = np.mod(ni, mu - 1)
+        if samples.closed_v:
+            nj = np.mod(nj, mv - 1)
+        inside = (ni >= 0) & (ni < mu) & (nj >= 0) & (nj < mv)
+        nidx = np.clip(ni, 0, mu - 1) * mv + np.clip(nj, 0, mv - 1)
+        dn = np.linalg.norm(samples.points[nidx] - pts[:, None, :], axis=2)
+        is_min &= ~inside | (dk <= dn)
+    is_min[:, 0] = False  # the nearest sample was the first start already
+    # flat valleys (point near a centre of curvature): the distance field on the grid may
+    # show no second minimum; also start from the ball sample farthest (in space, > 2 cells)
+    # from the first start whose distance barely grows from that of the first start
+    h0 = samples.spacing[ik[:, :1]]
+    flat = dk * dk <= dk[:, :1] ** 2 + h0 * h0  # grows slower than one cell of tangential offset
+    sep = np.linalg.norm(samples.points[ik] - samples.points[ik[:, :1]], axis=2)
+    gd = np.where(cand & flat & (sep > 2.0 * h0), sep, -1.0)
+    far = np.argmax(gd, axis=1)
+    far_ok = gd[np.arange(n), far] > 0.0
+    is_min[np.arange(n)[far_ok], far[far_ok]] = True
+    is_min &= np.cumsum(is_min, axis=1) <= _CHECK_SEEDS
+    rows, cols = np.nonzero(is_min)
+    if rows.size == 0:
+        return
+    uv = samples.uv[ik[rows, cols]]
+    extra = _newton(surface, samples, pts[rows], uv[:, 0].copy(), uv[:, 1].copy(), tol, max_iter)
+    better = (extra.status != FAILED) & (extra.distance < d[rows])
+    if not np.any(better):
+        return
+    rows, extra_idx = rows[better], np.nonzero(better)[0]
+    # several improvements for one point: keep the nearest (last write wins after sorting)
+    order = np.argsort(-extra.distance[extra_idx], kind="stable")
+    rows, extra_idx = rows[order], extra_idx[order]
+    for name in ("u", "v", "foot", "distance", "normal", "status"):
+        getattr(res, name)[rows] = getattr(extra, name)[extra_idx]
+    res.iterations[rows] += extra.iterations[extra_idx]
+
+
+def _newton(
+    surface: NurbsSurface,
+    samples: SurfaceSamples,
+    pts: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+    tol: float,
+    max_iter: int,
+) -> SurfaceProjection:
+    """Vectorised projected Newton iterations from (u, v); see the module docstring."""
+    n = len(pts)
+    u0, u1, v0, v1 = surface.domain
+    pu, pv = u1 - u0, v1 - v0
+    cu, cv = samples.closed_u, samples.closed_v
+    size = max(samples.size, 1e-300)
+    eps1 = tol * size
+    eps2 = tol
+    tiny = 1e-300
+
+    def wrap_clamp(uu: np.ndarray, vv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        uu = u0 + np.mod(uu - u0, pu) if cu else np.clip(uu, u0, u1)
+        vv = v0 + np.mod(vv - v0, pv) if cv else np.clip(vv, v0, v1)
+        return uu, vv
+
+    u, v = wrap_clamp(u, v)
+    iters = np.zeros(n, dtype=np.int32)
+    done = np.zeros(n, dtype=bool)
+    # backtracking memory: previous accepted point, its squared distance and the step from it
+    u_prev, v_prev = u.copy(), v.copy()
+    d2_prev = np.full(n, np.inf)
+    du_prev = np.zeros(n)
+    dv_prev = np.zeros(n)
+
+    act = np.arange(n)
+    for _ in range(max_iter):
+        if act.size == 0:
+            break
+        ua, va = u[act], v[act]
+        der = derivatives2(surface, ua, va)
+        s, su, sv = der[:, 0, 0], der[:, 1, 0], der[:, 0, 1]
+        suu, suv, svv = der[:, 2, 0], der[:, 1, 1], der[:, 0, 2]
+        r = s - pts[act]
+        d2 = _dot(r, r)
+        iters[act] += 1
+
+        # --- distance went up: go back and halve the previous step (lazy line search)
+        worse = d2 > d2_prev[act] * (1.0 + 1e-13) + (1e-3 * eps1) ** 2
+        worse &= np.isfinite(d2_prev[act])
+        if np.any(worse):
+            w = act[worse]
+            du_prev[w] *= 0.5
+            dv_prev[w] *= 0.5
+            un, vn = wrap_clamp(u_prev[w] + du_prev[w], v_prev[w] + dv_prev[w])
+            der_w = der[worse]
+            step = np.linalg.norm((un - u[w])[:, None] * der_w[:, 1, 0] + (vn - v[w])[:, None] * der_w[:, 0, 1], axis=1)
+            u[w], v[w] = un, vn
+            # halving has reached noise level: the previous point is the answer
+            stop = step <= eps1
+            if np.any(stop):
+                ws = w[stop]
+                u[ws], v[ws] = u_prev[ws], v_prev[ws]
+                done[ws] = True
+            keep = ~worse
+            act_w = act[keep]
+            s, su, sv, suu, suv, svv, r, d2 = (x[keep] for x in (s, su, sv, suu, suv, svv, r, d2))
+        else:
+            act_w = act
+        if act_w.size == 0:
+            act = act[~done[act]]
+            continue
+        ua, va = u[act_w], v[act_w]
+
+        f = _dot(su, r)
+        g = _dot(sv, r)
+        lsu = np.sqrt(_dot(su, su))
+        lsv = np.sqrt(_dot(sv, sv))
+        lr = np.sqrt(d2)
+        # bound constraints: minimum beyond an edge (descent direction -f points outward)
+        act_u = np.zeros(len(act_w), dtype=bool) if cu else ((ua <= u0) & (f > 0)) | ((ua >= u1) & (f < 0))
+        act_v = np.zeros(len(act_w), dtype=bool) if cv else ((va <= v0) & (g > 0)) | ((va >= v1) & (g < 0))
+        cos_u = np.abs(f) / np.maximum(lsu * lr, tiny)
+        cos_v = np.abs(g) / np.maximum(lsv * lr, tiny)
+        conv = (lr <= eps1) | (((cos_u <= eps2) | act_u) & ((cos_v <= eps2) | act_v))
+
+        # --- Newton step, full Jacobian (thesis eq. 36); Gauss-Newton if not positive definite
+        guu, guv, gvv = lsu * lsu, _dot(su, sv), lsv * lsv
+        a = guu + _dot(r, suu)
+        b = guv + _dot(r, suv)
+        c = gvv + _dot(r, svv)
+        det = a * c - b * b
+        pd = (a > 0) & (c > 0) & (det > 1e-12 * np.abs(a * c))
+        lam = 1e-12 * (guu + gvv) + tiny
+        # 1D second derivatives along the iso-curves (Gauss-Newton where not positive)
+        a1 = np.where(a > 0, a, guu + lam)
+        c1 = np.where(c > 0, c, gvv + lam)
+        a = np.where(pd, a, guu + lam)
+        c = np.where(pd, c, gvv + lam)
+        b = np.where(pd, b, guv)
+        det = a * c - b * b
+        with np.errstate(divide="ignore", invalid="ignore"):
+            du = (-c * f + b * g) / det
+            dv = (b * f - a * g) / det
+            # one variable clamped at an edge: 1D Newton on the boundary iso-curve
+            du = np.where(act_v & ~act_u, -f / a1, du)
+            dv = np.where(act_v & ~act_u, 0.0, dv)
+            dv = np.where(act_u & ~act_v, -g / c1, dv)
+            du = np.where(act_u & ~act_v, 0.0, du)
+        du = np.where(act_u & act_v, 0.0, du)
+        dv = np.where(act_u & act_v, 0.0, dv)
+        bad = ~(np.isfinite(du) & np.isfinite(dv))
+        du[bad] = 0.0
+        dv[bad] = 0.0
+        un, vn = wrap_clamp(ua + du, va + dv)
+        # effective step (after clamping; wrapped steps measured the short way)
+        ddu = un - ua
+        ddv = vn - va
+        if cu:
+            ddu = ddu - pu * np.round(ddu / pu)
+        if cv:
+            ddv = ddv - pv * np.round(ddv / pv)
+        step = np.linalg.norm(ddu[:, None] * su + ddv[:, None] * sv, axis=1)
+
+        # remember this point for the line search, then move. Converged points take their
+        # last (tiny) Newton step too: it is free and polishes the foot to round-off.
+        u_prev[act_w], v_prev[act_w], d2_prev[act_w] = ua, va, d2
+        du_prev[act_w], dv_prev[act_w] = ddu, ddv
+        u[act_w], v[act_w] = un, vn
+        done[act_w[conv | (step <= eps1)]] = True
+        act = act[~done[act]]
+
+    # ---------------------------------------------------------------- final classification
+    der = surface.derivatives(u, v, order=1)
+    foot, su, sv = der[:, 0, 0], der[:, 1, 0], der[:, 0, 1]
+    r = foot - pts
+    dist = np.sqrt(_dot(r, r))
+    f, g = _dot(su, r), _dot(sv, r)
+    lsu = np.sqrt(_dot(su, su))
+    lsv = np.sqrt(_dot(sv, sv))
+    edge_u = np.zeros(n, dtype=bool) if cu else ((u <= u0) & (f > 0)) | ((u >= u1) & (f < 0))
+    edge_v = np.zeros(n, dtype=bool) if cv else ((v <= v0) & (g > 0)) | ((v >= v1) & (g < 0))
+    # tangential offset of the foot (how far from orthogonal), in length units
+    off_u = np.where(edge_u, 0.0, np.abs(f) / np.maximum(lsu, tiny))
+    off_v = np.where(edge_v, 0.0, np.abs(g) / np.maximum(lsv, tiny))
+    cos_u = np.abs(f) / np.maximum(lsu * dist, tiny)
+    cos_v = np.abs(g) / np.maximum(lsv * dist, tiny)
+    # a binding edge is only reported when the cosine is really non-zero there
+    binding = ((edge_u & (cos_u > eps2)) | (edge_v & (cos_v > eps2))) & (dist > eps1)
+    # not converged within max_iter: accept only if the foot is orthogonal to ~1e-9 x size
+    ok = done | (np.maximum(off_u, off_v) <= 1e3 * eps1)
+    ok &= np.isfinite(dist) & np.isfinite(u) & np.isfinite(v)
+    status = np.where(binding, ON_BOUNDARY, CONVERGED).astype(np.int8)
+    status[~ok] = FAILED
+    normal = surface.normal(u, v)
+    normal[status == FAILED] = np.nan
+    return SurfaceProjection(u, v, foot, dist, normal, status, iters)
