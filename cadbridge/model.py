@@ -7,13 +7,14 @@ dataclasses around them. No OCC objects, no global state.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["Diagnostic", "Face", "Model", "TrimLoop", "Trim", "Units", "points_in_polygon"]
+__all__ = ["Diagnostic", "Face", "Model", "TrimLoop", "Trim", "Units", "distance_to_polygon", "points_in_polygon"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +72,23 @@ class TrimLoop:
             return np.zeros((0, 2))
         return np.concatenate(pieces, axis=0)
 
+    @cached_property
+    def outline(self) -> tuple[np.ndarray, float]:
+        """(polygon (M, 2), band): a fine polygon of the loop and twice its largest chord
+        deviation from the true curves, so a point on the curve is within ``band`` of it."""
+        poly = self.polygon(_OUTLINE_SAMPLES)
+        dev = 0.0
+        for c in self.curves:
+            t = c.sample_parameters(_OUTLINE_SAMPLES)
+            p = c.evaluate(t)[:, :2]
+            mid = c.evaluate(0.5 * (t[:-1] + t[1:]))[:, :2]
+            if len(mid):
+                dev = max(dev, float(np.max(np.linalg.norm(mid - 0.5 * (p[:-1] + p[1:]), axis=1))))
+        return poly, 2.0 * dev
+
+
+_OUTLINE_SAMPLES = 32  # polygon points per knot span of a trim curve
+
 
 @dataclass
 class Trim:
@@ -82,14 +100,28 @@ class Trim:
     outer: TrimLoop | None
     inner: list[TrimLoop] = field(default_factory=list)
 
-    def contains(self, u: np.ndarray, v: np.ndarray, samples_per_span: int = 16) -> np.ndarray:
-        """Whether each (u, v) lies inside the trimmed region (even-odd rule). (N,) bool."""
+    def contains(self, u: np.ndarray, v: np.ndarray, tol: float = 0.0) -> np.ndarray:
+        """Whether each (u, v) lies inside the trimmed region, its boundary included.
+
+        Even-odd rule against fine polygons of the loops; points within the polygon's chord
+        error (plus ``tol``, in parameter units) of a loop count as on the boundary, i.e.
+        inside, so a mesh node on a trim edge belongs to the faces on both sides. (N,) bool.
+        """
         uv = np.column_stack([np.ravel(u), np.ravel(v)]).astype(float)
+        loops = [(self.outer, True)] if self.outer is not None else []
+        loops += [(h, False) for h in self.inner]
         inside = np.ones(len(uv), dtype=bool)
-        if self.outer is not None:
-            inside &= points_in_polygon(uv, self.outer.polygon(samples_per_span))
-        for hole in self.inner:
-            inside &= ~points_in_polygon(uv, hole.polygon(samples_per_span))
+        for loop, is_outer in loops:
+            in_loop = points_in_polygon(uv, loop.outline[0])
+            inside &= in_loop if is_outer else ~in_loop
+        out = np.flatnonzero(~inside)
+        for loop, _ in loops:  # outside, but on a loop (within its chord error)?
+            if len(out) == 0:
+                break
+            poly, band = loop.outline
+            near = distance_to_polygon(uv[out], poly) <= band + tol
+            inside[out[near]] = True
+            out = out[~near]
         return inside
 
 
@@ -110,6 +142,24 @@ def points_in_polygon(points: np.ndarray, polygon: np.ndarray, chunk: int = 4096
             x_cross = a[None, :, 0] + (p[..., 1] - ay) * (b[None, :, 0] - a[None, :, 0]) / (by - ay)
         crossings = straddle & (p[..., 0] < x_cross)
         out[s : s + chunk] = (np.count_nonzero(crossings, axis=1) % 2) == 1
+    return out
+
+
+def distance_to_polygon(points: np.ndarray, polygon: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    """Distance of (N, 2) points to the closed polyline (M, 2), (N,)."""
+    points = np.asarray(points, dtype=float)
+    a = np.asarray(polygon, dtype=float)
+    if len(a) == 0:
+        return np.full(len(points), np.inf)
+    b = np.roll(a, -1, axis=0)
+    ab = b - a
+    ll = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    out = np.empty(len(points))
+    for s in range(0, len(points), chunk):
+        p = points[s : s + chunk, None, :]
+        t = np.clip(np.einsum("nmj,mj->nm", p - a[None], ab) / ll, 0.0, 1.0)
+        d = p - (a[None] + t[..., None] * ab[None])
+        out[s : s + chunk] = np.sqrt(np.min(np.einsum("nmj,nmj->nm", d, d), axis=1))
     return out
 
 
@@ -140,7 +190,7 @@ class Face:
         tol_v = 1e-12 * max(1.0, abs(v1 - v0))
         ok = (u >= u0 - tol_u) & (u <= u1 + tol_u) & (v >= v0 - tol_v) & (v <= v1 + tol_v)
         if self.trims is not None and np.any(ok):
-            ok[ok] = self.trims.contains(u[ok], v[ok])
+            ok[ok] = self.trims.contains(u[ok], v[ok], tol=1e-9 * max(u1 - u0, v1 - v0))
         return ok
 
 
