@@ -152,6 +152,8 @@ def cad_errors(
     foot, ncad = project(g.points)
     foot = np.asarray(foot, float)
     ncad = unit(np.asarray(ncad, float))
+    # a CAD face's Su x Sv orientation is arbitrary: compare with the side the patch faces
+    ncad = ncad * np.where(np.einsum("ij,ij->i", ncad, g.normals) < 0, -1.0, 1.0)[:, None]
     shape = np.einsum("ij,ij->i", g.points - foot, ncad)
     nor = angle_deg(g.normals, ncad)
     return ErrorReport(

@@ -348,9 +348,37 @@ class NagataMesh:
         return out
 
     def evaluate(self, elem: ArrayLike, eta: ArrayLike, zeta: ArrayLike) -> tuple[NDArray, NDArray]:
-        """Points and unit normals (x_eta x x_zeta, element winding) at (elem, eta, zeta) (M,) -> (M, 3), (M, 3)."""
+        """Points and unit normals (x_eta x x_zeta, element winding) at (elem, eta, zeta) (M,) -> (M, 3), (M, 3).
+
+        Where a tangent vanishes (an edge whose normals force c = -d or c = d: the edge is
+        straight but its parametrisation stops at one end, Nagata's singular case) the
+        normal is the limit approached from inside the patch: with x_eta = 0 it is
+        +-x_eta_eta x x_zeta, with x_zeta = 0 it is +-x_eta x x_zeta_zeta.
+        """
         x, xe, xz = self._eval(elem, eta, zeta, 1)
-        return x, unit(np.cross(xe, xz))
+        n = np.cross(xe, xz)
+        ln = np.linalg.norm(n, axis=1)
+        le, lz = np.linalg.norm(xe, axis=1), np.linalg.norm(xz, axis=1)
+        bad = ln <= 1e-10 * np.maximum(le, lz) ** 2
+        if np.any(bad):
+            el = np.broadcast_to(np.asarray(elem, dtype=np.int64).ravel(), (len(n),))[bad]
+            et = np.broadcast_to(np.asarray(eta, dtype=float).ravel(), (len(n),))[bad]
+            ze = np.broadcast_to(np.asarray(zeta, dtype=float).ravel(), (len(n),))[bad]
+            _, xe_b, xz_b, xee, _, xzz = self._eval(el, et, ze, 2)
+            # direction into the patch: towards its parametric centroid
+            tri = self.element_kind[el] == 3
+            ce, cz = np.where(tri, 2.0 / 3.0, 0.5), np.where(tri, 1.0 / 3.0, 0.5)
+            se = np.where(ce - et >= 0, 1.0, -1.0)[:, None]
+            sz = np.where(cz - ze >= 0, 1.0, -1.0)[:, None]
+            eta_vanishes = (le[bad] <= lz[bad])[:, None]
+            lim = np.where(eta_vanishes, se * np.cross(xee, xz_b), sz * np.cross(xe_b, xzz))
+            still = np.linalg.norm(lim, axis=1) <= 1e-300
+            if np.any(still):  # both vanish: step towards the centroid
+                t = 1e-7
+                _, a, b = self._eval(el[still], et[still] + t * (ce[still] - et[still]), ze[still] + t * (cz[still] - ze[still]), 1)
+                lim[still] = np.cross(a, b)
+            n[bad] = lim
+        return x, unit(n)
 
     def derivatives(self, elem: ArrayLike, eta: ArrayLike, zeta: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
         """Points and first derivatives (thesis eqs. 7-8, 12-13): (M, 3) each."""
@@ -383,12 +411,13 @@ class NagataMesh:
         pts, nrm = self.evaluate(elem, eta, zeta)
         return Grid(pts, nrm, elem, eta, zeta)
 
-    def refined_triangulation(self, n: int) -> tuple[NDArray, NDArray]:
+    def refined_triangulation(self, n: int, return_params: bool = False):
         """Watertight triangulation of the Nagata surface, ``n`` divisions per patch edge.
 
         Points on shared mesh edges and nodes are merged by topology (global node / edge
         ids), so neighbouring patches share vertices exactly.
-        Returns vertices (V, 3) and triangles (T, 3) oriented with the element winding.
+        Returns vertices (V, 3) and triangles (T, 3) oriented with the element winding;
+        with ``return_params`` also (elem, eta, zeta) (V,) of one patch each vertex lies on.
         """
         if n < 1:
             raise ValueError("n must be >= 1")
@@ -432,7 +461,10 @@ class NagataMesh:
         verts = pts[first]
         isnode = uk < nn
         verts[isnode] = self.nodes[uk[isnode]]
-        return verts, inv.ravel()[np.concatenate(tris)]
+        triangles = inv.ravel()[np.concatenate(tris)]
+        if return_params:
+            return verts, triangles, (elem[first], eta[first], zeta[first])
+        return verts, triangles
 
     # ------------------------------------------------------------------ projection
     @staticmethod
