@@ -47,8 +47,8 @@ def _distance(surf, x: np.ndarray) -> float:
 
 @pytest.mark.parametrize("path", FILES, ids=[p.name for p in FILES])
 def test_real_file(path: Path):
-    """Face count equals OCC's, except faces we skip with a diagnostic (Inventor's 190 plane
-    surfaces, which the reader does not support yet): then ours + skipped == OCC's. Three
+    """Face count equals OCC's (faces we would skip with a diagnostic are counted: ours +
+    skipped == OCC's; none are skipped in these seven files now). Three
     random (u, v) per face lie on the corresponding OCC face within 1e-9 x model size:
     paired by order, OCC's surface evaluated at the same (u, v) (OCC keeps the 128
     parametrisation); failing that (analytic surfaces, which OCC parametrises its own way),

@@ -13,6 +13,9 @@ from contextlib import contextmanager
 import numpy as np
 
 from cadbridge.iges.directory import DirectoryEntry
+from cadbridge.iges.analytic import (POLY_REL_TOL, Frame, MappedLoops, ParamMap, cylinder_map, fixed_map,
+                                     map_loops, plane_map, polyline_distance, revolution_map, sphere_map,
+                                     torus_map)
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record
 from cadbridge.iges.parameters import Params, read_params
@@ -20,13 +23,14 @@ from cadbridge.model import Diagnostic, Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["Builder", "Unsupported", "SURFACE_TYPES", "FACE_TYPES", "INTERPRETED_TYPES"]
+__all__ = ["Builder", "Unsupported", "SURFACE_TYPES", "ANALYTIC_TYPES", "FACE_TYPES", "INTERPRETED_TYPES"]
 
 SURFACE_TYPES = (128, 108, 118, 120, 122)
+ANALYTIC_TYPES = (190, 192, 194, 196, 198)  # IGES 5.3 unbounded analytic surfaces (faces only under 510/144/143)
 FACE_TYPES = SURFACE_TYPES + (143, 144)
 CURVE_TYPES = (100, 102, 104, 106, 110, 126)
 INTERPRETED_TYPES = frozenset(
-    FACE_TYPES + CURVE_TYPES + (124, 141, 142, 186, 308, 314, 406, 408, 502, 504, 508, 510, 514, 0)
+    FACE_TYPES + ANALYTIC_TYPES + CURVE_TYPES + (116, 123, 124, 141, 142, 186, 308, 314, 406, 408, 502, 504, 508, 510, 514, 0)
 )
 MAX_DEPTH = 64  # pointer nesting guard (no unbounded recursion on cyclic or deep files)
 DOMAIN_REL_TOL = 1e-6  # U0..V1 this close outside the knot range are clamped (with a note)
@@ -36,6 +40,14 @@ STANDARD_COLORS = {1: (0.0, 0.0, 0.0), 2: (1.0, 0.0, 0.0), 3: (0.0, 1.0, 0.0), 4
                    5: (1.0, 1.0, 0.0), 6: (1.0, 0.0, 1.0), 7: (0.0, 1.0, 1.0), 8: (1.0, 1.0, 1.0)}
 
 Affine = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)) for x -> R x + t
+
+
+def _closed(loop, surface: NurbsSurface, rel: float = 1e-6) -> bool:
+    """Whether a loop of (u, v) pieces closes (last end = first start within rel x domain)."""
+    u0, u1, v0, v1 = surface.domain
+    a = loop[0][1].evaluate([loop[0][1].domain[0]])[0]
+    b = loop[-1][1].evaluate([loop[-1][1].domain[1]])[0]
+    return bool(np.linalg.norm(a - b) <= rel * np.hypot(u1 - u0, v1 - v0))
 
 
 class Unsupported(Exception):
@@ -544,6 +556,25 @@ class Builder:
         return self._cached(("cos", de), lambda: self._curve_on_surface(de))
 
     def _curve_on_surface(self, de: int) -> TrimLoop | None:
+        pc, mc = self.cos_raw(de)
+        if pc is None:
+            self.note("curve on surface without a parameter-space curve (model space only or unusable): "
+                      "face left untrimmed", de)
+            return None
+        return TrimLoop(pc, mc)
+
+    def cos_raw(self, de: int) -> tuple[list[NurbsCurve] | None, list[NurbsCurve] | None]:
+        """142: CRTN, SPTR, BPTR, CPTR, PREF -> (parameter-space pieces of BPTR, model-space
+        pieces of CPTR), each None when absent or unusable.
+
+        Transformations (IGES 5.3, 4.32): BPTR lives in the parameter space of the surface,
+        so only its own 124 (a 2D map of (u, v)) applies to it -- never the 124 of the 142,
+        of the 144 above it or of the surface; ``curve_pieces`` applies exactly the curve's
+        own chain. CPTR is a model-space curve like the surface: the 144's placement is
+        applied to it by the caller, as to the surface."""
+        return self._cached(("cosraw", de), lambda: self._cos_raw(de))
+
+    def _cos_raw(self, de: int):
         p = self.params(de)
         sptr = p.pointer(2, "SPTR")
         bptr = p.pointer(3, "BPTR")
@@ -552,61 +583,75 @@ class Builder:
         self._own_end[de] = 6
         if sptr:
             self.entry(sptr, p, 2, "SPTR")
-        if bptr == 0:
-            self.note("curve on surface without a parameter-space curve (model space only): face left untrimmed", de)
-            return None
-        self.entry(bptr, p, 3, "BPTR")
-        try:
-            pieces = [to_2d(c) for c in self.curve_pieces(bptr)]
-        except Unsupported as u:
-            self.note(f"parameter-space curve not usable ({u}): face left untrimmed", de)
-            return None
-        model = None
+        pc = mc = None
+        if bptr:
+            self.entry(bptr, p, 3, "BPTR")
+            try:
+                pc = [to_2d(c) for c in self.curve_pieces(bptr)]
+            except Unsupported as u:
+                self.note(f"parameter-space curve not usable ({u})", de)
         if cptr:
             self.entry(cptr, p, 4, "CPTR")
             try:
-                model = self.curve_pieces(cptr)
+                mc = self.curve_pieces(cptr)
             except Unsupported:
-                model = None
-        return TrimLoop(pieces, model)
+                mc = None
+        return pc, mc
 
     def boundary(self, de: int) -> TrimLoop | None:
-        """141: TYPE, PREF, SPTR, N, then N x (CRVPT, SENSE, K, PSCPT(1..K))."""
+        """141 as a loop of parameter-space curves (None, with a note, if any is missing)."""
+        edges = self.boundary_raw(de, want_model=False)
+        if edges is None:
+            return None
+        if any(pc is None for pc, _ in edges):
+            self.note("boundary curve without parameter-space curves: face left untrimmed", de)
+            return None
+        pieces = [c for pc, _ in edges for c in pc]
+        return TrimLoop(pieces) if pieces else None
+
+    def boundary_raw(self, de: int, want_model: bool = True):
+        """141: TYPE, PREF, SPTR, N, then N x (CRVPT, SENSE, K, PSCPT(1..K)) -> list of
+        (parameter-space pieces or None, model-space pieces or None) in loop order (SENSE 2
+        reversed). Parameter-space curves get only their own 124 (see `cos_raw`)."""
         p = self.params(de)
         typ = p.int(1, "TYPE")
         n = p.int(4, "N")
         if n < 0:
             raise p.error(f"negative number of curves {n}", 4, "N")
-        if typ == 0:
-            self.note("boundary in model space only (TYPE 0): face left untrimmed", de)
-            return None
         k = 5
-        pieces: list[NurbsCurve] = []
+        edges = []
         for j in range(n):
             p.require(k + 2, "N")
+            crv = p.pointer(k, f"CRVPT({j + 1})")
             sense = p.int(k + 1, f"SENSE({j + 1})")
             kk = p.int(k + 2, f"K({j + 1})")
             if kk < 0:
                 raise p.error(f"negative count {kk}", k + 2, f"K({j + 1})")
             p.require(k + 2 + kk, f"K({j + 1})")
-            part: list[NurbsCurve] = []
+            part: list[NurbsCurve] | None = []
             for i in range(kk):
                 ptr = p.pointer(k + 3 + i, f"PSCPT({j + 1},{i + 1})", allow_zero=False)
                 self.entry(ptr, p, k + 3 + i, f"PSCPT({j + 1},{i + 1})")
                 try:
-                    part.extend(to_2d(c) for c in self.curve_pieces(ptr))
+                    if part is not None:
+                        part.extend(to_2d(c) for c in self.curve_pieces(ptr))
                 except Unsupported as u:
-                    self.note(f"parameter-space curve not usable ({u}): face left untrimmed", de)
-                    return None
-            if kk == 0:
-                self.note("boundary curve without parameter-space curves: face left untrimmed", de)
-                return None
+                    self.note(f"parameter-space curve not usable ({u})", de)
+                    part = None
+            if kk == 0 or typ == 0:
+                part = None
+            model = None
+            if crv:
+                self.entry(crv, p, k, f"CRVPT({j + 1})")
+                if want_model:
+                    model = self._model_curve(crv, de)
             if sense == 2:
-                part = [reverse_curve(c) for c in reversed(part)]
-            pieces.extend(part)
+                part = None if part is None else [reverse_curve(c) for c in reversed(part)]
+                model = None if model is None else [reverse_curve(c) for c in reversed(model)]
+            edges.append((part, model))
             k += 3 + kk
         self._own_end[de] = k
-        return TrimLoop(pieces) if pieces else None
+        return edges
 
     # ------------------------------------------------------------------ faces
     def face(self, de: int, placement: Affine | None = None) -> Face | None:
@@ -655,20 +700,24 @@ class Builder:
             self._own_end[de] = 5 + n2
             for k, ptr in [(4, pto)] * (n1 == 1) + [(5 + j, q) for j, q in enumerate(ptis)]:
                 self.entry(ptr, p, k, "PTO" if k == 4 else f"PTI({k - 4})", types=(142,))
-            surface, _ = self.surface(sde)
-            ok = True
-            outer = None
-            if n1 == 1:
-                outer = self.curve_on_surface(pto)
-                ok = outer is not None
-            inner = []
-            for q in ptis:
-                loop = self.curve_on_surface(q)
-                ok = ok and loop is not None
-                inner.append(loop)
-            if ok and (outer is not None or inner):
-                trims = Trim(outer, inner)
-            trims = self._trims_for(trims, se, de)
+            if se.entity_type == 128:
+                surface, _ = self.surface(sde)
+                ok = True
+                outer = None
+                if n1 == 1:
+                    outer = self.curve_on_surface(pto)
+                    ok = outer is not None
+                inner = []
+                for q in ptis:
+                    loop = self.curve_on_surface(q)
+                    ok = ok and loop is not None
+                    inner.append(loop)
+                if ok and (outer is not None or inner):
+                    trims = Trim(outer, inner)
+            else:
+                raw_outer = [self.cos_raw(pto)] if n1 == 1 else None
+                raw_inner = [[self.cos_raw(q)] for q in ptis]
+                surface, trims = self.mapped_trims(sde, raw_outer, raw_inner, de)
             xf = self.transform(de)
             surface = apply_surface(surface, xf)
             if trims is not None and not _is_identity(xf):
@@ -686,15 +735,22 @@ class Builder:
             p.require(3 + n, "N")
             bdpts = [p.pointer(4 + j, f"BDPT({j + 1})", allow_zero=False) for j in range(n)]
             self._own_end[de] = 4 + n
-            surface, _ = self.surface(sde)
-            loops = []
             for j, b in enumerate(bdpts):
                 self.entry(b, p, 4 + j, f"BDPT({j + 1})", types=(141,))
-                with self.visiting(b):
-                    loops.append(self.boundary(b))
-            if loops and all(l is not None for l in loops):
-                trims = Trim(loops[0], loops[1:])  # the first boundary is the outer one
-            trims = self._trims_for(trims, se, de)
+            if se.entity_type == 128:
+                surface, _ = self.surface(sde)
+                loops = []
+                for b in bdpts:
+                    with self.visiting(b):
+                        loops.append(self.boundary(b))
+                if loops and all(l is not None for l in loops):
+                    trims = Trim(loops[0], loops[1:])  # the first boundary is the outer one
+            else:
+                raws = []
+                for b in bdpts:
+                    with self.visiting(b):
+                        raws.append(self.boundary_raw(b))
+                surface, trims = self.mapped_trims(sde, raws[0] if raws else None, raws[1:], de)
             surface = apply_surface(surface, self.transform(de))
             t_s = se.entity_type
         elif t == 510:
@@ -707,15 +763,25 @@ class Builder:
             p.require(3 + n, "N")
             lps = [p.pointer(4 + j, f"LOOP({j + 1})", allow_zero=False) for j in range(n)]
             self._own_end[de] = 4 + n
-            surface, _ = self.surface(sde)
-            loops = []
             for j, lp in enumerate(lps):
                 self.entry(lp, p, 4 + j, f"LOOP({j + 1})", types=(508,))
-                with self.visiting(lp):
-                    loops.append(self.brep_loop(lp))
-            if loops and all(l is not None for l in loops):
-                trims = Trim(loops[0], loops[1:]) if of == 1 else Trim(None, loops)
-            trims = self._trims_for(trims, se, de)
+            if se.entity_type == 128:
+                surface, _ = self.surface(sde)
+                loops = []
+                for lp in lps:
+                    with self.visiting(lp):
+                        loops.append(self.brep_loop(lp))
+                if loops and all(l is not None for l in loops):
+                    trims = Trim(loops[0], loops[1:]) if of == 1 else Trim(None, loops)
+            else:
+                raws = []
+                for lp in lps:
+                    with self.visiting(lp):
+                        raws.append(self.loop_raw(lp))
+                if of == 1:
+                    surface, trims = self.mapped_trims(sde, raws[0] if raws else None, raws[1:], de)
+                else:
+                    surface, trims = self.mapped_trims(sde, None, raws, de)
             surface = apply_surface(surface, self.transform(de))
             t_s = se.entity_type
         else:
@@ -725,53 +791,285 @@ class Builder:
         return Face(surface=surface, de=de, name=self.name(de, sde), color=self.color(de, sde),
                     level=max(e.level, 0), trims=trims, entity_type=t, surface_de=sde, surface_type=t_s)
 
-    def _trims_for(self, trims: Trim | None, surface_entry: DirectoryEntry, de: int) -> Trim | None:
-        """Trims apply as given only over a 128 (same (u, v) as the NURBS). Over analytic
-        surfaces (108, 118, 120, 122) IGES trim curves live in that entity's own
-        parametrisation, which the exact NURBS does not share: the face is left untrimmed."""
-        if trims is None or surface_entry.entity_type == 128:
-            return trims
-        self.note(f"trim curves over a {surface_entry.entity_type} surface are in its IGES parametrisation, "
-                  "not the NURBS one: face left untrimmed", de)
-        return None
+    # ------------------------------------------------------------------ trims over non-128 surfaces
+    def point116(self, de: int, src: Params, k: int, name: str) -> np.ndarray:
+        """116 point (X, Y, Z) with its own transformation applied."""
+        self.entry(de, src, k, name, types=(116,))
+        with self.visiting(de):
+            p = self.params(de)
+            xyz = p.reals(1, 3, "X,Y,Z")
+            self._own_end[de] = 5 if p.has(4) else 4
+            xf = self.transform(de)
+        return xyz if _is_identity(xf) else xf[0] @ xyz + xf[1]
+
+    def direction123(self, de: int, src: Params, k: int, name: str) -> np.ndarray:
+        """123 direction (X, Y, Z), rotated by its own transformation; must be non-zero."""
+        self.entry(de, src, k, name, types=(123,))
+        with self.visiting(de):
+            p = self.params(de)
+            d = p.reals(1, 3, "X,Y,Z")
+            self._own_end[de] = 4
+            xf = self.transform(de)
+            if not _is_identity(xf):
+                d = xf[0] @ d
+            if not np.linalg.norm(d) > 0:
+                raise p.error("direction is the zero vector", 1, "X")
+        return d
+
+    def param_map(self, de: int) -> ParamMap:
+        """How trim data over base surface ``de`` (not a 128) maps to our NURBS (u, v)."""
+        return self._cached(("pmap", de), lambda: self._param_map(de))
+
+    def _param_map(self, de: int) -> ParamMap:
+        e = self.entries[de]
+        t = e.entity_type
+        p = self.params(de)
+        xf = self.transform(de)
+
+        def place(o, a, x=None):
+            if _is_identity(xf):
+                return o, a, x
+            return xf[0] @ o + xf[1], xf[0] @ a, None if x is None else xf[0] @ x
+
+        def frame(o, a, ref):
+            o, a, ref = place(o, a, ref)
+            try:
+                return Frame.make(o, a, ref)
+            except ValueError as exc:
+                raise self._wrap(p, exc) from None
+
+        def positive(k, name):
+            r = p.real(k, name)
+            if not r > 0:
+                raise p.error(f"{name} = {r!r} must be positive", k, name)
+            return r
+
+        if t == 108:
+            abcd = p.reals(1, 4, "A,B,C,D")
+            self._own_end[de] = 10 if p.has(9) else len(p.tokens)
+            n = abcd[:3]
+            nn = float(n @ n)
+            if not nn > 0:
+                raise p.error("plane normal (A, B, C) is zero", 1, "A")
+            # OCC: gp_Pln(A, B, C, -D): origin the foot of the world origin, X by gp_Ax2's rule
+            return plane_map(frame(n * (abcd[3] / nn), n, None))
+        if t in ANALYTIC_TYPES:
+            ref = None  # form 0 (no REFDIR): OCC's gp_Ax2 X direction; form 1: the REFDIR
+            if t == 190:
+                o = self.point116(p.pointer(1, "LOCATION", allow_zero=False), p, 1, "LOCATION")
+                a = self.direction123(p.pointer(2, "NORMAL", allow_zero=False), p, 2, "NORMAL")
+                r = p.pointer(3, "REFDIR") if p.has(3) else 0
+                if r:
+                    ref = self.direction123(r, p, 3, "REFDIR")
+                self._own_end[de] = 4 if p.has(3) else 3
+                return plane_map(frame(o, a, ref))
+            if t in (192, 194):
+                o = self.point116(p.pointer(1, "LOCATION", allow_zero=False), p, 1, "LOCATION")
+                a = self.direction123(p.pointer(2, "AXIS", allow_zero=False), p, 2, "AXIS")
+                rad = positive(3, "RADIUS")
+                k = 4
+                tan = 0.0
+                if t == 194:
+                    ang = p.real(4, "SANGLE")
+                    if not 0 < ang < 90:
+                        raise p.error(f"semi-angle {ang!r} must be in (0, 90) degrees", 4, "SANGLE")
+                    tan = float(np.tan(np.radians(ang)))
+                    k = 5
+                r = p.pointer(k, "REFDIR") if p.has(k) else 0
+                if r:
+                    ref = self.direction123(r, p, k, "REFDIR")
+                self._own_end[de] = k + 1 if p.has(k) else k
+                return cylinder_map(frame(o, a, ref), rad, tan, "cylinder" if t == 192 else "cone")
+            if t == 196:
+                o = self.point116(p.pointer(1, "CENTER", allow_zero=False), p, 1, "CENTER")
+                rad = positive(2, "RADIUS")
+                ax = p.pointer(3, "AXIS") if p.has(3) else 0
+                a = self.direction123(ax, p, 3, "AXIS") if ax else np.array([0.0, 0.0, 1.0])
+                r = p.pointer(4, "REFDIR") if p.has(4) else 0
+                if r:
+                    ref = self.direction123(r, p, 4, "REFDIR")
+                self._own_end[de] = 5 if p.has(4) else 4
+                return sphere_map(frame(o, a, ref), rad)
+            if t == 198:
+                o = self.point116(p.pointer(1, "CENTER", allow_zero=False), p, 1, "CENTER")
+                a = self.direction123(p.pointer(2, "AXIS", allow_zero=False), p, 2, "AXIS")
+                big, small = positive(3, "MAJRAD"), positive(4, "MINRAD")
+                r = p.pointer(5, "REFDIR") if p.has(5) else 0
+                if r:
+                    ref = self.direction123(r, p, 5, "REFDIR")
+                self._own_end[de] = 6 if p.has(5) else 5
+                return torus_map(frame(o, a, ref), big, small)
+        surface, _ = self.surface(de)
+        if t == 120:
+            sa, ta = p.real(3, "SA"), p.real(4, "TA")
+            gde = p.pointer(2, "C", allow_zero=False)
+            ge = self.entries[gde]
+            gen = self.curve(gde)
+            gen_fn, gen_aff = (lambda s_: s_), (1.0, 0.0)
+            if ge.entity_type == 100:
+                # IGES 100 is parametrised by the angle (T from the start angle to the end angle);
+                # ours equals the angle from the start only at knots (construct.arc_parameter)
+                v = self.params(gde).reals(1, 7, "ZT..Y3")
+                a0 = float(np.arctan2(v[4] - v[2], v[3] - v[1]))
+                sweep = gen.domain[1] - gen.domain[0]
+                c = _construct()
+                gen_fn = lambda s_: c.arc_parameter(np.clip(np.asarray(s_) - a0, 0.0, sweep), sweep)  # noqa: E731
+                gen_aff = None
+            return revolution_map(surface, sa, ta, gen_fn, gen_aff)
+        if t == 122:
+            a, b = surface.domain[0], surface.domain[1]
+            return fixed_map(surface, (np.array([[b - a, 0.0], [0.0, 1.0]]), np.array([a, 0.0])), "tabulated")
+        if t == 118:
+            return fixed_map(surface, (np.eye(2), np.zeros(2)), "ruled")
+        raise Unsupported(f"trim curves over surface entity {t} are not supported", de, t, e.line)
+
+    def mapped_trims(self, sde: int, outer, inner: list, de: int) -> tuple[NurbsSurface, Trim | None]:
+        """Surface and trims of a face over base surface ``sde`` (not a 128) from raw loops
+        (lists of (parameter-space pieces, model-space pieces) per edge; ``outer`` None: no
+        outer loop). Parameter-space curves are used where present and checked against the
+        model-space curves; where they disagree (or are missing) the loop is derived from the
+        model-space curves (see `cadbridge.iges.analytic`)."""
+        pm = self.param_map(sde)
+        loops = ([outer] if outer is not None else []) + list(inner)
+        if not loops:
+            if pm.surface is not None:
+                return pm.surface, None
+            raise Unsupported(f"unbounded {pm.kind} surface without trim loops is not a face", sde,
+                              self.entries[sde].entity_type, self.entries[sde].line)
+        try:
+            res = map_loops(pm, loops, outer is not None, True)
+        except ValueError as exc:
+            return self._untrimmed(pm, sde, de, str(exc))
+        bad = self._check_against_model(res, loops)
+        if bad is not None and pm.kind in ("revolution", "ruled", "tabulated") and all(
+                _closed(lp, res.surface) for lp in res.loops):
+            # 118/120/122: the spec fixes the pcurve parametrisation while the model-space
+            # route is a numerical projection (ambiguous at poles of a revolution): a closed
+            # chain of parameter-space curves is kept (SolidWorks: OCC's faces agree with it).
+            # 190-198: the model-space inversion is analytic and exact, so it wins.
+            self.note(f"parameter-space curves over the {pm.kind} surface disagree with the model-space curves "
+                      f"({bad:.3g} x size): the closed parameter-space loops are used", de)
+            bad = None
+        if bad is not None:
+            try:
+                res2 = map_loops(pm, loops, outer is not None, False)
+            except ValueError as exc:
+                return self._untrimmed(pm, sde, de, str(exc))
+            self.note(f"parameter-space curves over the {pm.kind} surface disagree with the model-space curves "
+                      f"({bad:.3g} x size): trim derived from the model-space curves", de)
+            res = res2
+        if any(poly for lp in res.loops for _, _, poly in lp):
+            self.note(f"trim over the {self.entries[sde].entity_type} ({pm.kind}) surface approximated as a "
+                      f"polyline in (u, v) (chord error <= {POLY_REL_TOL:g} x domain size)", de)
+        tl = []
+        for raw, lp in zip(loops, res.loops):
+            mc = [c for _, m in raw for c in m] if all(m is not None for _, m in raw) else None
+            tl.append(TrimLoop([c for _, c, _ in lp], mc))
+        trims = Trim(tl[0], tl[1:]) if outer is not None else Trim(None, tl)
+        return res.surface, trims
+
+    def _untrimmed(self, pm: ParamMap, sde: int, de: int, why: str):
+        if pm.surface is not None:
+            self.note(f"trim loops unusable ({why}): face left untrimmed", de)
+            return pm.surface, None
+        raise Unsupported(f"{pm.kind} surface needs its trim loops for its extent: {why}", de, None, None)
+
+    def _check_against_model(self, res: MappedLoops, loops: list) -> float | None:
+        """Largest distance (relative to the surface size) from points of the parameter-space
+        trims (through the surface) to the model-space curves of the same edges, if above
+        1e-3; else None."""
+        box = res.surface.bbox()
+        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+        worst = 0.0
+        for raw, lp, src in zip(loops, res.loops, res.sources):
+            for j, (pc, mc) in enumerate(raw):
+                if src[j] != "pcurve" or mc is None:
+                    continue
+                uv = np.vstack([c.evaluate(c.sample_parameters(4)) for i, c, _ in lp if i == j])
+                pts = res.surface.evaluate(np.clip(uv[:, 0], *res.surface.domain[:2]),
+                                           np.clip(uv[:, 1], *res.surface.domain[2:]))
+                poly = np.vstack([c.evaluate(c.sample_parameters(64)) for c in mc])
+                worst = max(worst, float(polyline_distance(pts, poly).max()) / size)
+        return worst if worst > 1e-3 else None
 
     def brep_loop(self, de: int) -> TrimLoop | None:
-        """508 loop: N, then per edge TYPE, EDGE, NDX, OF, K, K x (ISOP, CURV). The loop's
-        parameter-space curves (first of each edge, reversed where OF = 0)."""
+        """508 loop as parameter-space curves (None, with a note, if an edge has none)."""
+        edges = self.loop_raw(de, want_model=False)
+        if not edges or any(pc is None for pc, _ in edges):
+            self.note("B-rep loop without parameter-space curves: face left untrimmed", de)
+            return None
+        return TrimLoop([c for pc, _ in edges for c in pc])
+
+    def loop_raw(self, de: int, want_model: bool = True):
+        """508 loop: N, then per edge TYPE, EDGE, NDX, OF, K, K x (ISOP, CURV) -> list of
+        (parameter-space pieces of the first CURV or None, model-space pieces of the 504
+        edge or None, reversed where OF = 0)."""
         p = self.params(de)
         n = p.int(1, "N")
         if n < 0:
             raise p.error(f"N = {n} is negative", 1, "N")
         k = 2
-        pieces: list[NurbsCurve] = []
-        ok = True
+        edges = []
         for j in range(n):
             p.require(k + 4, "N")
+            typ = p.int(k, f"TYPE({j + 1})")
+            edge = p.pointer(k + 1, f"EDGE({j + 1})", allow_zero=False)
+            ndx = p.int(k + 2, f"NDX({j + 1})")
             of = p.int(k + 3, f"OF({j + 1})")
             kk = p.int(k + 4, f"K({j + 1})")
             if kk < 0:
                 raise p.error(f"K = {kk} is negative", k + 4, f"K({j + 1})")
             p.require(k + 4 + 2 * kk, f"K({j + 1})")
-            if kk == 0:
-                ok = False
-            elif ok:
+            part = None
+            if kk > 0:
                 ptr = p.pointer(k + 6, f"CURV({j + 1},1)", allow_zero=False)
                 self.entry(ptr, p, k + 6, f"CURV({j + 1},1)")
                 try:
                     part = [to_2d(c) for c in self.curve_pieces(ptr)]
                 except Unsupported as u:
                     self.note(f"parameter-space curve not usable ({u})", de)
-                    ok = False
-                    part = []
-                if of == 0:
-                    part = [reverse_curve(c) for c in reversed(part)]
-                pieces.extend(part)
+            model = None
+            ee = self.entry(edge, p, k + 1, f"EDGE({j + 1})")
+            if typ == 0 and ee.entity_type == 504 and want_model:
+                try:
+                    with self.visiting(edge, "edge"):
+                        model = self.edge_curve(edge, ndx, p, k + 2)
+                except (Unsupported, IgesError) as exc:
+                    # model-space edges only stand in for missing / inconsistent pcurves: a
+                    # degenerate one (e.g. a 126 with V0 = V1 at a pole) is noted, not fatal
+                    self.note(f"model-space curve of edge {j + 1} not usable: {exc}", de)
+                    self._failed_at = None
+                    model = None
+            if of == 0:
+                # OF relates the edge to its model-space curve only: the parameter-space curves
+                # are written in loop order already (OCC's B-rep files: they join end to start
+                # as given, and reversing them per OF breaks the chain)
+                model = None if model is None else [reverse_curve(c) for c in reversed(model)]
+            edges.append((part, model))
             k += 5 + 2 * kk
         self._own_end[de] = k
-        if not ok or not pieces:
-            self.note("B-rep loop without parameter-space curves: face left untrimmed", de)
+        return edges
+
+    def _model_curve(self, crv: int, de: int) -> list[NurbsCurve] | None:
+        try:
+            return list(self.curve_pieces(crv))
+        except (Unsupported, IgesError) as exc:
+            self.note(f"model-space curve DE {crv} not usable: {exc}", de)
+            self._failed_at = None
             return None
-        return TrimLoop(pieces)
+
+    def edge_curve(self, de: int, ndx: int, src: Params, k: int) -> list[NurbsCurve]:
+        """Model-space curve of edge NDX (1-based) of the 504 edge list ``de``: N, then
+        N x (CURV, SVP, SV, TVP, TV)."""
+        p = self.params(de)
+        n = p.int(1, "N")
+        if not 1 <= ndx <= n:
+            raise src.error(f"edge index {ndx} outside 1..{n} of edge list DE {de}", k, "NDX")
+        p.require(1 + 5 * n, "N")
+        self._own_end[de] = 2 + 5 * n
+        c = p.pointer(2 + 5 * (ndx - 1), f"CURV({ndx})", allow_zero=False)
+        self.entry(c, p, 2 + 5 * (ndx - 1), f"CURV({ndx})")
+        return list(self.curve_pieces(c))
 
     def shell_faces(self, de: int) -> list[int]:
         """DEs of the 510 faces of a 514 shell (N, then N x (FACE, OF))."""

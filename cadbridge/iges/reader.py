@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from cadbridge.iges.directory import parse_directory
-from cadbridge.iges.entities import (FACE_TYPES, INTERPRETED_TYPES, SURFACE_TYPES, Affine, Builder,
+from cadbridge.iges.entities import (ANALYTIC_TYPES, FACE_TYPES, INTERPRETED_TYPES, SURFACE_TYPES, Affine, Builder,
                                      compose)
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.globals import (F_AUTHOR, F_FILE_NAME, F_ORGANIZATION, F_PREPROCESSOR, F_PRODUCT_ID,
@@ -92,6 +92,30 @@ def _referenced_surfaces(b: Builder) -> set[int]:
     return out
 
 
+def _orphan_brep(b: Builder) -> set[int]:
+    """510 faces and 514 shells flagged physically dependent that no 514 / 186 references.
+    OpenCASCADE's B-rep writer emits such faces (status 01) when a shape is a bare face;
+    OCC's reader takes every unreferenced entity as a root, and so do we for these."""
+    in_shell: set[int] = set()
+    in_solid: set[int] = set()
+    for e in b.entries.values():
+        try:
+            if e.entity_type == 514:
+                p = b.params(e.de)
+                n = p.int(1, "N", 0)
+                in_shell.update(p.pointer(2 + 2 * j, "FACE", default=0) for j in range(max(n, 0))
+                                if p.has(2 + 2 * j))
+            elif e.entity_type == 186:
+                p = b.params(e.de)
+                in_solid.add(p.pointer(1, "SHELL", default=0))
+                n = p.int(3, "N", 0)
+                in_solid.update(p.pointer(4 + 2 * j, "VOID", default=0) for j in range(max(n, 0)) if p.has(4 + 2 * j))
+        except IgesError:
+            continue  # reported when the shell or solid itself is built
+    return {e.de for e in b.entries.values() if e.physically_dependent
+            and ((e.entity_type == 510 and e.de not in in_shell) or (e.entity_type == 514 and e.de not in in_solid))}
+
+
 def _faces(b: Builder) -> list[Face]:
     entries = b.entries
     in_subfigure: set[int] = set()
@@ -99,16 +123,20 @@ def _faces(b: Builder) -> list[Face]:
         if e.entity_type == 308:
             in_subfigure.update(_members(b, e.de))
     used = _referenced_surfaces(b)
+    orphans = _orphan_brep(b)
     faces: list[Face] = []
     seen: set[int] = set()  # surface DEs already made faces (outside instances)
     for e in entries.values():
         t = e.entity_type
-        if e.physically_dependent or e.de in in_subfigure:
+        if (e.physically_dependent and e.de not in orphans) or e.de in in_subfigure:
             continue
         if t in SURFACE_TYPES and e.de in used:
             continue
-        if t == 108 and e.form != 1:
+        if t == 108 and e.form != 1:  # a 108 under a 144/143/510 is made a face there (in `used`)
             b.note("unbounded plane (108 form 0) is not a face", e.de)
+            continue
+        if t in ANALYTIC_TYPES:  # likewise: 190-198 are faces only under a 510/144/143
+            b.note(f"unbounded analytic surface ({t}) referenced by no face is not a face", e.de)
             continue
         for f in _expand(b, e.de, None):
             key = f.surface_de

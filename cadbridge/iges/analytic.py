@@ -1,0 +1,483 @@
+"""Trim curves over surfaces whose IGES parametrisation is not our NURBS parametrisation.
+
+For a 128 the trim curves of a 142/141/508 are in the NURBS (u, v) itself. For every other
+base surface (108, 118, 120, 122 and the IGES 5.3 analytic surfaces 190-198) a trim curve
+goes through two maps:
+
+    IGES parameter space --(pcurve map)--> natural coordinates --(uv map)--> NURBS (u, v)
+    model space          --(inversion)--->
+
+"Natural coordinates" are lengths and true angles (radians) of the surface's frame, in
+which a loop can be unwrapped across the seam of a closed surface and whose range decides
+the domain of the NURBS built for an unbounded analytic surface:
+
+  plane 108 / 190     (x, y) in the frame (O, X, Y = N x X)        NURBS (u, v) = (x, y)
+  cylinder 192        (h, theta): height along A, angle about A   u = revolved v(theta), v = h
+  cone 194            (h, theta)                                  u = revolved v(theta), v = h
+  sphere 196          (phi, theta): latitude, longitude           u = revolved v(theta),
+  torus 198           (phi, theta): tube angle, angle about A         v = arc parameter of phi
+  120 revolution      (u, theta): generatrix parameter, angle      u, v = revolved v(theta)
+  118 ruled, 122 tab. (u, v) of the NURBS itself
+
+(revolved v(theta) = `construct.revolved_angle_to_v`, arc parameter = `construct.arc_parameter`:
+angles equal the NURBS parameter only at knots.) The frame of every revolved surface has
+its angle 0 along X and increases right-handed about the axis A (Y = A x X), as OCC's
+gp_Ax3 does.
+
+Curves whose whole chain is affine (planes) are transformed exactly (control points);
+everything else becomes a degree-1 polyline through mapped samples, refined until the
+chord error in (u, v) is below ``POLY_REL_TOL`` x the domain size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from math import pi
+from typing import Callable
+
+import numpy as np
+
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = ["Frame", "ParamMap", "ax2_x_direction", "sample_chain", "POLY_REL_TOL"]
+
+POLY_REL_TOL = 1e-6  # chord error of a polyline trim, relative to the (u, v) domain size
+MIN_PER_SPAN = 16  # samples per knot span of the sampled curve at least
+MAX_REFINE = 14  # bisection rounds of the adaptive sampling
+TWO_PI = 2 * pi
+
+
+def ax2_x_direction(n: np.ndarray) -> np.ndarray:
+    """The X direction OpenCASCADE's gp_Ax2(P, N) picks for a normal N (no reference
+    direction given): perpendicular to N with one zero coordinate, chosen from the
+    smallest component of N. Used for 108 planes and 190-198 form 0 (unparametrised)."""
+    a, b, c = (float(x) for x in n)
+    aa, ba, ca = abs(a), abs(b), abs(c)
+    if ba <= aa and ba <= ca:
+        x = np.array([-c, 0.0, a]) if aa > ca else np.array([c, 0.0, -a])
+    elif aa <= ba and aa <= ca:
+        x = np.array([0.0, -c, b]) if ba > ca else np.array([0.0, c, -b])
+    else:
+        x = np.array([-b, a, 0.0]) if aa > ba else np.array([b, -a, 0.0])
+    return x / np.linalg.norm(x)
+
+
+@dataclass
+class Frame:
+    """Right-handed frame: origin O, axis (normal) A, X perpendicular to A, Y = A x X."""
+
+    origin: np.ndarray
+    axis: np.ndarray
+    x: np.ndarray
+
+    @property
+    def y(self) -> np.ndarray:
+        return np.cross(self.axis, self.x)
+
+    @classmethod
+    def make(cls, origin, axis, ref=None) -> "Frame":
+        a = np.asarray(axis, dtype=float)
+        la = np.linalg.norm(a)
+        if not la > 0:
+            raise ValueError("zero axis direction")
+        a = a / la
+        x = None
+        if ref is not None:
+            r = np.asarray(ref, dtype=float)
+            r = r - (r @ a) * a
+            if np.linalg.norm(r) > 1e-9 * max(1.0, float(np.linalg.norm(ref))):
+                x = r / np.linalg.norm(r)
+        if x is None:
+            x = ax2_x_direction(a)
+        return cls(np.asarray(origin, dtype=float), a, x)
+
+    def local(self, pts: np.ndarray) -> np.ndarray:
+        """(N, 3) model points -> (N, 3) coordinates along X, Y, A."""
+        r = np.asarray(pts, dtype=float) - self.origin
+        return np.column_stack([r @ self.x, r @ self.y, r @ self.axis])
+
+
+@dataclass
+class ParamMap:
+    """How one base surface relates IGES trim data to our NURBS (see the module docstring).
+
+    kind           "plane", "cylinder", "cone", "sphere", "torus", "revolution", "fixed"
+    pcurve_affine  (M (2, 2), b (2,)) with natural = M @ st + b for IGES parameter-space
+                   points st, or None when the pcurve map is not affine
+    pcurve_fn      natural coordinates from IGES parameters (N, 2) -> (N, 2)
+    points_fn      natural coordinates from model points (N, 3) -> (N, 2), or None
+    angular        which natural coordinates are angles (unwrapped with period 2 pi)
+    build          natural ranges ((lo0, hi0), (lo1, hi1)) -> NurbsSurface (None: fixed)
+    uv_fn          natural -> NURBS (u, v) for the surface ``build`` returned, given the
+                   natural ranges; uv_affine says whether it is the identity
+    fixed_range    natural ranges that cannot change (a 120's [SA, TA]), or None
+    """
+
+    kind: str
+    pcurve_fn: Callable[[np.ndarray], np.ndarray]
+    pcurve_affine: tuple[np.ndarray, np.ndarray] | None
+    points_fn: Callable[[np.ndarray], np.ndarray] | None
+    angular: tuple[bool, bool]
+    build: Callable[[tuple, tuple], NurbsSurface] | None
+    uv_fn: Callable[[np.ndarray, tuple, tuple], np.ndarray]
+    uv_identity: bool = False
+    fixed_range: tuple | None = None
+    surface: NurbsSurface | None = None  # for fixed surfaces (118, 120, 122)
+
+
+def _affine(m, b) -> tuple[np.ndarray, np.ndarray]:
+    return np.asarray(m, dtype=float), np.asarray(b, dtype=float)
+
+
+def _apply_affine(a: tuple[np.ndarray, np.ndarray], st: np.ndarray) -> np.ndarray:
+    return st @ a[0].T + a[1]
+
+
+def _unwrap_to(value: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """value shifted by multiples of 2 pi to be nearest ref (elementwise)."""
+    return value - TWO_PI * np.round((value - ref) / TWO_PI)
+
+
+def sample_chain(fn: Callable[[np.ndarray], np.ndarray], curve: NurbsCurve, angular: tuple[bool, bool],
+                 to_uv: Callable[[np.ndarray], np.ndarray] | None, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Sample t -> fn(curve(t)) (natural coordinates) on the curve's domain: MIN_PER_SPAN per
+    knot span, angular coordinates unwrapped along the curve, then (if ``to_uv`` is given)
+    bisected where the chord in (u, v) deviates from the mapped midpoint by more than tol.
+
+    Returns (t (M,), natural (M, 2)) with angular columns continuous."""
+    t = curve.sample_parameters(MIN_PER_SPAN)
+    nat = _unwrap_rows(fn(curve.evaluate(t)), angular)
+    if to_uv is None:
+        return t, nat
+    for _ in range(MAX_REFINE):
+        uv = to_uv(nat)
+        tm = 0.5 * (t[:-1] + t[1:])
+        nm = fn(curve.evaluate(tm))
+        ref = 0.5 * (nat[:-1] + nat[1:])
+        for k in (0, 1):
+            if angular[k]:
+                nm[:, k] = _unwrap_to(nm[:, k], ref[:, k])
+        err = np.linalg.norm(to_uv(nm) - 0.5 * (uv[:-1] + uv[1:]), axis=1)
+        bad = np.flatnonzero(~(err <= tol))
+        if bad.size == 0:
+            break
+        t = np.insert(t, bad + 1, tm[bad])
+        nat = np.insert(nat, bad + 1, nm[bad], axis=0)
+    return t, nat
+
+
+def _unwrap_rows(nat: np.ndarray, angular: tuple[bool, bool]) -> np.ndarray:
+    nat = np.array(nat, dtype=float)
+    for k in (0, 1):
+        if angular[k] and len(nat) > 1:
+            nat[:, k] = np.unwrap(nat[:, k])
+    return nat
+
+
+# ---------------------------------------------------------------------------- constructors
+def _construct():
+    from cadbridge.nurbs import construct
+
+    return construct
+
+
+def _angles(loc: np.ndarray) -> np.ndarray:
+    return np.arctan2(loc[:, 1], loc[:, 0])
+
+
+def plane_map(frame: Frame) -> ParamMap:
+    """108 (OCC's gp_Pln(A, B, C, -D) frame) and 190: natural = NURBS = pcurve = (x, y)."""
+    def build(r0, r1):
+        return _construct().plane_surface(frame.origin, frame.axis, frame.x, r0, r1)
+
+    ident = _affine(np.eye(2), np.zeros(2))
+    return ParamMap("plane", lambda st: np.asarray(st, dtype=float), ident,
+                    lambda p: frame.local(p)[:, :2], (False, False), build, lambda nat, r0, r1: nat, True)
+
+
+def _revolve(frame: Frame, generatrix: NurbsCurve, r1) -> NurbsSurface:
+    """Revolved surface with u and v swapped: u = revolved v(theta), v = the generatrix
+    parameter, so that Su x Sv points away from the axis as on OCC's gp_Cylinder, gp_Cone,
+    gp_Sphere, gp_Torus (whose u is the angle about the axis too)."""
+    s = _construct().revolved_surface(generatrix, frame.origin, frame.axis, r1[0], r1[1])
+    u0, u1, v0, v1 = s.domain
+    w = None if s.weights is None else np.asarray(s.weights).T
+    return NurbsSurface(s.degree_v, s.degree_u, s.knots_v, s.knots_u, np.asarray(s.control_points).transpose(1, 0, 2),
+                        w, (v0, v1, u0, u1))
+
+
+def _theta_v(nat: np.ndarray, r1) -> np.ndarray:
+    return _construct().revolved_angle_to_v(np.clip(nat, r1[0], r1[1]), r1[0], r1[1])
+
+
+def _height_line(frame: Frame, radius_at: Callable[[float], float], r0) -> NurbsCurve:
+    c = _construct()
+    from cadbridge.nurbs import ops
+
+    h0, h1 = r0
+    p0 = frame.origin + radius_at(h0) * frame.x + h0 * frame.axis
+    p1 = frame.origin + radius_at(h1) * frame.x + h1 * frame.axis
+    return ops.reparametrize_curve(c.line(p0, p1), (h0, h1))
+
+
+def cylinder_map(frame: Frame, radius: float, cone_tan: float = 0.0, kind: str = "cylinder") -> ParamMap:
+    """192 (cone_tan = 0) and 194 (radius + h tan(alpha) at height h): IGES (s, t) =
+    (angle in degrees, height along the axis) as OpenCASCADE reads them; natural (h, theta);
+    NURBS u = h, v = revolved v(theta)."""
+    deg = pi / 180.0
+    aff = _affine([[0.0, 1.0], [deg, 0.0]], np.zeros(2))
+
+    def pts(p):
+        loc = frame.local(p)
+        return np.column_stack([loc[:, 2], _angles(loc)])
+
+    def build(r0, r1):
+        return _revolve(frame, _height_line(frame, lambda h: radius + h * cone_tan, r0), r1)
+
+    def uv(nat, r0, r1):
+        return np.column_stack([_theta_v(nat[:, 1], r1), nat[:, 0]])
+
+    return ParamMap(kind, lambda st: _apply_affine(aff, np.asarray(st, dtype=float)), aff, pts, (False, True),
+                    build, uv)
+
+
+def _tube_arc(frame: Frame, center: np.ndarray, r: float, r0) -> NurbsCurve:
+    """Circle of radius r about ``center`` in the (X, A) plane, angle from X towards A,
+    over r0 (arc parameter in [0, sweep])."""
+    a0, a1 = r0
+    s = center + r * (np.cos(a0) * frame.x + np.sin(a0) * frame.axis)
+    e = center + r * (np.cos(a1) * frame.x + np.sin(a1) * frame.axis)
+    if a1 - a0 >= TWO_PI * (1 - 1e-12):
+        e = s
+    return _construct().circular_arc(center, s, e, normal=-frame.y)
+
+
+def _phi_u(nat0: np.ndarray, r0) -> np.ndarray:
+    sweep = r0[1] - r0[0]
+    return _construct().arc_parameter(np.clip(nat0 - r0[0], 0.0, sweep), sweep)
+
+
+def sphere_map(frame: Frame, radius: float) -> ParamMap:
+    """196: IGES (s, t) = (longitude, latitude) in degrees (OpenCASCADE's reading); natural
+    (phi = latitude, theta); NURBS u = arc parameter of phi, v = revolved v(theta)."""
+    deg = pi / 180.0
+    aff = _affine([[0.0, deg], [deg, 0.0]], np.zeros(2))
+
+    def pts(p):
+        loc = frame.local(p)
+        return np.column_stack([np.arctan2(loc[:, 2], np.hypot(loc[:, 0], loc[:, 1])), _angles(loc)])
+
+    def build(r0, r1):
+        r0 = (max(r0[0], -pi / 2), min(r0[1], pi / 2))
+        return _revolve(frame, _tube_arc(frame, frame.origin, radius, r0), r1)
+
+    def uv(nat, r0, r1):
+        r0 = (max(r0[0], -pi / 2), min(r0[1], pi / 2))
+        return np.column_stack([_theta_v(nat[:, 1], r1), _phi_u(nat[:, 0], r0)])
+
+    return ParamMap("sphere", lambda st: _apply_affine(aff, np.asarray(st, dtype=float)), aff, pts, (False, True),
+                    build, uv)
+
+
+def torus_map(frame: Frame, major: float, minor: float) -> ParamMap:
+    """198: IGES (s, t) in degrees with s the tube angle and theta = 360 - t about the axis
+    (OpenCASCADE's reading: it mirrors t); natural (phi, theta); NURBS u = arc parameter of
+    phi, v = revolved v(theta)."""
+    deg = pi / 180.0
+    aff = _affine([[deg, 0.0], [0.0, -deg]], np.array([0.0, TWO_PI]))
+
+    def pts(p):
+        loc = frame.local(p)
+        rho = np.hypot(loc[:, 0], loc[:, 1])
+        return np.column_stack([np.arctan2(loc[:, 2], rho - major), _angles(loc)])
+
+    def build(r0, r1):
+        return _revolve(frame, _tube_arc(frame, frame.origin + major * frame.x, minor, r0), r1)
+
+    def uv(nat, r0, r1):
+        return np.column_stack([_theta_v(nat[:, 1], r1), _phi_u(nat[:, 0], r0)])
+
+    return ParamMap("torus", lambda st: _apply_affine(aff, np.asarray(st, dtype=float)), aff, pts, (True, True),
+                    build, uv)
+
+
+def _project(surface: NurbsSurface):
+    try:
+        from cadbridge.nurbs.project import project_to_surface
+    except ImportError:  # pragma: no cover - optional module
+        return None
+
+    def fn(p):
+        res = project_to_surface(surface, np.asarray(p, dtype=float))
+        return np.column_stack([res.u, res.v])
+
+    return fn
+
+
+def revolution_map(surface: NurbsSurface, sa: float, ta: float,
+                   gen_fn: Callable[[np.ndarray], np.ndarray], gen_affine: tuple[float, float] | None) -> ParamMap:
+    """120: IGES (s, t) = (generatrix parameter, angle theta in radians); natural (u, theta)
+    with u = gen_fn(s) the NURBS generatrix parameter; v = revolved v(theta) on [SA, TA]."""
+    c = _construct()
+    proj = _project(surface)
+    aff = None
+    if gen_affine is not None:
+        aff = _affine([[gen_affine[0], 0.0], [0.0, 1.0]], np.array([gen_affine[1], 0.0]))
+
+    def pc(st):
+        st = np.asarray(st, dtype=float)
+        return np.column_stack([gen_fn(st[:, 0]), st[:, 1]])
+
+    def pts(p):
+        uv = proj(p)
+        return np.column_stack([uv[:, 0], c.revolved_v_to_angle(uv[:, 1], sa, ta)])
+
+    def uv(nat, r0, r1):
+        return np.column_stack([nat[:, 0], _theta_v(nat[:, 1], (sa, ta))])
+
+    return ParamMap("revolution", pc, aff, pts if proj else None, (False, True), None, uv,
+                    fixed_range=(None, (sa, ta)), surface=surface)
+
+
+def fixed_map(surface: NurbsSurface, pcurve_affine: tuple[np.ndarray, np.ndarray], kind: str) -> ParamMap:
+    """118, 122 (and 128 without parameter-space curves): natural = NURBS (u, v); IGES
+    parameters map to it by ``pcurve_affine``."""
+    return ParamMap(kind, lambda st: _apply_affine(pcurve_affine, np.asarray(st, dtype=float)), pcurve_affine,
+                    _project(surface), (False, False), None, lambda nat, r0, r1: nat, True, surface=surface)
+
+
+# ---------------------------------------------------------------------------- loops
+@dataclass
+class MappedLoops:
+    """Result of `map_loops`: the surface (built or fixed) and per loop the (u, v) pieces,
+    each tagged with the index of the edge it came from and whether it is a polyline."""
+
+    surface: NurbsSurface
+    loops: list[list[tuple[int, NurbsCurve, bool]]]
+    sources: list[list[str]]  # per loop, per edge: "pcurve" or "model"
+
+
+def _exact_natural(c: NurbsCurve, fn) -> NurbsCurve:
+    return NurbsCurve(c.degree, c.knots, fn(c.control_points), c.weights, c.domain)
+
+
+def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurves: bool) -> MappedLoops:
+    """Map trim loops (lists of edges (pcurve pieces or None, model pieces or None)) into the
+    NURBS (u, v) of the surface described by ``pm``, building the surface over the loops'
+    extent when it is unbounded. Raises ValueError when an edge has no usable curve or the
+    loops are degenerate."""
+    ang = pm.angular
+    items: list[list[tuple]] = []  # per loop: (edge index, curve, fn, exact)
+    sources: list[list[str]] = []
+    for loop in loops:
+        its, src = [], []
+        for j, (pc, mc) in enumerate(loop):
+            if pc is not None and (use_pcurves or mc is None or pm.points_fn is None):
+                chain, fn, exact, s = pc, pm.pcurve_fn, pm.pcurve_affine is not None, "pcurve"
+            elif mc is not None and pm.points_fn is not None:
+                chain, fn, exact, s = mc, pm.points_fn, pm.kind == "plane", "model"
+            else:
+                raise ValueError(f"edge {j + 1} of a trim loop has neither a parameter-space curve nor a "
+                                 "model-space curve the reader can map")
+            exact = exact and pm.uv_identity
+            its.extend((j, c, fn, exact) for c in chain)
+            src.append(s)
+        if not its:
+            raise ValueError("empty trim loop")
+        items.append(its)
+        sources.append(src)
+    # phase 1: natural coordinates, angles continuous along each loop
+    nats: list[list[np.ndarray]] = []
+    shifts: list[list[np.ndarray]] = []
+    for its in items:
+        prev = None
+        ln, ls = [], []
+        for _, c, fn, exact in its:
+            if exact:
+                nat = _exact_natural(c, fn)
+                pts = np.vstack([nat.control_points, nat.evaluate(nat.sample_parameters(4))])
+            else:
+                pts = sample_chain(fn, c, ang, None, 0.0)[1]
+            sh = np.zeros(2)
+            if prev is not None:
+                for k in (0, 1):
+                    if ang[k]:
+                        sh[k] = TWO_PI * np.round((prev[k] - pts[0, k]) / TWO_PI)
+            pts = pts + sh
+            prev = pts[-1] if not exact else _exact_natural(c, fn).evaluate([c.domain[1]])[0]
+            ln.append(pts)
+            ls.append(sh)
+        nats.append(ln)
+        shifts.append(ls)
+    # loop-level shifts: the first loop into the fixed range, the others next to it
+    ranges = [None, None]
+    ref_mid = [None, None]
+    for li in range(len(nats)):
+        allp = np.vstack(nats[li])
+        for k in (0, 1):
+            if not ang[k]:
+                continue
+            mid = 0.5 * (allp[:, k].min() + allp[:, k].max())
+            target = None
+            if pm.fixed_range is not None and pm.fixed_range[k] is not None:
+                target = 0.5 * (pm.fixed_range[k][0] + pm.fixed_range[k][1])
+            if li > 0 and ref_mid[k] is not None:
+                target = ref_mid[k]
+            if target is not None:
+                d = TWO_PI * np.round((target - mid) / TWO_PI)
+                if d:
+                    nats[li] = [n + np.eye(2)[k] * d for n in nats[li]]
+                    shifts[li] = [s + np.eye(2)[k] * d for s in shifts[li]]
+                    mid += d
+            if li == 0:
+                ref_mid[k] = mid
+    use = nats if not has_outer else nats[:1]
+    allp = np.vstack([n for ln in use for n in ln])
+    lo, hi = allp.min(axis=0), allp.max(axis=0)
+    for k in (0, 1):
+        if pm.fixed_range is not None and pm.fixed_range[k] is not None:
+            ranges[k] = tuple(pm.fixed_range[k])
+            continue
+        a, b = float(lo[k]), float(hi[k])
+        if ang[k] and b - a > TWO_PI * (1 - 1e-9):
+            b = a + TWO_PI
+        if not b - a > 1e-12 * max(1.0, abs(a), abs(b)):
+            raise ValueError("trim loops are degenerate (zero extent)")
+        ranges[k] = (a, b)
+    r0, r1 = ranges
+    surface = pm.build(r0, r1) if pm.build is not None else pm.surface
+    u0, u1, v0, v1 = surface.domain
+    tol = POLY_REL_TOL * float(np.hypot(u1 - u0, v1 - v0))
+    out: list[list[tuple[int, NurbsCurve, bool]]] = []
+    for its, ls in zip(items, shifts):
+        pieces = []
+        for (j, c, fn, exact), sh in zip(its, ls):
+            if exact:
+                nat = _exact_natural(c, fn)
+                if np.any(sh):
+                    nat = NurbsCurve(nat.degree, nat.knots, nat.control_points + sh, nat.weights, nat.domain)
+                pieces.append((j, nat, False))
+                continue
+            to_uv = (lambda s: (lambda n: pm.uv_fn(n + s, r0, r1)))(sh)
+            _, nat = sample_chain(fn, c, ang, to_uv, tol)
+            uv = to_uv(nat)
+            m = len(uv)
+            knots = np.concatenate([[0.0], np.arange(m, dtype=float), [m - 1.0]])
+            pieces.append((j, NurbsCurve(1, knots, uv), True))
+        out.append(pieces)
+    return MappedLoops(surface, out, sources)
+
+
+def polyline_distance(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Distance of each of (N, 3) points to the polyline (M, 3). (N,)"""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    ll = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
+    out = np.empty(len(points))
+    for s in range(0, len(points), 256):
+        p = points[s : s + 256, None, :]
+        t = np.clip(np.einsum("nmj,mj->nm", p - a[None], ab) / ll, 0.0, 1.0)
+        d = np.linalg.norm(p - (a[None] + t[..., None] * ab[None]), axis=2)
+        out[s : s + 256] = d.min(axis=1)
+    return out
