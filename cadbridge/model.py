@@ -65,8 +65,10 @@ class TrimLoop:
         """Polyline through the loop, (M, 2) in (u, v); first point not repeated at the end."""
         pieces = []
         for c in self.curves:
-            t = c.sample_parameters(samples_per_span)
-            pts = c.evaluate(t)[:, :2]
+            if c.degree == 1 and tuple(c.domain) == (c.knots[1], c.knots[-2]):
+                pts = c.control_points[:, :2]  # a polyline is its own polygon
+            else:
+                pts = c.evaluate(c.sample_parameters(samples_per_span))[:, :2]
             pieces.append(pts[:-1])  # the last point is the next curve's first
         if not pieces:
             return np.zeros((0, 2))
@@ -79,6 +81,8 @@ class TrimLoop:
         poly = self.polygon(_OUTLINE_SAMPLES)
         dev = 0.0
         for c in self.curves:
+            if c.degree == 1:
+                continue  # straight pieces: no chord error
             t = c.sample_parameters(_OUTLINE_SAMPLES)
             p = c.evaluate(t)[:, :2]
             mid = c.evaluate(0.5 * (t[:-1] + t[1:]))[:, :2]
