@@ -20,26 +20,64 @@ EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 
 class Progress:
-    """A minimal progress line on stderr (silent when stderr is not a terminal unless forced)."""
+    """Stage-level progress on stderr, one line rewritten in place::
 
-    def __init__(self, label: str, total: int, enabled: bool | None = None) -> None:
-        self.label, self.total = label, max(int(total), 1)
-        self.enabled = sys.stderr.isatty() if enabled is None else enabled
+        cadbridge convert [ 4] die: errors vs CAD (8484 patch points)  [######........]  43%  3.1 s
+
+    `stage(text)` starts a new stage, `update(done, total)` moves the bar within it (chunked
+    projection), `close()` ends the line. Silent unless stderr is a terminal (or ``enabled``
+    is forced), so logs in CI stay clean. The pipeline calls it duck-typed (see
+    `cadbridge.pipeline.NoProgress`).
+    """
+
+    width = 20
+
+    def __init__(self, label: str, enabled: bool | None = None, stream=None) -> None:
+        self.label = label
+        self.stream = stream or sys.stderr
+        self.enabled = (hasattr(self.stream, "isatty") and self.stream.isatty()) if enabled is None else enabled
         self.t0 = time.perf_counter()
-        self.done = 0
+        self.stages = 0
+        self.text = ""
+        self._last = 0.0
 
-    def update(self, n: int = 1) -> None:
-        self.done += n
-        if self.enabled:
-            frac = min(self.done / self.total, 1.0)
-            bar = "#" * int(30 * frac)
-            sys.stderr.write(f"\r{self.label:<24} [{bar:<30}] {100 * frac:5.1f}%")
-            sys.stderr.flush()
+    def _draw(self, frac: float | None) -> None:
+        if not self.enabled:
+            return
+        bar = "" if frac is None else f"  [{'#' * int(self.width * frac):.<{self.width}}] {100 * frac:3.0f}%"
+        line = f"{self.label} [{self.stages:>2}] {self.text[:60]}{bar}  {time.perf_counter() - self.t0:.1f} s"
+        self.stream.write("\r" + line.ljust(110)[:110])
+        self.stream.flush()
+
+    def stage(self, text: str) -> None:
+        self.stages += 1
+        self.text = text
+        self._draw(None)
+
+    def update(self, done: int, total: int) -> None:
+        now = time.perf_counter()
+        if now - self._last > 0.1 or done >= total:  # at most ten redraws a second
+            self._last = now
+            self._draw(min(done / max(total, 1), 1.0))
 
     def close(self) -> None:
         if self.enabled:
-            sys.stderr.write(f"\r{self.label:<24} [{'#' * 30}] done in {time.perf_counter() - self.t0:.1f} s\n")
-            sys.stderr.flush()
+            self.stream.write("\r" + f"{self.label}: done in {time.perf_counter() - self.t0:.1f} s".ljust(110) + "\n")
+            self.stream.flush()
+
+    def __enter__(self) -> "Progress":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self.enabled and exc[0] is not None:
+            self.stream.write("\n")  # keep the error message on its own line
+            self.stream.flush()
+        elif exc[0] is None:
+            self.close()
+
+
+class UsageError(Exception):
+    """Wrong combination of arguments (exit code 2, like argparse's own errors)."""
 
 
 def _say(msg: str) -> None:
@@ -151,8 +189,6 @@ def _normals_for(mesh, args, model=None):
     from cadbridge.normals.estimators import estimate_normals
 
     if args.method == "cad":
-        if model is None:
-            raise SystemExit("cadbridge: error: --cad FILE.igs is needed for --method cad")
         cn = cad_normals(mesh, model, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far)
         return cn.normals, cn.corner_normals, "cad", cn
     blocks = [np.asarray(b.data) for b in mesh.cells]
@@ -166,6 +202,8 @@ def cmd_normals(args: argparse.Namespace) -> int:
     from cadbridge.io.vtu import write_mesh_vtu
     from cadbridge.mesh.io import read_mesh
 
+    if args.method == "cad" and not args.cad:
+        raise UsageError("--method cad (the default) needs --cad FILE.igs; or pick an estimator, e.g. --method mwe")
     mesh = read_mesh(args.mesh)
     model = None
     if args.cad:
@@ -198,18 +236,14 @@ def cmd_normals(args: argparse.Namespace) -> int:
 def cmd_nagata(args: argparse.Namespace) -> int:
     from cadbridge.pipeline import nagata_from_mesh
 
-    result = nagata_from_mesh(
-        args.mesh,
-        cad=args.cad,
-        output=args.output,
-        method=args.method,
-        name=args.name,
-        report=not args.no_report,
-        tolerance=args.tolerance,
-        flip=args.flip,
-        allow_far=args.allow_far,
-        grid=args.grid,
-    )
+    if args.method == "cad" and not args.cad:
+        raise UsageError("--method cad (the default) needs --cad FILE.igs; or pick an estimator, e.g. --method mwe")
+    with Progress("cadbridge nagata") as progress:
+        result = nagata_from_mesh(
+            args.mesh, cad=args.cad, output=args.output, method=args.method, name=args.name,
+            report=not args.no_report, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far,
+            grid=args.grid, progress=progress,
+        )
     _say(result.summary())
     return EXIT_OK
 
@@ -217,18 +251,12 @@ def cmd_nagata(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     from cadbridge.pipeline import convert
 
-    result = convert(
-        args.cad,
-        args.output,
-        element=args.element,
-        size=args.size,
-        structured=args.structured,
-        radius_divisions=args.radius_divisions,
-        length_divisions=args.length_divisions,
-        method=args.method,
-        grid=args.grid,
-        flip=args.flip,
-    )
+    with Progress("cadbridge convert") as progress:
+        result = convert(
+            args.cad, args.output, element=args.element, size=args.size, structured=args.structured,
+            radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
+            method=args.method, grid=args.grid, flip=args.flip, tolerance=args.tolerance, progress=progress,
+        )
     _say(result.summary())
     return EXIT_OK
 
@@ -237,8 +265,12 @@ def cmd_convert(args: argparse.Namespace) -> int:
 def cmd_ushape(args: argparse.Namespace) -> int:
     from cadbridge.ushape.benchmark import run_ushape
 
-    summary = run_ushape(args.output, grid=args.grid, fine_size=args.fine_size)
+    with Progress("cadbridge ushape") as progress:
+        summary = run_ushape(args.output, grid=args.grid, fine_size=args.fine_size, progress=progress)
     _say(summary.table())
+    _say("")
+    _say("\n".join(summary.findings("die")))
+    _say(f"wrote {len(summary.run['files'])} files to {args.output} in {summary.run['seconds']:.1f} s")
     return EXIT_OK
 
 
@@ -335,12 +367,14 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _known_errors() -> tuple[type[BaseException], ...]:
-    errs: list[type[BaseException]] = [FileNotFoundError, IsADirectoryError, PermissionError]
+    errs: list[type[BaseException]] = [UsageError, FileNotFoundError, IsADirectoryError, PermissionError,
+                                       NotADirectoryError]
     for mod, name in (
         ("cadbridge.iges", "IgesError"),
         ("cadbridge.mesh.mesh", "MeshError"),
         ("cadbridge.normals.cad", "ProjectionError"),
         ("cadbridge.io.toolfile", "ToolFileError"),
+        ("cadbridge.occ.reference", "OccReadError"),
     ):
         try:
             module = __import__(mod, fromlist=[name])

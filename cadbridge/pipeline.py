@@ -1,27 +1,64 @@
 """The whole chain for one CAD file or mesh: normals -> Nagata patches -> tool files + report.
 
 Everything is computed first and written last, into a temporary folder beside the output
-that is moved into place at the end, so an error never leaves partial output behind.
+that is moved into place at the end (`staged_output`), so an error never leaves partial
+output behind.
+
+Long stages report to an optional ``progress`` object (duck-typed, see `NoProgress`; the
+CLI passes `cadbridge.cli.Progress`), so the library itself never prints.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 
 from cadbridge.mesh.mesh import CellBlock, Mesh
 
-__all__ = ["ToolResult", "RunResult", "build_tool", "convert", "nagata_from_mesh", "tool_groups"]
+__all__ = [
+    "CadProjector",
+    "NoProgress",
+    "RunResult",
+    "ToolResult",
+    "build_tool",
+    "convert",
+    "nagata_from_mesh",
+    "staged_output",
+    "tool_data",
+    "tool_groups",
+    "write_tool_outputs",
+]
+
+
+class NoProgress:
+    """The progress interface the pipeline calls; this one does nothing.
+
+    stage(text)          a new stage of work starts
+    update(done, total)  fraction of the current stage done (chunked work)
+    """
+
+    def stage(self, text: str) -> None:
+        pass
+
+    def update(self, done: int, total: int) -> None:
+        pass
 
 
 @dataclass
 class ToolResult:
-    """One tool: its mesh, normals, Nagata surface and error statistics."""
+    """One tool: its mesh, normals, Nagata surface and error statistics.
+
+    The mesh's blocks are ordered triangles first, so the global element numbering of
+    ``nagata``, ``grid["element"]`` and the tool file are the same.
+    """
 
     name: str
     mesh: Mesh
@@ -29,7 +66,7 @@ class ToolResult:
     corner_normals: list[np.ndarray]  # per block (E_b, k_b, 3)
     normal_source: str
     nagata: object  # cadbridge.nagata.NagataMesh
-    grid: dict  # sample grid: points, normals, element, eta, zeta, shape_error, normal_error, face
+    grid: dict  # sample grid: points, normals, element, eta, zeta[, shape_error, normal_error]
     stats: dict  # max/mean shape and normal errors
     node_face: np.ndarray | None = None
     node_distance: np.ndarray | None = None
@@ -50,11 +87,19 @@ class RunResult:
                 f"  {t.name:<16}{t.normal_source:<8}{len(t.mesh.nodes):>7}{t.mesh.n_elements:>7}"
                 f"{s.get('max_abs_shape_error', float('nan')):>17.3e}{s.get('max_normal_error_deg', float('nan')):>15.4f}°"
             )
+            if s.get("points_off_trims"):
+                lines.append(f"  {'':<16}{s['points_off_trims']} sample points lie over trimmed-away parts of their "
+                             "face: measured against the untrimmed surface")
         return "\n".join(lines)
 
 
 def _blocks(mesh: Mesh) -> list[np.ndarray]:
     return [np.asarray(b.data) for b in mesh.cells]
+
+
+def _split(values: np.ndarray, mesh: Mesh) -> list[np.ndarray]:
+    """Cut a per-element array (E, ...) into per-block pieces."""
+    return np.split(values, np.cumsum([len(b) for b in mesh.cells])[:-1])
 
 
 def tool_groups(mesh: Mesh, model, element_face: list[np.ndarray]) -> dict[str, list[np.ndarray]]:
@@ -68,10 +113,9 @@ def tool_groups(mesh: Mesh, model, element_face: list[np.ndarray]) -> dict[str, 
     from cadbridge.mesh.topology import connected_components
 
     n, labels = connected_components(mesh)
-    offsets = np.cumsum([0] + [len(b.data) for b in mesh.cells])
     ef = np.concatenate(element_face) if element_face else np.zeros(0, dtype=np.int64)
     groups: dict[str, list[np.ndarray]] = {}
-    for k in range(n):
+    for k in range(n):  # one pass per tool, not per element
         sel = labels == k
         names = sorted({model.faces[f].name for f in np.unique(ef[sel]) if f >= 0 and model.faces[f].name})
         prefix = os.path.commonprefix(names).rstrip("_- ") if names else ""
@@ -80,18 +124,83 @@ def tool_groups(mesh: Mesh, model, element_face: list[np.ndarray]) -> dict[str, 
         base, i = name, 2
         while name in groups:
             name, i = f"{base}_{i}", i + 1
-        groups[name] = [sel[offsets[b] : offsets[b + 1]] for b in range(len(mesh.cells))]
+        groups[name] = _split(sel, mesh)
     return groups
 
 
-def _submesh(mesh: Mesh, masks: list[np.ndarray], name: str) -> tuple[Mesh, np.ndarray]:
-    """Elements selected by ``masks`` with their nodes renumbered; also the old node ids."""
-    blocks = [(b.type, np.asarray(b.data)[m]) for b, m in zip(mesh.cells, masks) if np.any(m)]
+def _submesh(mesh: Mesh, masks: list[np.ndarray], name: str) -> tuple[Mesh, np.ndarray, list[bool]]:
+    """Elements selected by ``masks`` with their nodes renumbered; also the old node ids and
+    which blocks were kept."""
+    kept = [bool(np.any(m)) for m in masks]
+    blocks = [(b.type, np.asarray(b.data)[m]) for b, m, k in zip(mesh.cells, masks, kept) if k]
     used = np.unique(np.concatenate([d.ravel() for _, d in blocks]))
     new = np.full(len(mesh.nodes), -1, dtype=np.int64)
     new[used] = np.arange(len(used))
     sub = Mesh(nodes=mesh.nodes[used], cells=[CellBlock(t, new[d]) for t, d in blocks], name=name)
-    return sub, used
+    return sub, used, kept
+
+
+class CadProjector:
+    """``points (M, 3) -> (foot (M, 3), normal (M, 3))`` on a CAD model, for error measures.
+
+    Keeps the search index of the model. Points the trimmed projection finds no foot for
+    (e.g. a patch bulging over a hole of a trimmed plate, when every candidate foot lies on
+    a trimmed-away part) are projected onto the untrimmed surfaces instead, and
+    ``last_off_trims`` counts them. Works in chunks so ``progress`` can follow.
+    """
+
+    chunk = 20000
+
+    def __init__(self, model, progress=None) -> None:
+        from cadbridge.nurbs.search import build_search_index
+
+        self.model = model
+        self.index = build_search_index(model)
+        self._untrimmed = None
+        self.progress = progress or NoProgress()
+        self.last_off_trims = 0
+
+    def _untrimmed_model(self):
+        from cadbridge.nurbs.search import build_search_index
+
+        if self._untrimmed is None:
+            faces = [dataclasses.replace(f, trims=None) for f in self.model.faces]
+            m = dataclasses.replace(self.model, faces=faces)
+            self._untrimmed = (m, build_search_index(m))
+        return self._untrimmed
+
+    def project(self, points: np.ndarray):
+        """The `cadbridge.nurbs.search.Projection` of ``points`` (untrimmed fallback applied)."""
+        from cadbridge.nurbs.search import project_points
+
+        points = np.asarray(points, dtype=float)
+        parts = []
+        for a in range(0, max(len(points), 1), self.chunk):
+            parts.append(project_points(points[a : a + self.chunk], self.model, index=self.index))
+            self.progress.update(min(a + self.chunk, len(points)), len(points))
+        proj = parts[0] if len(parts) == 1 else type(parts[0])(
+            *[np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(parts[0])])
+        miss = np.flatnonzero(~np.all(np.isfinite(proj.foot), axis=1))
+        self.last_off_trims = len(miss)
+        if len(miss):
+            model, index = self._untrimmed_model()
+            alt = project_points(points[miss], model, index=index)
+            for f in dataclasses.fields(proj):
+                getattr(proj, f.name)[miss] = getattr(alt, f.name)
+        return proj
+
+    def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        p = self.project(points)
+        return p.foot, p.normal
+
+
+def _triangles_first(mesh: Mesh, corner_normals: list[np.ndarray]) -> tuple[Mesh, list[np.ndarray]]:
+    """Reorder the blocks so triangles come first (the tool file's element numbering)."""
+    order = sorted(range(len(mesh.cells)), key=lambda i: mesh.cells[i].type != "triangle")
+    if order == list(range(len(mesh.cells))):
+        return mesh, corner_normals
+    return (Mesh(nodes=mesh.nodes, cells=[mesh.cells[i] for i in order], name=mesh.name),
+            [corner_normals[i] for i in order])
 
 
 def build_tool(
@@ -105,89 +214,95 @@ def build_tool(
     grid: int = 10,
     node_face=None,
     node_distance=None,
+    projector: CadProjector | None = None,
+    progress=None,
 ) -> ToolResult:
     """Nagata patches over ``mesh`` with the given normals and their errors against the CAD."""
     from cadbridge.nagata import NagataMesh
 
-    blocks = _blocks(mesh)
-    nm = NagataMesh(mesh.nodes, blocks, corner_normals)
+    progress = progress or NoProgress()
+    mesh, corner_normals = _triangles_first(mesh, corner_normals)
+    progress.stage(f"{name}: Nagata patches")
+    nm = NagataMesh(mesh.nodes, _blocks(mesh), corner_normals)
     g = nm.sample_grid(grid)
     sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
     stats: dict = {}
     if model is not None:
-        from cadbridge.nagata.errors import cad_errors
+        from cadbridge.nagata.errors import angle_deg
 
-        err = cad_errors(nm, _cad_projector(model), grid)
-        sample["shape_error"] = err.shape
-        sample["normal_error"] = err.normal
-        stats["max_abs_shape_error"] = float(np.max(np.abs(err.shape)))
-        stats["mean_abs_shape_error"] = float(np.mean(np.abs(err.shape)))
-        stats["max_normal_error_deg"] = float(np.max(err.normal))
-        stats["mean_normal_error_deg"] = float(np.mean(err.normal))
+        progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points)")
+        projector = projector or CadProjector(model, progress)
+        foot, ncad = projector(g.points)
+        # a CAD face's Su x Sv orientation is arbitrary: compare with the side the patch faces
+        ncad = ncad * np.where(np.einsum("ij,ij->i", ncad, g.normals) < 0, -1.0, 1.0)[:, None]
+        shape = np.einsum("ij,ij->i", g.points - foot, ncad)
+        normal = angle_deg(g.normals, ncad)
+        sample["shape_error"], sample["normal_error"] = shape, normal
+        stats = {
+            "max_abs_shape_error": float(np.max(np.abs(shape))),
+            "mean_abs_shape_error": float(np.mean(np.abs(shape))),
+            "max_normal_error_deg": float(np.max(normal)),
+            "mean_normal_error_deg": float(np.mean(normal)),
+            "points_off_trims": projector.last_off_trims,
+        }
     return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance)
 
 
-def _cad_projector(model):
-    """``points (M, 3) -> (foot (M, 3), normal (M, 3))`` on the CAD model."""
-    from cadbridge.nurbs.search import project_points
-
-    def project(points):
-        p = project_points(points, model)
-        return p.foot, p.normal
-
-    return project
-
-
-def _corner_overrides(nodes_normals: np.ndarray, blocks: list[np.ndarray], corners: list[np.ndarray]):
-    """(element, local corner, normal) where a corner normal differs from its node normal."""
-    elems, locs, nrms = [], [], []
+def _corner_overrides(node_normals: np.ndarray, blocks: list[np.ndarray], corners: list[np.ndarray]):
+    """(element, local corner, normal) where a corner normal differs from its node normal
+    (global element numbering over ``blocks`` in order)."""
+    b = [blk.reshape(len(blk), -1) for blk in blocks]
+    elems, locs, nrms = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 3))]
     offset = 0
-    for b, c in zip(blocks, corners):
-        diff = np.any(c != nodes_normals[b], axis=2)
-        e, k = np.nonzero(diff)
+    for blk, c in zip(b, corners):  # one pass per block
+        e, k = np.nonzero(np.any(c != node_normals[blk], axis=2))
         elems.append(e + offset)
         locs.append(k)
         nrms.append(c[e, k])
-        offset += len(b)
-    if not elems:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3))
+        offset += len(blk)
     return np.concatenate(elems), np.concatenate(locs), np.concatenate(nrms)
 
 
-def _write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | None, report: bool,
-                        model=None) -> list[str]:
-    """Tool file, and with ``report`` the VTUs, CSV grid, coefficient listing, IGES and PNGs."""
-    from cadbridge.io.toolfile import ToolData, write_toolfile
+def tool_data(tool: ToolResult, units: str, cad: str | None = None):
+    """The `cadbridge.io.toolfile.ToolData` of a tool (what its ``.nagata`` file holds)."""
+    from cadbridge.io.toolfile import ToolData
 
-    files = []
-    blocks = _blocks(tool.mesh)
-    kinds = [b.type for b in tool.mesh.cells]
-    # tool-file numbering: all triangles, then all quadrilaterals (blocks in order within each)
-    order = [i for i, k in enumerate(kinds) if k == "triangle"] + [i for i, k in enumerate(kinds) if k == "quad"]
-    tri = [blocks[i] for i in order if kinds[i] == "triangle"]
-    quad = [blocks[i] for i in order if kinds[i] == "quad"]
-    ce, cl, cn = _corner_overrides(tool.normals, [blocks[i] for i in order], [tool.corner_normals[i] for i in order])
-    nm = tool.nagata
-    tri_c = nm.tri_coefficients if tri else None
-    quad_c = nm.quad_coefficients if quad else None
-    tooldata = ToolData(
+    nm, mesh = tool.nagata, tool.mesh
+    blocks = _blocks(mesh)  # triangles first (see build_tool)
+    tri = [b for b, c in zip(blocks, mesh.cells) if c.type == "triangle"]
+    quad = [b for b, c in zip(blocks, mesh.cells) if c.type == "quad"]
+    ce, cl, cn = _corner_overrides(tool.normals, blocks, tool.corner_normals)
+    return ToolData(
         name=tool.name,
         units=units,
-        nodes=tool.mesh.nodes,
+        nodes=mesh.nodes,
         normals=tool.normals,
         triangles=np.concatenate(tri) if tri else np.zeros((0, 3), dtype=np.int64),
         quads=np.concatenate(quad) if quad else np.zeros((0, 4), dtype=np.int64),
         corner_element=ce,
         corner_local=cl,
         corner_normals=cn,
-        tri_coefficients=tri_c,
-        quad_coefficients=quad_c,
+        tri_coefficients=nm.tri_coefficients if tri else None,
+        quad_coefficients=nm.quad_coefficients if quad else None,
         source=cad or "",
         normal_source=tool.normal_source,
     )
-    path = folder / f"{tool.name}.nagata"
-    write_toolfile(tooldata, path)
-    files.append(path.name)
+
+
+def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | None, report: bool,
+                       projector: CadProjector | None = None) -> list[str]:
+    """Tool file, and with ``report`` the VTUs, CSV grid, coefficient listing, IGES and PNGs.
+
+    Returns the names of the files written (relative to ``folder``).
+    """
+    from cadbridge.io.toolfile import write_toolfile
+
+    name, nm, mesh = tool.name, tool.nagata, tool.mesh
+    blocks = _blocks(mesh)
+    tooldata = tool_data(tool, units, cad)
+    tri_c, quad_c = tooldata.tri_coefficients, tooldata.quad_coefficients
+    write_toolfile(tooldata, folder / f"{name}.nagata")
+    files = [f"{name}.nagata"]
     if not report:
         return files
 
@@ -198,75 +313,80 @@ def _write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | N
 
     g = tool.grid
     errors = {k: g[k] for k in ("shape_error", "normal_error") if k in g}
-    # point index within its patch, 1-based like the thesis' "Excel" file
+    # point index within its patch, 1-based like the thesis' "Excel" file (grid points of a
+    # patch are consecutive)
     elem = np.asarray(g["element"])
-    starts = np.r_[0, np.flatnonzero(np.diff(elem)) + 1]
-    point = np.arange(len(elem)) - np.repeat(starts, np.diff(np.r_[starts, len(elem)])) + 1
-    write_grid_csv(folder / f"{tool.name}_grid.csv", elem + 1, point, g["points"], g["normals"], errors or None)
-    write_coefficients_listing(folder / f"{tool.name}_coefficients.txt", tri_c, quad_c)
-    write_nagata_iges(tri_c, quad_c, folder / f"{tool.name}_nagata.igs", units=units)
+    first = np.searchsorted(elem, elem)
+    write_grid_csv(folder / f"{name}_grid.csv", elem + 1, np.arange(len(elem)) - first + 1, g["points"],
+                   g["normals"], errors or None)
+    write_coefficients_listing(folder / f"{name}_coefficients.txt", tri_c, quad_c)
+    write_nagata_iges(tri_c, quad_c, folder / f"{name}_nagata.igs", units=units)
+
     verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(4, return_params=True)
     _, vnorm = nm.evaluate(pe, peta, pzeta)
-    pdata = {"normal": vnorm, "element": pe.astype(np.int32)}
-    if model is not None:
-        from cadbridge.nurbs.search import project_points
+    surface_data = {"normal": vnorm, "element": pe.astype(np.int32)}
+    if projector is not None:
+        from cadbridge.nagata.errors import angle_deg
 
-        pr = project_points(verts, model)
+        pr = projector.project(verts)
         ncad = pr.normal * np.where(np.einsum("ij,ij->i", pr.normal, vnorm) < 0, -1.0, 1.0)[:, None]
-        pdata["shape_error"] = np.einsum("ij,ij->i", verts - pr.foot, ncad)
-        pdata["normal_error"] = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", vnorm, ncad), -1, 1)))
-        pdata["face_id"] = pr.face.astype(np.int32)
-    write_surface_vtu(folder / f"{tool.name}_nagata.vtu", verts, tris, point_data=pdata)
-    pdata_mesh = {"normal": tool.normals}
+        surface_data["shape_error"] = np.einsum("ij,ij->i", verts - pr.foot, ncad)
+        surface_data["normal_error"] = angle_deg(vnorm, ncad)
+        surface_data["face_id"] = pr.face.astype(np.int32)
+    write_surface_vtu(folder / f"{name}_nagata.vtu", verts, tris, point_data=surface_data)
+
+    mesh_data = {"normal": tool.normals}
     if tool.node_face is not None:
-        pdata_mesh["face_id"] = np.asarray(tool.node_face, dtype=np.int32)
-        pdata_mesh["distance"] = tool.node_distance
-    write_mesh_vtu(
-        folder / f"{tool.name}_mesh.vtu",
-        tool.mesh.nodes,
-        [(b.type, np.asarray(b.data)) for b in tool.mesh.cells],
-        point_data=pdata_mesh,
-        field_data={"normal_source": tool.normal_source},
-    )
-    files += [f"{tool.name}_grid.csv", f"{tool.name}_coefficients.txt", f"{tool.name}_nagata.igs",
-              f"{tool.name}_nagata.vtu", f"{tool.name}_mesh.vtu"]
+        mesh_data["face_id"] = np.asarray(tool.node_face, dtype=np.int32)
+        mesh_data["distance"] = tool.node_distance
+    write_mesh_vtu(folder / f"{name}_mesh.vtu", mesh.nodes, [(c.type, b) for c, b in zip(mesh.cells, blocks)],
+                   point_data=mesh_data, field_data={"normal_source": tool.normal_source})
+    files += [f"{name}_grid.csv", f"{name}_coefficients.txt", f"{name}_nagata.igs",
+              f"{name}_nagata.vtu", f"{name}_mesh.vtu"]
     if errors:
-        plot_error_histogram(folder / f"{tool.name}_shape_error.png", {tool.normal_source: np.abs(errors["shape_error"])},
-                             xlabel=f"|shape error| [{units.lower()}]", title=f"{tool.name}: Nagata shape error vs CAD")
-        plot_error_histogram(folder / f"{tool.name}_normal_error.png", {tool.normal_source: errors["normal_error"]},
-                             xlabel="normal error [deg]", title=f"{tool.name}: Nagata normal error vs CAD")
-        files += [f"{tool.name}_shape_error.png", f"{tool.name}_normal_error.png"]
+        plot_error_histogram(folder / f"{name}_shape_error.png", {tool.normal_source: np.abs(errors["shape_error"])},
+                             xlabel=f"|shape error| [{units.lower()}]", title=f"{name}: Nagata shape error vs CAD")
+        plot_error_histogram(folder / f"{name}_normal_error.png", {tool.normal_source: errors["normal_error"]},
+                             xlabel="normal error [deg]", title=f"{name}: Nagata normal error vs CAD")
+        files += [f"{name}_shape_error.png", f"{name}_normal_error.png"]
     return files
 
 
-class _Staging:
-    """Write into a temporary folder beside ``output``; move into place only on success."""
-
-    def __init__(self, output: str | os.PathLike) -> None:
-        self.output = Path(output)
-
-    def __enter__(self) -> Path:
-        parent = self.output.resolve().parent
-        parent.mkdir(parents=True, exist_ok=True)
-        self.tmp = Path(tempfile.mkdtemp(prefix=f".{self.output.name}.", dir=parent))
-        return self.tmp
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is not None:
-            shutil.rmtree(self.tmp, ignore_errors=True)
-            return
-        self.output.mkdir(parents=True, exist_ok=True)
-        for p in sorted(self.tmp.rglob("*")):
-            rel = p.relative_to(self.tmp)
-            if p.is_dir():
-                (self.output / rel).mkdir(parents=True, exist_ok=True)
-            else:
-                os.replace(p, self.output / rel)
-        shutil.rmtree(self.tmp, ignore_errors=True)
+@contextmanager
+def staged_output(output: str | os.PathLike) -> Iterator[Path]:
+    """Write into a temporary folder beside ``output``; move the files into place only on
+    success. On an error the temporary folder is removed and ``output`` is left as it was
+    (not created if it did not exist)."""
+    output = Path(output)
+    parent = output.resolve().parent
+    created_parent = not parent.exists()
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", dir=parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created_parent:
+            try:
+                parent.rmdir()
+            except OSError:
+                pass
+        raise
+    if not output.exists():
+        os.replace(tmp, output)  # the usual case: one rename
+        return
+    for p in sorted(tmp.rglob("*")):
+        rel = p.relative_to(tmp)
+        if p.is_dir():
+            (output / rel).mkdir(parents=True, exist_ok=True)
+        else:
+            os.replace(p, output / rel)
+    shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _normals(mesh: Mesh, model, method: str, *, tolerance=None, flip=False, allow_far=False):
-    """(node normals, corner normals per block, node face ids | None, node distances | None, element faces | None)."""
+    """(node normals, corner normals per block, node face ids | None, node distances | None,
+    element faces per block | None)."""
     blocks = _blocks(mesh)
     if method == "cad":
         from cadbridge.normals.cad import cad_normals
@@ -281,32 +401,34 @@ def _normals(mesh: Mesh, model, method: str, *, tolerance=None, flip=False, allo
     return n, [n[b] for b in blocks], None, None, None
 
 
-def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far) -> list[ToolResult]:
+def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress
+                     ) -> list[ToolResult]:
+    progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
+                   f" ({len(mesh.nodes)} nodes)")
     normals, corners, node_face, node_dist, elem_face = _normals(
         mesh, model, method, tolerance=tolerance, flip=flip, allow_far=allow_far
     )
-    if model is not None and elem_face is None:
-        from cadbridge.nurbs.search import project_points
-
-        cent = np.concatenate([mesh.nodes[b].mean(axis=1) for b in _blocks(mesh)])
-        ef = project_points(cent, model).face
-        offs = np.cumsum([0] + [len(b.data) for b in mesh.cells])
-        elem_face = [ef[offs[i] : offs[i + 1]] for i in range(len(mesh.cells))]
-    groups = tool_groups(mesh, model, elem_face) if model is not None else {"": None}
+    if model is None:
+        groups = {"": [np.ones(len(b), dtype=bool) for b in mesh.cells]}
+    else:
+        if elem_face is None:  # estimated normals: the CAD still names the tools
+            cent = np.concatenate([mesh.nodes[b].mean(axis=1) for b in _blocks(mesh)])
+            elem_face = _split(projector.project(cent).face, mesh)
+        groups = tool_groups(mesh, model, elem_face)
     tools = []
     for gname, masks in groups.items():
-        tname = name or gname or mesh.name or "tool"
-        tname = tname.lower() if gname.isupper() and not name else tname
-        if masks is None or all(m.all() for m in masks):
-            tools.append(build_tool(tname, mesh, normals, corners, method, model=model, grid=grid,
-                                    node_face=node_face, node_distance=node_dist))
-            continue
-        sub, used = _submesh(mesh, masks, tname)
-        sub_corners = [c[m] for c, m in zip(corners, masks) if np.any(m)]
+        label = gname.lower() if gname.isupper() else gname  # IGES names are upper case
+        tname = (f"{name}_{label}" if len(groups) > 1 else name) if name else (label or "tool")
+        if all(m.all() for m in masks):
+            sub, used, kept = mesh, np.arange(len(mesh.nodes)), [True] * len(masks)
+        else:
+            sub, used, kept = _submesh(mesh, masks, tname)
+        sub_corners = [c[m] for c, m, k in zip(corners, masks, kept) if k]
         tools.append(build_tool(
-            tname if not name else f"{name}_{gname.lower()}", sub, normals[used], sub_corners, method, model=model,
-            grid=grid, node_face=None if node_face is None else node_face[used],
+            tname, sub, normals[used], sub_corners, method, model=model, grid=grid,
+            node_face=None if node_face is None else node_face[used],
             node_distance=None if node_dist is None else node_dist[used],
+            projector=projector, progress=progress,
         ))
     return tools
 
@@ -323,25 +445,31 @@ def nagata_from_mesh(
     flip: bool = False,
     allow_far: bool = False,
     grid: int = 10,
+    progress=None,
 ) -> RunResult:
     """`cadbridge nagata`: tool file(s) + report from a user mesh (and the CAD)."""
     from cadbridge.mesh.io import read_mesh
 
+    progress = progress or NoProgress()
+    if cad is None and method == "cad":
+        raise ValueError("--method cad needs --cad FILE.igs")
     model = None
     if cad is not None:
         from cadbridge.iges import read_iges
 
+        progress.stage(f"reading {cad}")
         model = read_iges(cad)
-    elif method == "cad":
-        raise ValueError("--method cad needs --cad FILE.igs")
+    progress.stage(f"reading {mesh_path}")
     mesh = read_mesh(mesh_path)
     mesh.name = Path(mesh_path).stem
-    tools = _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far)
+    projector = CadProjector(model, progress) if model is not None else None
+    tools = _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress)
     units = model.units.name if model is not None else "MM"
     result = RunResult(Path(output), tools)
-    with _Staging(output) as tmp:
+    with staged_output(output) as tmp:
         for t in tools:
-            result.files += _write_tool_outputs(t, tmp, units, cad, report, model)
+            progress.stage(f"{t.name}: writing tool file{' and report' if report else ''}")
+            result.files += write_tool_outputs(t, tmp, units, cad, report, projector)
     return result
 
 
@@ -358,21 +486,27 @@ def convert(
     grid: int = 10,
     flip: bool = False,
     tolerance: float | None = None,
+    progress=None,
 ) -> RunResult:
     """`cadbridge convert`: mesh the CAD with gmsh, exact normals, Nagata, tool files, report."""
     from cadbridge.iges import read_iges
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.io import write_mesh
 
+    progress = progress or NoProgress()
+    progress.stage(f"reading {cad}")
     model = read_iges(cad)  # fails early, before anything is meshed or written, on a bad file
+    progress.stage(f"meshing {Path(cad).name} with gmsh")
     mesh = mesh_cad(cad, element=element, size=size, structured=structured,
                     radius_divisions=radius_divisions, length_divisions=length_divisions)
     mesh.name = Path(cad).stem
-    tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False)
+    projector = CadProjector(model, progress)
+    tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress)
     result = RunResult(Path(output), tools)
-    with _Staging(output) as tmp:
+    with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
         result.files.append(f"{mesh.name}_mesh.msh")
         for t in tools:
-            result.files += _write_tool_outputs(t, tmp, model.units.name, cad, True, model)
+            progress.stage(f"{t.name}: writing tool file and report")
+            result.files += write_tool_outputs(t, tmp, model.units.name, cad, True, projector)
     return result

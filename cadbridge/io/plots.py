@@ -117,6 +117,7 @@ def plot_section_error(
     ylabel: str = "radial error [%]",
     title: str | None = None,
     polyhedral: tuple[ArrayLike, ArrayLike] | None = None,
+    legend_outside: bool = False,
     figsize: tuple[float, float] = (8, 5),
     dpi: float = 200,
 ) -> None:
@@ -125,7 +126,8 @@ def plot_section_error(
     series : name -> (s (K,), err (K,)), position along the section and error there (K may
     differ between series; NaN in err leaves a gap). element_boundaries : (B,) positions of
     element boundaries, drawn as vertical dotted lines. polyhedral : optional (s, err) of the
-    flat (polyhedral) mesh, drawn as a dashed black reference.
+    flat (polyhedral) mesh, drawn as a dashed black reference. legend_outside puts the
+    legend right of the axes, so it never hides a curve.
     """
     _nonempty("series", series)
     data = {name: _pair(f"series {name!r}", pair) for name, pair in series.items()}
@@ -150,7 +152,10 @@ def plot_section_error(
     if title:
         ax.set_title(title)
     ax.grid(True, alpha=0.4)
-    ax.legend(loc="best", fontsize="small")
+    if legend_outside:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    else:
+        ax.legend(loc="best", fontsize="small")
     _save(fig, path)
 
 

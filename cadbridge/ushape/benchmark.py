@@ -16,10 +16,8 @@ CAD, meshes, the blank shell mesh, tool files, report files, ``summary.md`` and
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -69,13 +67,26 @@ class SectionResult:
 
 @dataclass
 class UShapeSummary:
-    """What `run_ushape` measured: {tool: {source: {...}}} plus timings and file list."""
+    """What `run_ushape` measured.
 
-    results: dict = field(default_factory=dict)
-    output: str = ""
-    seconds: float = 0.0
-    files: list[str] = field(default_factory=list)
-    params: dict = field(default_factory=dict)
+    tools  {tool: {source: {...}}}: per source of node normals (`SOURCES`) the section errors
+           (`SectionResult.as_dict`), plus "polyhedral" (flat elements along the same section),
+           "cad_quad_vs_cad" and "cad_fine_tri_vs_cad" (whole Nagata surface against the CAD).
+           Tools without a radius (the blank holder) have only the last two.
+    run    output folder, seconds, parameters, files written.
+
+    tool_files {tool: `ToolData`} of the tool files written (CAD normals, structured quads).
+
+    ``as_json()`` is what summary.json holds: the tools at the top level and the run data
+    under "_run" (a key no tool name can take).
+    """
+
+    tools: dict = field(default_factory=dict)
+    run: dict = field(default_factory=dict)
+    tool_files: dict = field(default_factory=dict, repr=False)  # {tool: ToolData written}
+
+    def as_json(self) -> dict:
+        return {**self.tools, "_run": self.run}
 
     def table(self) -> str:
         """The summary as a Markdown table (also printed by `cadbridge ushape`)."""
@@ -83,7 +94,7 @@ class UShapeSummary:
             "| tool | normals | max radial error [%] | radius elements e1 / e2 / e3 [%] | max normal error [°] |",
             "|---|---|---:|---|---:|",
         ]
-        for tool, by_source in self.results.items():
+        for tool, by_source in self.tools.items():
             for src, r in by_source.items():
                 if "radius_elements_max_radial_error_pct" in r:
                     els = " / ".join(f"{e:+.4f}" for e in r["radius_elements_max_radial_error_pct"])
@@ -95,6 +106,23 @@ class UShapeSummary:
                 else:  # the polyhedral reference
                     lines.append(f"| {tool} | {src} | {r['max_radial_error_pct']:+.4f} | - | - |")
         return "\n".join(lines)
+
+    def findings(self, tool: str = "die") -> list[str]:
+        """The thesis' Fig. 49 statements, checked on ``tool`` (one line each)."""
+        r = self.tools.get(tool, {})
+        if "cad" not in r:
+            return []
+        cad = r["cad"]["radius_elements_max_radial_error_pct"]
+        poly = r["polyhedral"]["max_radial_error_pct"]
+        wo = r["mwe_without_planes"]["radius_elements_max_radial_error_pct"]
+        best = {k: abs(r[k]["max_radial_error_pct"]) for k in ("mwe_with_planes", "mwaat_with_planes", "mwelr_with_planes")}
+        order = " < ".join(f"{k.split('_')[0].upper()} {v:.4f} %" for k, v in sorted(best.items(), key=lambda kv: kv[1]))
+        return [
+            f"CAD normals: max radial error {max(cad, key=abs):+.4f} % in each of the three radius elements "
+            f"(spread {max(cad) - min(cad):.1e} %)",
+            f"MWE without planes: outer elements {wo[0]:+.4f} / {wo[-1]:+.4f} % vs polyhedral {poly:+.4f} %",
+            f"with planes, max |radial error|: {order}",
+        ]
 
 
 def _radius_axis(tool: str, p: UShapeParams) -> tuple[np.ndarray, float]:
@@ -160,122 +188,153 @@ def _flat_normals_toward(mesh, toward_z: float):
     return Mesh(nodes=mesh.nodes, cells=[CellBlock(b.type, np.asarray(b.data)[:, ::-1]) for b in mesh.cells], name=mesh.name)
 
 
+def _estimated(mesh_nodes, quads, method, sub_elements=None):
+    """Node normals by a polyhedral estimator over ``quads`` (or only ``quads[sub_elements]``,
+    renumbered): (nodes, quads, normals, original node ids)."""
+    from cadbridge.normals.estimators import estimate_normals
+
+    if sub_elements is None:
+        used, q = np.arange(len(mesh_nodes)), quads
+    else:
+        used, inv = np.unique(quads[sub_elements], return_inverse=True)
+        q = inv.reshape(-1, 4)
+    nodes = mesh_nodes[used]
+    return nodes, q, estimate_normals(nodes, [q], method=method), used
+
+
+def _tool_sources(tool, mesh, cn, on_radius, p, projector, grid):
+    """Fig. 49 for one tool: per normal source the section errors (tools with a radius),
+    the node-normal angles to the CAD normals and the shape errors of the whole Nagata
+    surface against the CAD. Returns (results, sections, element boundaries, angles,
+    shape errors)."""
+    from cadbridge.nagata import NagataMesh
+    from cadbridge.nagata.errors import angle_deg
+
+    quads = mesh.quads
+    rad_el = np.flatnonzero(on_radius)
+    has_radius = len(rad_el) > 0
+    centre, radius = _radius_axis(tool, p) if has_radius else (None, None)
+    y_mid = 0.5 * (p.y_range[0] + p.y_range[1])
+    results, sections, angles, shape = {}, {}, {}, {}
+    boundaries = None
+    for key, method, planes in SOURCES:
+        if not planes and not has_radius:
+            continue
+        if method == "cad":
+            nodes, q, nrm, used = mesh.nodes, quads, cn.normals, np.arange(len(mesh.nodes))
+        else:
+            nodes, q, nrm, used = _estimated(mesh.nodes, quads, method, None if planes else rad_el)
+            angles[key] = angle_deg(nrm, cn.normals[used])
+        nm = NagataMesh(nodes, q, nrm)
+        if planes:  # the whole tool against the CAD
+            g = nm.sample_grid(grid)
+            foot, ncad = projector(g.points)
+            ncad = ncad * np.where(np.einsum("ij,ij->i", ncad, g.normals) < 0, -1.0, 1.0)[:, None]
+            shape[key] = np.abs(np.einsum("ij,ij->i", g.points - foot, ncad))
+        if has_radius:
+            # the radius elements: numbered as in the mesh with planes, first ones without
+            sec = section_errors(nm, rad_el if planes else np.arange(len(rad_el)), centre, radius, y_mid)
+            results[key] = sec.as_dict()
+            sections[key.replace("_", " ")] = (sec.s, sec.radial_error)
+            boundaries = [float(sec.s[sec.element == k].max()) for k in range(int(sec.element.max()))]
+    poly = None
+    if has_radius:
+        poly = _polyhedral_section(mesh.nodes, quads[rad_el], centre, radius, y_mid)
+        results["polyhedral"] = {"max_radial_error_pct": float(poly[1][np.argmax(np.abs(poly[1]))])}
+    return results, sections, boundaries, poly, angles, shape
+
+
 def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 20, fine_size: float = 4.0,
-               verbose: bool = True) -> UShapeSummary:
-    """Run the benchmark into ``output`` (created; files are moved in only on success)."""
+               progress=None) -> UShapeSummary:
+    """Run the benchmark into ``output`` (created; files are moved in only on success).
+
+    progress: optional stage reporter (see `cadbridge.pipeline.NoProgress`).
+    """
     from cadbridge.iges import read_iges
-    from cadbridge.io.plots import plot_normal_sources, plot_section_error
+    from cadbridge.io.plots import plot_error_histogram, plot_normal_sources, plot_section_error
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.io import write_mesh
     from cadbridge.mesh.mesh import CellBlock, Mesh
-    from cadbridge.nagata import NagataMesh
     from cadbridge.normals.cad import cad_normals
-    from cadbridge.normals.estimators import estimate_normals
-    from cadbridge.pipeline import _Staging, _write_tool_outputs, build_tool
+    from cadbridge.pipeline import CadProjector, NoProgress, build_tool, staged_output, tool_data, write_tool_outputs
 
     p = params or UShapeParams()
+    progress = progress or NoProgress()
     t_start = time.perf_counter()
-    summary = UShapeSummary(output=str(output), params=asdict(p))
-    log = print if verbose else (lambda *a, **k: None)
+    summary = UShapeSummary()
+    files: list[str] = []
     faces_by_tool = tool_faces(p)
     blank_z = p.thickness / 2
-    y_mid = 0.5 * (p.y_range[0] + p.y_range[1])
 
-    with _Staging(output) as tmp:
-        (tmp / "cad").mkdir()
-        (tmp / "mesh").mkdir()
-        (tmp / "blank").mkdir()
+    with staged_output(output) as tmp:
+        for sub in ("cad", "mesh", "blank"):
+            (tmp / sub).mkdir()
         for tool, faces in faces_by_tool.items():
-            log(f"[ushape] {tool}: CAD -> IGES (NURBS)")
+            progress.stage(f"{tool}: CAD -> NURBS IGES")
             cad_path = tmp / "cad" / f"{tool}.igs"
             export_iges(faces, cad_path, mode="nurbs", description=f"cadbridge ushape: NUMISHEET'93 {tool} (quarter model)")
             model = read_iges(cad_path)
+            projector = CadProjector(model, progress)
             radius_faces = [i for i, f in enumerate(model.faces) if f.name and "RAD" in f.name.upper()]
 
-            log(f"[ushape] {tool}: structured quad mesh (3 over the radius, 1 along the length)")
+            progress.stage(f"{tool}: structured quads, CAD normals")
             mesh = mesh_cad(cad_path, element="quad", structured=True, radius_divisions=3, length_divisions=1, divisions=1)
             mesh = _flat_normals_toward(mesh, blank_z)
             mesh.name = f"{tool}_quad"
             write_mesh(mesh, tmp / "mesh" / f"{tool}_quad.msh")
-            quads = mesh.quads
             cn = cad_normals(mesh, model)
-            elem_face = np.concatenate(cn.element_face)
-            on_radius = np.isin(elem_face, radius_faces)
+            on_radius = np.isin(np.concatenate(cn.element_face), radius_faces)
 
-            tool_res: dict = {}
-            sections: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-            node_angles: dict[str, np.ndarray] = {}
-            boundaries = None
-            for key, method, planes in SOURCES:
-                if not radius_faces:
-                    break
-                if method == "cad":
-                    nodes, q, nrm = mesh.nodes, quads, cn.normals
-                else:
-                    if planes:
-                        nodes, q = mesh.nodes, quads
-                    else:  # the radius elements alone, renumbered
-                        used = np.unique(quads[on_radius])
-                        remap = np.full(len(mesh.nodes), -1)
-                        remap[used] = np.arange(len(used))
-                        nodes, q = mesh.nodes[used], remap[quads[on_radius]]
-                    nrm = estimate_normals(nodes, [q], method=method)
-                    # the angle of each estimated node normal to the exact CAD normal
-                    ref = cn.normals if planes else cn.normals[used]
-                    node_angles[key] = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", nrm, ref), -1, 1)))
-                nm = NagataMesh(nodes, q, nrm)
-                rad_el = np.flatnonzero(on_radius) if planes or method == "cad" else np.arange(int(on_radius.sum()))
-                centre, radius = _radius_axis(tool, p)
-                sec = section_errors(nm, rad_el, centre, radius, y_mid)
-                tool_res[key] = sec.as_dict()
-                sections[key] = (sec.s, sec.radial_error)
-                n_el = int(sec.element.max()) + 1
-                boundaries = [float(sec.s[sec.element == k].max()) for k in range(n_el - 1)]
-            # the polyhedral (flat quad) reference along the same section
-            if radius_faces:
-                centre, radius = _radius_axis(tool, p)
-                poly = _polyhedral_section(mesh.nodes, quads[on_radius], centre, radius, y_mid)
-                tool_res["polyhedral"] = {"max_radial_error_pct": float(poly[1][np.argmax(np.abs(poly[1]))])}
+            progress.stage(f"{tool}: CAD vs MWE / MWAAT / MWELR normals (Fig. 49)")
+            results, sections, boundaries, poly, angles, shape = _tool_sources(tool, mesh, cn, on_radius, p, projector, grid)
+            if sections:
                 plot_section_error(
-                    tmp / f"{tool}_section_error.png",
-                    {k.replace("_", " "): v for k, v in sections.items()},
-                    element_boundaries=boundaries,
+                    tmp / f"{tool}_section_error.png", sections, element_boundaries=boundaries, polyhedral=poly, legend_outside=True,
                     title=f"{tool}: radial error along section A-A through the radius (thesis Fig. 49)",
-                    polyhedral=poly,
                 )
-                plot_normal_sources(tmp / f"{tool}_normal_sources.png", node_angles,
-                                    title=f"{tool}: node normal estimates vs exact CAD normals")
-                summary.files += [f"{tool}_section_error.png", f"{tool}_normal_sources.png"]
+                files.append(f"{tool}_section_error.png")
+            plot_normal_sources(tmp / f"{tool}_normal_sources.png", angles,
+                                title=f"{tool}: node normal estimates vs exact CAD normals")
+            plot_error_histogram(tmp / f"{tool}_shape_error_by_source.png", shape,
+                                 xlabel="|shape error| of the Nagata surface vs CAD [mm]",
+                                 title=f"{tool}: shape error by source of the node normals")
+            files += [f"{tool}_normal_sources.png", f"{tool}_shape_error_by_source.png"]
 
             # the tool file + report: CAD normals on the structured quad mesh
             tq = build_tool(tool, mesh, cn.normals, cn.corner_normals, "cad", model=model, grid=grid,
-                            node_face=cn.face, node_distance=cn.distance)
+                            node_face=cn.face, node_distance=cn.distance, projector=projector, progress=progress)
             (tmp / tool).mkdir()
-            summary.files += [f"{tool}/{f}" for f in _write_tool_outputs(tq, tmp / tool, model.units.name, f"cad/{tool}.igs", True, model)]
-            tool_res["cad_quad_vs_cad"] = {
+            progress.stage(f"{tool}: tool file and report")
+            files += [f"{tool}/{f}" for f in write_tool_outputs(tq, tmp / tool, model.units.name, f"cad/{tool}.igs",
+                                                                True, projector)]
+            summary.tool_files[tool] = tool_data(tq, model.units.name, f"cad/{tool}.igs")
+            results["cad_quad_vs_cad"] = {
                 "max_abs_shape_error_mm": tq.stats["max_abs_shape_error"],
                 "max_normal_error_deg": tq.stats["max_normal_error_deg"],
             }
 
-            log(f"[ushape] {tool}: unstructured triangles (size {fine_size} mm), CAD normals")
+            progress.stage(f"{tool}: unstructured triangles ({fine_size} mm), CAD normals")
             fine = mesh_cad(cad_path, element="tri", size=fine_size)
             fine = _flat_normals_toward(fine, blank_z)
             fine.name = f"{tool}_tri"
             write_mesh(fine, tmp / "mesh" / f"{tool}_tri.msh")
             cf = cad_normals(fine, model)
-            tf = build_tool(f"{tool}_tri", fine, cf.normals, cf.corner_normals, "cad", model=model, grid=max(4, grid // 4),
-                            node_face=cf.face, node_distance=cf.distance)
-            tool_res["cad_fine_tri_vs_cad"] = {
+            tf = build_tool(f"{tool}_tri", fine, cf.normals, cf.corner_normals, "cad", model=model,
+                            grid=max(4, grid // 4), node_face=cf.face, node_distance=cf.distance,
+                            projector=projector, progress=progress)
+            results["cad_fine_tri_vs_cad"] = {
                 "max_abs_shape_error_mm": tf.stats["max_abs_shape_error"],
                 "max_normal_error_deg": tf.stats["max_normal_error_deg"],
                 "elements": int(fine.n_elements),
             }
-            write_name = f"{tool}_tri"
-            (tmp / write_name).mkdir()
-            summary.files += [f"{write_name}/{f}" for f in _write_tool_outputs(tf, tmp / write_name, model.units.name, f"cad/{tool}.igs", False, model)]
-            summary.results[tool] = tool_res
+            (tmp / tf.name).mkdir()
+            files += [f"{tf.name}/{f}" for f in write_tool_outputs(tf, tmp / tf.name, model.units.name,
+                                                                     f"cad/{tool}.igs", False)]
+            files += [f"cad/{tool}.igs", f"mesh/{tool}_quad.msh", f"mesh/{tool}_tri.msh"]
+            summary.tools[tool] = results
 
         # the blank: a shell mesh of the mid-surface, and its process data
+        progress.stage("blank shell mesh and summary")
         bn, bq = blank_mesh(p, element_size=1.0)
         write_mesh(Mesh(nodes=bn, cells=[CellBlock("quad", bq)], name="blank"), tmp / "blank" / "blank.msh")
         (tmp / "blank" / "process.json").write_text(json.dumps({
@@ -284,41 +343,38 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
             "friction": p.friction, "punch_stroke_mm": p.punch_stroke,
             "symmetry": {"x": p.symmetry_x, "y": p.symmetry_y},
         }, indent=2))
-        summary.files += ["blank/blank.msh", "blank/process.json"] + [f"cad/{t}.igs" for t in faces_by_tool] + \
-            [f"mesh/{t}_{k}.msh" for t in faces_by_tool for k in ("quad", "tri")]
-        summary.seconds = time.perf_counter() - t_start
-        (tmp / "summary.json").write_text(json.dumps({"results": summary.results, "seconds": summary.seconds,
-                                                      "params": summary.params}, indent=2))
+        files += ["blank/blank.msh", "blank/process.json", "summary.json", "summary.md"]
+        summary.run = {"output": str(output), "seconds": time.perf_counter() - t_start, "grid": grid,
+                       "fine_size_mm": fine_size, "params": asdict(p), "files": files}
+        (tmp / "summary.json").write_text(json.dumps(summary.as_json(), indent=2))
         (tmp / "summary.md").write_text(_markdown(summary))
-        summary.files += ["summary.json", "summary.md"]
     return summary
 
 
 def _polyhedral_section(nodes, quads, centre, radius, y, samples: int = 101):
-    """Radial error of the flat quads along the section (the polyhedral model's error)."""
-    x = nodes[quads]
+    """Radial error of the flat quads along the section y = ``y`` (the polyhedral model):
+    (angle from the first tangent point (K,), radial error in % (K,))."""
+    x = nodes[quads]  # (E, 4, 3): x00 x10 x11 x01
     # the section of a flat quad crossing y is the chord between its two straight edges at y
-    eta_along_y = np.abs(x[:, 1, 1] - x[:, 0, 1]) > np.abs(x[:, 3, 1] - x[:, 0, 1])
-    t = np.linspace(0.0, 1.0, samples)
-    out_s, out_e = [], []
-    for q, along in zip(x, eta_along_y):
-        if along:  # straight edges x00-x10 and x01-x11
-            e0, e1 = (q[0], q[1]), (q[3], q[2])
-        else:
-            e0, e1 = (q[0], q[3]), (q[1], q[2])
-        pa = e0[0] + (y - e0[0][1]) / (e0[1][1] - e0[0][1]) * (e0[1] - e0[0])
-        pb = e1[0] + (y - e1[0][1]) / (e1[1][1] - e1[0][1]) * (e1[1] - e1[0])
-        seg = pa + t[:, None] * (pb - pa)
-        rel = seg[:, [0, 2]] - centre
-        out_s.append(np.arctan2(rel[:, 1], rel[:, 0]))
-        out_e.append((np.linalg.norm(rel, axis=1) - radius) / radius * 100.0)
-    ang = np.concatenate(out_s)
-    err = np.concatenate(out_e)
+    along = (np.abs(x[:, 1, 1] - x[:, 0, 1]) > np.abs(x[:, 3, 1] - x[:, 0, 1]))[:, None]
+    e0a, e0b = x[:, 0], np.where(along, x[:, 1], x[:, 3])  # first straight edge
+    e1a, e1b = np.where(along, x[:, 3], x[:, 1]), x[:, 2]  # the opposite one
+
+    def at_y(a, b):
+        return a + ((y - a[:, 1]) / (b[:, 1] - a[:, 1]))[:, None] * (b - a)
+
+    pa, pb = at_y(e0a, e0b), at_y(e1a, e1b)
+    t = np.linspace(0.0, 1.0, samples)[None, :, None]
+    seg = (pa[:, None] + t * (pb - pa)[:, None]).reshape(-1, 3)
+    rel = seg[:, [0, 2]] - centre
+    ang = np.arctan2(rel[:, 1], rel[:, 0])
+    err = (np.linalg.norm(rel, axis=1) - radius) / radius * 100.0
     o = np.argsort(ang)
-    return np.abs(ang[o] - ang[o][0]), err[o]
+    return ang[o] - ang[o][0], err[o]
 
 
 def _markdown(summary: UShapeSummary) -> str:
+    findings = "".join(f"- {line}\n" for line in summary.findings("die"))
     return (
         "# NUMISHEET'93 U-shape: Nagata patches with CAD and estimated normals\n\n"
         "Radial error (thesis eq. 16, signed value of largest magnitude) and normal error (eq. 17)\n"
@@ -326,5 +382,6 @@ def _markdown(summary: UShapeSummary) -> str:
         "over the radius and 1 along the length (thesis Figs. 48-49); `*_vs_cad` rows: shape\n"
         "error of the whole Nagata surface against the CAD by projection.\n\n"
         + summary.table()
-        + f"\n\nRun time {summary.seconds:.1f} s. Parameters: see summary.json.\n"
+        + ("\n\nDie, as in the thesis' Fig. 49:\n\n" + findings if findings else "\n")
+        + f"\nRun time {summary.run['seconds']:.1f} s. Parameters: see summary.json (\"_run\").\n"
     )
