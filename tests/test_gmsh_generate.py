@@ -161,3 +161,21 @@ def test_gmsh_state_is_released_and_errors_name_file(cad, tmp_path):
         mesh_cad(tmp_path / "missing.igs")
     with pytest.raises(MeshError, match="element must be"):
         mesh_cad(cad["qc"], element="hex")
+
+
+@pytest.mark.parametrize("name", ["rational_quarter_cylinder.igs", "sphere_patch.igs", "torus_patch.igs", "trimmed_hole.igs"])
+def test_quad_mode_has_no_flat_corners(name):
+    """Unstructured quad meshes of the curved samples have no corner angle above 150 degrees
+    (reference: corner angles computed from the node coordinates); flat 180-degree corners
+    make Nagata patch normals undefined."""
+    from pathlib import Path
+
+    from cadbridge.mesh.generate import mesh_cad
+
+    mesh = mesh_cad(Path(__file__).parents[1] / "iges_samples" / name, element="quad")
+    x = mesh.nodes[mesh.quads]
+    for k in range(4):
+        a = x[:, (k - 1) % 4] - x[:, k]
+        b = x[:, (k + 1) % 4] - x[:, k]
+        cos = np.einsum("ij,ij->i", a, b) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 150.0

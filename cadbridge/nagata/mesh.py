@@ -353,7 +353,9 @@ class NagataMesh:
         Where a tangent vanishes (an edge whose normals force c = -d or c = d: the edge is
         straight but its parametrisation stops at one end, Nagata's singular case) the
         normal is the limit approached from inside the patch: with x_eta = 0 it is
-        +-x_eta_eta x x_zeta, with x_zeta = 0 it is +-x_eta x x_zeta_zeta.
+        +-x_eta_eta x x_zeta, with x_zeta = 0 it is +-x_eta x x_zeta_zeta. Where both
+        tangents are non-zero but parallel (a 180-degree corner of a degenerate element)
+        it is the normal a step of 1e-7 inside the patch, towards its centroid.
         """
         x, xe, xz = self._eval(elem, eta, zeta, 1)
         n = np.cross(xe, xz)
@@ -370,10 +372,14 @@ class NagataMesh:
             ce, cz = np.where(tri, 2.0 / 3.0, 0.5), np.where(tri, 1.0 / 3.0, 0.5)
             se = np.where(ce - et >= 0, 1.0, -1.0)[:, None]
             sz = np.where(cz - ze >= 0, 1.0, -1.0)[:, None]
-            eta_vanishes = (le[bad] <= lz[bad])[:, None]
+            eta_vanishes = (le[bad] <= 1e-6 * lz[bad])[:, None]
+            zeta_vanishes = (lz[bad] <= 1e-6 * le[bad])[:, None]
             lim = np.where(eta_vanishes, se * np.cross(xee, xz_b), sz * np.cross(xe_b, xzz))
+            lim[~(eta_vanishes | zeta_vanishes)[:, 0]] = 0.0
             still = np.linalg.norm(lim, axis=1) <= 1e-300
-            if np.any(still):  # both vanish: step towards the centroid
+            if np.any(still):
+                # both tangents vanish, or they are parallel (a flat 180-degree corner of a
+                # badly shaped element): the normal is the one just inside the patch
                 t = 1e-7
                 _, a, b = self._eval(el[still], et[still] + t * (ce[still] - et[still]), ze[still] + t * (cz[still] - ze[still]), 1)
                 lim[still] = np.cross(a, b)
