@@ -276,3 +276,21 @@ def test_compressed_and_binary_rejected():
         read_iges_string("x" * 72 + "C      1\n")
     with pytest.raises(IgesError, match="binary"):
         read_iges_string("\x00\x01\x02" * 40)
+
+
+def test_non_orthonormal_124_form0_is_flagged():
+    """A form-0 124 whose R is not a rotation (one coefficient edited in the sample) is applied
+    as written but reported with its line and DE (reference: R^T R computed by hand: the
+    edited R11 = 0.966 makes |R^T R - I| = 0.183)."""
+    from pathlib import Path
+
+    from cadbridge.iges import read_iges_string
+
+    text = (Path(__file__).parents[1] / "iges_samples" / "placed_by_124.igs").read_text()
+    assert not read_iges_string(text).diagnostics
+    lines = text.splitlines()
+    i = next(k for k, line in enumerate(lines) if line.startswith("124,0.866"))
+    lines[i] = lines[i].replace("124,0.866", "124,0.966", 1)
+    notes = [d for d in read_iges_string("\n".join(lines) + "\n").diagnostics if "orthonormal" in d.message]
+    assert len(notes) == 1 and notes[0].de == 1 and notes[0].line is not None
+    assert "0.183" in notes[0].message

@@ -210,7 +210,17 @@ class Builder:
         v = p.reals(1, 12, "R11..T3")
         m = v.reshape(3, 4)
         self._own_end[de] = 13
-        return m[:, :3].copy(), m[:, 3].copy()
+        r = m[:, :3].copy()
+        if p.entry.form in (0, 1):
+            # forms 0 and 1 promise an orthonormal R (det +1 / -1); applying any other R is
+            # still exact for NURBS, but other readers (OpenCASCADE) treat it differently
+            dev = float(np.max(np.abs(r.T @ r - np.eye(3))))
+            det = float(np.linalg.det(r))
+            want = 1.0 if p.entry.form == 0 else -1.0
+            if dev > 1e-6 or abs(det - want) > 1e-6:
+                self.note(f"transformation matrix form {p.entry.form} is not orthonormal with determinant "
+                          f"{want:+.0f} (|R^T R - I| = {dev:.3g}, det {det:.6g}); applied as written", de)
+        return r, m[:, 3].copy()
 
     def transform(self, de: int) -> Affine | None:
         """The full transformation of entity ``de`` (its DE field 7 and the 124 chain behind
