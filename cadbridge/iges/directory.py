@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
+from operator import itemgetter
 
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record
@@ -10,9 +11,9 @@ from cadbridge.iges.lexer import Record
 __all__ = ["DirectoryEntry", "parse_directory"]
 
 
-@dataclass(frozen=True)
-class DirectoryEntry:
-    """One directory entry (IGES 5.3 section 2.2.4.4). ``de`` is its sequence number (odd)."""
+class DirectoryEntry(NamedTuple):
+    """One directory entry (IGES 5.3 section 2.2.4.4). ``de`` is its sequence number (odd).
+    (An immutable named tuple: cheaper to build than a 20-field frozen dataclass.)"""
 
     de: int
     entity_type: int  # field 1
@@ -52,6 +53,18 @@ def _int_field(text: str, k: int, rec: Record, de: int, name: str, filename: str
                         line=rec.line, de=de, entity_type=etype, field=name) from None
 
 
+_FIELDS_1 = itemgetter(*(slice(8 * j, 8 * j + 8) for j in range(8)))  # line 1, fields 1-8
+_FIELDS_2 = itemgetter(*(slice(8 * j, 8 * j + 8) for j in (0, 1, 2, 3, 4, 8)))  # line 2: 11-15, 19
+
+
+def _ints(fields: tuple[str, ...]) -> list[int]:
+    """Integer fields, blank = 0 (raises ValueError like `_int_field` would)."""
+    try:
+        return list(map(int, fields))  # usual case: no blank field
+    except ValueError:
+        return [0 if f.isspace() or not f else int(f) for f in fields]
+
+
 def parse_directory(records: list[Record], filename: str) -> dict[int, DirectoryEntry]:
     """Parse D records (even count checked by the lexer) into {DE number: DirectoryEntry}."""
     out: dict[int, DirectoryEntry] = {}
@@ -59,36 +72,47 @@ def parse_directory(records: list[Record], filename: str) -> dict[int, Directory
         r1, r2 = records[k], records[k + 1]
         de = r1.seq
         t1, t2 = r1.text, r2.text
-        etype = _int_field(t1, 0, r1, de, "entity type", filename)
-        etype2 = _int_field(t2, 0, r2, de, "entity type (line 2)", filename, etype)
+        # fast path: every integer field readable (int() strips blanks as `_int_field` does);
+        # otherwise the field-by-field path below finds the first bad field and reports it
+        try:
+            vals = _ints(_FIELDS_1(t1))
+            etype2, lw, color, pcount, form, sub = _ints(_FIELDS_2(t2))
+            etype = vals[0]
+            slow = False
+        except ValueError:
+            slow = True
+            etype = _int_field(t1, 0, r1, de, "entity type", filename)
+            etype2 = _int_field(t2, 0, r2, de, "entity type (line 2)", filename, etype)
+            vals = None
         if etype2 != etype:
             raise IgesError(f"entity type {etype} on the first line of the entry but {etype2} on the second",
                             filename=filename, line=r2.line, de=de, entity_type=etype, field="entity type")
-        vals = [_int_field(t1, j, r1, de, name, filename, etype) for j, name in enumerate(
-            ["entity type", "parameter data", "structure", "line font", "level", "view",
-             "transformation matrix", "label display"])]
+        if vals is None:
+            vals = [_int_field(t1, j, r1, de, name, filename, etype) for j, name in enumerate(
+                ["entity type", "parameter data", "structure", "line font", "level", "view",
+                 "transformation matrix", "label display"])]
         status = t1[64:72].strip()
         if status and not status.isdigit():
             raise IgesError(f"status number {status!r} is not 8 digits", filename=filename, line=r1.line,
                             de=de, entity_type=etype, field="status number")
         status = status.zfill(8)
-        lw = _int_field(t2, 1, r2, de, "line weight", filename, etype)
-        color = _int_field(t2, 2, r2, de, "color", filename, etype)
-        pcount = _int_field(t2, 3, r2, de, "parameter line count", filename, etype)
-        form = _int_field(t2, 4, r2, de, "form", filename, etype)
+        if slow:
+            lw = _int_field(t2, 1, r2, de, "line weight", filename, etype)
+            color = _int_field(t2, 2, r2, de, "color", filename, etype)
+            pcount = _int_field(t2, 3, r2, de, "parameter line count", filename, etype)
+            form = _int_field(t2, 4, r2, de, "form", filename, etype)
         label = t2[56:64].strip()
-        sub = _int_field(t2, 8, r2, de, "entity subscript", filename, etype)
+        if slow:
+            sub = _int_field(t2, 8, r2, de, "entity subscript", filename, etype)
         if vals[1] <= 0 and etype != 0:
             raise IgesError(f"parameter data pointer {vals[1]} must be positive", filename=filename,
                             line=r1.line, de=de, entity_type=etype, field="parameter data")
         if pcount < 0:
             raise IgesError(f"parameter line count {pcount} is negative", filename=filename, line=r2.line,
                             de=de, entity_type=etype, field="parameter line count")
-        out[de] = DirectoryEntry(
-            de=de, entity_type=etype, param_pointer=vals[1], structure=vals[2], line_font=vals[3],
-            level=vals[4], view=vals[5], transform=vals[6], label_display=vals[7],
-            blank_status=int(status[0:2]), subordinate=int(status[2:4]), entity_use=int(status[4:6]),
-            hierarchy=int(status[6:8]), line_weight=lw, color=color, param_count=pcount, form=form,
-            label=label, subscript=sub, line=r1.line,
+        out[de] = DirectoryEntry(  # positional, in field order (faster than keywords)
+            de, etype, vals[1], vals[2], vals[3], vals[4], vals[5], vals[6], vals[7],
+            int(status[0:2]), int(status[2:4]), int(status[4:6]), int(status[6:8]),
+            lw, color, pcount, form, label, sub, r1.line,
         )
     return out

@@ -6,9 +6,13 @@ and work on all N parameters at once; loops run only over the (small) degree.
 
 from __future__ import annotations
 
+from math import isfinite
+from operator import eq
+
+import numba
 import numpy as np
 
-__all__ = ["find_span", "basis_funs", "ders_basis_funs", "validate_knots"]
+__all__ = ["find_span", "basis_funs", "ders_basis_funs", "validate_knots", "find_span_one", "ders_basis_one"]
 
 
 def validate_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str = "knots") -> None:
@@ -18,6 +22,9 @@ def validate_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str = "kno
     multiplicity above ``degree`` + 1 and a non-empty domain [knots[p], knots[n_ctrl]].
     """
     knots = np.asarray(knots, dtype=float)
+    if (knots.ndim == 1 and 1 <= degree < n_ctrl and len(knots) == n_ctrl + degree + 1
+            and len(knots) <= 64 and _small_knots_ok(knots.tolist(), degree, n_ctrl)):
+        return  # fast path for the usual short vector; any failure is diagnosed below
     if degree < 1:
         raise ValueError(f"{what}: degree must be >= 1, got {degree}")
     if n_ctrl < degree + 1:
@@ -41,6 +48,17 @@ def validate_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str = "kno
         _, counts = np.unique(inner, return_counts=True)
         if counts.max() > degree:
             raise ValueError(f"{what}: an interior knot has multiplicity {counts.max()} > degree {degree}")
+
+
+def _small_knots_ok(k: list[float], p: int, n_ctrl: int) -> bool:
+    """The checks of `validate_knots` on a short list in plain Python (no numpy call overhead):
+    True only if all of them pass."""
+    if not all(map(isfinite, k)) or k != sorted(k):  # finite, non-decreasing
+        return False
+    if not k[n_ctrl] > k[p]:
+        return False
+    inner = k[p + 1 : n_ctrl]  # sorted: a run longer than p means inner[i] == inner[i + p]
+    return not any(map(eq, inner, inner[p:]))
 
 
 def find_span(knots: np.ndarray, p: int, u: np.ndarray) -> np.ndarray:
@@ -115,3 +133,89 @@ def ders_basis_funs(span: np.ndarray, u: np.ndarray, p: int, knots: np.ndarray, 
         ders[:, k, :] *= factor
         factor *= p - k
     return ders
+
+
+# ---------------------------------------------------------------------------- compiled, one parameter
+# Scalar versions of A2.1 / A2.3 for numba kernels (surface/curve evaluation): same arithmetic,
+# in the same order, as the vectorised functions above; scratch arrays are passed in so a
+# kernel can allocate them once per block of points.
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def find_span_one(knots, p, n_ctrl, x):  # pragma: no cover - compiled
+    """Span index as ``find_span``: largest i in [p, n_ctrl - 1] with knots[i] <= x, else p."""
+    lo, hi = p, n_ctrl - 1
+    if x >= knots[hi]:
+        return hi
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if knots[mid] <= x:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def ders_basis_one(span, x, p, knots, n, ndu, left, right, a, out):  # pragma: no cover - compiled
+    """A2.3 at one parameter: out[k, j] = d^k N_{span-p+j,p}(x), k <= n (orders above p zero).
+    Scratch: ndu (p+1, p+1), left/right (p+1,), a (2, p+1); out (n+1, p+1)."""
+    ndu[0, 0] = 1.0
+    for j in range(1, p + 1):
+        left[j] = x - knots[span + 1 - j]
+        right[j] = knots[span + j] - x
+        saved = 0.0
+        for r in range(j):
+            ndu[j, r] = right[r + 1] + left[j - r]
+            temp = ndu[r, j - 1] / ndu[j, r]
+            ndu[r, j] = saved + right[r + 1] * temp
+            saved = left[j - r] * temp
+        ndu[j, j] = saved
+    for k in range(n + 1):
+        for j in range(p + 1):
+            out[k, j] = 0.0
+    for j in range(p + 1):
+        out[0, j] = ndu[j, p]
+    nd = min(n, p)
+    if nd == 0:
+        return
+    if nd == 1:
+        # first derivatives only: the k = 1 pass of the loop below with its (empty) j loop
+        # removed, the same operations in the same order (bit-identical results; each
+        # reciprocal 1 / ndu[p, r] is shared by r and r + 1, and -1.0 / x == -(1.0 / x))
+        prev = 0.0  # 1 / ndu[p, r - 1]
+        for r in range(p + 1):
+            d = 0.0
+            if r >= 1:
+                d += prev * ndu[r - 1, p - 1]
+            if r <= p - 1:
+                inv = 1.0 / ndu[p, r]
+                d += -inv * ndu[r, p - 1]
+                prev = inv
+            out[1, r] = d * p
+        return
+    for r in range(p + 1):
+        s1, s2 = 0, 1
+        for j in range(p + 1):
+            a[0, j] = 0.0
+            a[1, j] = 0.0
+        a[0, 0] = 1.0
+        for k in range(1, nd + 1):
+            d = 0.0
+            rk, pk = r - k, p - k
+            if r >= k:
+                a[s2, 0] = a[s1, 0] / ndu[pk + 1, rk]
+                d += a[s2, 0] * ndu[rk, pk]
+            j1 = 1 if rk >= -1 else -rk
+            j2 = k - 1 if r - 1 <= pk else p - r
+            for j in range(j1, j2 + 1):
+                a[s2, j] = (a[s1, j] - a[s1, j - 1]) / ndu[pk + 1, rk + j]
+                d += a[s2, j] * ndu[rk + j, pk]
+            if r <= pk:
+                a[s2, k] = -a[s1, k - 1] / ndu[pk + 1, r]
+                d += a[s2, k] * ndu[r, pk]
+            out[k, r] = d
+            s1, s2 = s2, s1
+    factor = float(p)
+    for k in range(1, nd + 1):
+        for j in range(p + 1):
+            out[k, j] *= factor
+        factor *= p - k

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from math import comb
+from math import comb, isfinite
 
 import numpy as np
 
@@ -29,16 +29,20 @@ class NurbsCurve:
         n = cp.shape[0]
         kn = np.array(knots, dtype=float)
         validate_knots(kn, p, n, "knots")
-        if not np.all(np.isfinite(cp)):
+        finite = all(map(isfinite, cp.ravel().tolist())) if cp.size <= 256 else np.isfinite(cp).all()
+        if not finite:
             raise ValueError("control points must be finite")
+        rational = False
         if weights is None:
             w = np.ones(n)
         else:
             w = np.array(weights, dtype=float).reshape(-1)
             if w.shape != (n,):
                 raise ValueError(f"weights must have shape {(n,)}, got {w.shape}")
-            if not np.all(np.isfinite(w)) or np.any(w <= 0):
+            wl = w.tolist()  # short: plain Python checks beat numpy call overhead
+            if not (all(map(isfinite, wl)) and min(wl) > 0):
                 raise ValueError("weights must be finite and positive")
+            rational = max(wl) > min(wl)  # ptp(w) > 0
         full = (kn[p], kn[n])
         if domain is None:
             dom = full
@@ -53,18 +57,47 @@ class NurbsCurve:
         self.control_points = cp
         self.weights = w
         self.domain: tuple[float, float] = dom
-        self.rational = bool(np.ptp(w) > 0.0)
-        dim = cp.shape[1]
-        pw = np.empty((n, dim + 1))
-        if self.rational:
-            pw[:, :dim] = cp * w[:, None]
-            pw[:, dim] = w
-        else:
-            pw[:, :dim] = cp
-            pw[:, dim] = 1.0
-        self._pw = pw
-        for a in (kn, cp, w, pw):
-            a.flags.writeable = False
+        self.rational = rational
+        self._pw_cache: np.ndarray | None = None  # homogeneous net, built on first use (`_pw`)
+        for a in (kn, cp, w):
+            a.setflags(write=False)
+
+    @classmethod
+    def _trusted(cls, degree: int, knots: np.ndarray, control_points: np.ndarray, weights: np.ndarray,
+                 domain: tuple[float, float], rational: bool) -> "NurbsCurve":
+        """A curve from data already validated by another NurbsCurve (e.g. its control points
+        with z dropped), skipping the checks: read-only float arrays of consistent shapes."""
+        self = cls.__new__(cls)
+        cp = np.array(control_points, dtype=float)
+        cp.setflags(write=False)
+        self.degree = degree
+        self.knots = knots if not knots.flags.writeable else knots.copy()
+        self.control_points = cp
+        self.weights = weights if not weights.flags.writeable else weights.copy()
+        for a in (self.knots, self.weights):
+            a.setflags(write=False)
+        self.domain = domain
+        self.rational = rational
+        self._pw_cache = None
+        return self
+
+    @property
+    def _pw(self) -> np.ndarray:
+        """Homogeneous control points (n, dim+1): (w x, w y[, w z], w), read-only."""
+        pw = self._pw_cache
+        if pw is None:
+            cp, w = self.control_points, self.weights
+            n, dim = cp.shape
+            pw = np.empty((n, dim + 1))
+            if self.rational:
+                pw[:, :dim] = cp * w[:, None]
+                pw[:, dim] = w
+            else:
+                pw[:, :dim] = cp
+                pw[:, dim] = 1.0
+            pw.setflags(write=False)
+            self._pw_cache = pw
+        return pw
 
     @property
     def dim(self) -> int:

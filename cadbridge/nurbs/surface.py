@@ -4,13 +4,105 @@ from __future__ import annotations
 
 from math import comb
 
+import numba
 import numpy as np
 
-from cadbridge.nurbs.basis import ders_basis_funs, find_span, validate_knots
+from cadbridge.nurbs.basis import ders_basis_funs, ders_basis_one, find_span, find_span_one, validate_knots
 
 __all__ = ["NurbsSurface"]
 
-_CHUNK = 32768  # points per evaluation block (bounds temporary memory)
+_CHUNK = 32768  # points per evaluation block of the numpy path (bounds temporary memory)
+_BLOCK = 1024  # points per task of the parallel kernel
+_PARALLEL_MIN = 16384  # fewer points: the serial kernel (thread start-up costs more than it saves)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _binomials(d):  # pragma: no cover - compiled
+    """Pascal's triangle up to row d, (d+1, d+1) floats."""
+    binom = np.zeros((d + 1, d + 1))
+    for i in range(d + 1):
+        binom[i, 0] = 1.0
+        for j in range(1, i + 1):
+            binom[i, j] = binom[i - 1, j - 1] + (binom[i - 1, j] if j < i else 0.0)
+    return binom
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, start, stop, binom):  # pragma: no cover - compiled
+    """Surface derivatives up to order d in u and v at points start..stop-1 into out
+    (N, d+1, d+1, 3): the homogeneous derivatives Aw = sum_a Nu^(k)_a sum_b Nv^(l)_b Pw_ab (the
+    same sums, in the same order, as the numpy path ``_derivatives_block``) then, if
+    rational, the quotient rule of P&T A4.4."""
+    nu, nv = pw.shape[0], pw.shape[1]
+    ndu_u = np.empty((p + 1, p + 1))
+    ndu_v = np.empty((q + 1, q + 1))
+    lu = np.empty(p + 1)
+    ru = np.empty(p + 1)
+    lv = np.empty(q + 1)
+    rv = np.empty(q + 1)
+    au = np.empty((2, p + 1))
+    av = np.empty((2, q + 1))
+    bu = np.empty((d + 1, p + 1))
+    bv = np.empty((d + 1, q + 1))
+    aw = np.empty((d + 1, d + 1, 4))
+    for t in range(start, stop):
+        su = find_span_one(ku, p, nu, u[t])
+        sv = find_span_one(kv, q, nv, v[t])
+        ders_basis_one(su, u[t], p, ku, d, ndu_u, lu, ru, au, bu)
+        ders_basis_one(sv, v[t], q, kv, d, ndu_v, lv, rv, av, bv)
+        aw[:] = 0.0
+        for a in range(p + 1):
+            row = pw[su - p + a]
+            for l in range(d + 1):
+                # sum over b of Nv^(l)_b Pw_ab, the four coordinates in scalars
+                t0 = 0.0
+                t1 = 0.0
+                t2 = 0.0
+                t3 = 0.0
+                for b in range(q + 1):
+                    w = bv[l, b]
+                    pt = row[sv - q + b]
+                    t0 += w * pt[0]
+                    t1 += w * pt[1]
+                    t2 += w * pt[2]
+                    t3 += w * pt[3]
+                for k in range(d + 1):
+                    w = bu[k, a]
+                    aw[k, l, 0] += w * t0
+                    aw[k, l, 1] += w * t1
+                    aw[k, l, 2] += w * t2
+                    aw[k, l, 3] += w * t3
+        if not rational:
+            for k in range(d + 1):
+                for l in range(d + 1):
+                    for c in range(3):
+                        out[t, k, l, c] = aw[k, l, c]
+            continue
+        w0 = aw[0, 0, 3]
+        for k in range(d + 1):
+            for l in range(d + 1):
+                for c in range(3):
+                    val = aw[k, l, c]
+                    for j in range(1, l + 1):
+                        val -= binom[l, j] * aw[0, j, 3] * out[t, k, l - j, c]
+                    for i in range(1, k + 1):
+                        val -= binom[k, i] * aw[i, 0, 3] * out[t, k - i, l, c]
+                        for j in range(1, l + 1):
+                            val -= binom[k, i] * binom[l, j] * aw[i, j, 3] * out[t, k - i, l - j, c]
+                    out[t, k, l, c] = val / w0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _ders_serial(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cover - compiled
+    _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, 0, u.shape[0], _binomials(d))
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _ders_parallel(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cover - compiled
+    n = u.shape[0]
+    binom = _binomials(d)
+    for blk in numba.prange((n + _BLOCK - 1) // _BLOCK):
+        _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK), binom)
 
 
 class NurbsSurface:
@@ -51,16 +143,21 @@ class NurbsSurface:
         kv = np.array(knots_v, dtype=float)
         validate_knots(ku, p, nu, "knots_u")
         validate_knots(kv, q, nv, "knots_v")
-        if not np.all(np.isfinite(cp)):
+        if not np.isfinite(cp).all():
             raise ValueError("control points must be finite")
+        rational = False
         if weights is None:
             w = np.ones((nu, nv))
         else:
             w = np.array(weights, dtype=float)
             if w.shape != (nu, nv):
                 raise ValueError(f"weights must have shape {(nu, nv)}, got {w.shape}")
-            if not np.all(np.isfinite(w)) or np.any(w <= 0):
+            if not np.isfinite(w).all():
                 raise ValueError("weights must be finite and positive")
+            w_lo, w_hi = w.min(), w.max()
+            if not w_lo > 0:
+                raise ValueError("weights must be finite and positive")
+            rational = bool(w_hi > w_lo)  # ptp(w) > 0
         full = (ku[p], ku[nu], kv[q], kv[nv])
         if domain is None:
             dom = full
@@ -80,7 +177,7 @@ class NurbsSurface:
         self.control_points = cp
         self.weights = w
         self.domain: tuple[float, float, float, float] = dom
-        self.rational = bool(np.ptp(w) > 0.0)
+        self.rational = rational
         pw = np.empty((nu, nv, 4))
         if self.rational:
             pw[..., :3] = cp * w[..., None]
@@ -90,7 +187,7 @@ class NurbsSurface:
             pw[..., 3] = 1.0
         self._pw = pw
         for a in (ku, kv, cp, w, pw):
-            a.flags.writeable = False
+            a.setflags(write=False)
 
     # ------------------------------------------------------------------ basic properties
     @property
@@ -122,6 +219,23 @@ class NurbsSurface:
         u, v : (N,) parameters. Returns (N, order+1, order+1, 3) with
         [:, k, l] = d^(k+l) S / du^k dv^l (rational quotient rule, P&T A4.4).
         """
+        u = np.atleast_1d(np.asarray(u, dtype=float))
+        v = np.atleast_1d(np.asarray(v, dtype=float))
+        u, v = np.broadcast_arrays(u, v)
+        u = np.ascontiguousarray(u.ravel())
+        v = np.ascontiguousarray(v.ravel())
+        d = int(order)
+        if d < 0:
+            raise ValueError(f"order must be >= 0, got {order}")
+        out = np.empty((u.size, d + 1, d + 1, 3))
+        if u.size:
+            kernel = _ders_parallel if u.size >= _PARALLEL_MIN else _ders_serial
+            kernel(self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, d, self.rational,
+                         u, v, out)
+        return out
+
+    def _derivatives_numpy(self, u, v, order: int = 2) -> np.ndarray:
+        """Reference numpy implementation of `derivatives` (same results, kept for checks)."""
         u = np.atleast_1d(np.asarray(u, dtype=float))
         v = np.atleast_1d(np.asarray(v, dtype=float))
         u, v = np.broadcast_arrays(u, v)
