@@ -12,12 +12,12 @@ array lengths or values do not fit.
 from __future__ import annotations
 
 import os
-import tempfile
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+
+from cadbridge.io.atomic import atomic_path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
@@ -34,29 +34,6 @@ _MARKERS = ("o", "s", "^", "v", "D", "<", ">", "p", "h", "*")
 _LINESTYLES = ("-", "-", "-", "-.", "-", "-.", "-", "-.", "-", "-.")
 
 
-@contextmanager
-def _atomic_path(path: str | os.PathLike) -> Iterator[str]:
-    """Yield a temporary path next to ``path``; on success fsync and ``os.replace`` it onto
-    ``path``, on any exception remove it and leave ``path`` untouched."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield tmp
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # mkstemp creates 0600; give the report normal permissions
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-
-
 # ----------------------------------------------------------------------------- helpers
 
 def _figure(figsize: tuple[float, float], dpi: float) -> Figure:
@@ -67,7 +44,7 @@ def _figure(figsize: tuple[float, float], dpi: float) -> Figure:
 
 def _save(fig: Figure, path: str | os.PathLike) -> None:
     # no bbox_inches="tight": the PNG keeps exactly figsize * dpi pixels
-    with _atomic_path(path) as tmp:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=fig.dpi)
 
 

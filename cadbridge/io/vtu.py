@@ -19,14 +19,14 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator, Mapping, Sequence
-from contextlib import contextmanager
 from pathlib import Path
 
 import meshio
 import numpy as np
+
+from cadbridge.io.atomic import atomic_path
 
 __all__ = ["write_surface_vtu", "write_mesh_vtu", "decode_field_string"]
 
@@ -48,29 +48,6 @@ _VTU_TYPE_NAMES = {
 }
 
 ArrayLike = np.ndarray | Sequence
-
-
-@contextmanager
-def _atomic_path(path: str | os.PathLike) -> Iterator[str]:
-    """Yield a temporary path next to ``path``; on success fsync and ``os.replace`` it onto
-    ``path``, on any exception remove it and leave ``path`` untouched."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield tmp
-        with open(tmp, "rb+") as fh:
-            os.fsync(fh.fileno())
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # mkstemp creates 0600; give the report normal permissions
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
 
 
 # ----------------------------------------------------------------------------- validation
@@ -189,7 +166,7 @@ def _inject_field_data(path: str, field: Mapping[str, np.ndarray]) -> None:
 
 def _write(path: str | os.PathLike, mesh: meshio.Mesh,
            field: Mapping[str, np.ndarray] | None) -> None:
-    with _atomic_path(path) as tmp:
+    with atomic_path(path) as tmp:
         meshio.write(tmp, mesh, file_format="vtu", binary=True, compression="zlib")
         if field:
             _inject_field_data(tmp, field)

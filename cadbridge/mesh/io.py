@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 import warnings
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
 import numpy as np
+
+from cadbridge.io.atomic import atomic_path
 
 from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
 
@@ -113,25 +114,13 @@ def _sniff_gid(path: Path) -> bool:
 # ---------------------------------------------------------------------------- atomic write
 def atomic_write(path: str | os.PathLike, write: Callable[[str], None]) -> None:
     """Call ``write(tmp_path)`` on a temporary file next to ``path``, then rename it onto
-    ``path``. The temporary file is removed on failure; permissions follow the umask."""
+    ``path`` (`cadbridge.io.atomic.atomic_path`)."""
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise MeshError(f"{path}: directory {parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=parent)
-    os.close(fd)
-    try:
-        write(tmp)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    with atomic_path(path) as tmp:
+        write(str(tmp))
 
 
 # ---------------------------------------------------------------------------- meshio bridge

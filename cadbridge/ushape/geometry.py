@@ -22,7 +22,6 @@ from __future__ import annotations
 import io
 import math
 import os
-import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 
@@ -40,6 +39,8 @@ from OCP.TCollection import TCollection_HAsciiString
 from OCP.TopAbs import TopAbs_SHELL
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape, TopoDS_Shell
+
+from cadbridge.io.atomic import atomic_write
 
 __all__ = ["FACE_LABELS", "UShapeParams", "blank_mesh", "build_tools", "export_iges", "tool_faces"]
 
@@ -344,16 +345,5 @@ def _start_lines(text: str, width: int = 72) -> list[str]:
 
 
 def _atomic_write(path: str | os.PathLike, data: bytes) -> None:
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=folder, prefix=".tmp-", suffix=".igs")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
+    with atomic_write(path, "wb") as fh:
+        fh.write(data)
