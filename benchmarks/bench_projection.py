@@ -6,6 +6,10 @@
    distance comparison (ours smaller / equal / larger than OCC's lowest distance).
 2. `project_points` over a many-face model at N and 10 N points near the faces: seconds,
    nodes/s and candidates per node (growth should be ~linear in N).
+3. End to end on the NUMISHEET'93 U-shape tools (die, punch, blank holder: 7 faces exported
+   with `export_iges(..., mode="nurbs")`): gmsh triangle mesh of ~100 000 nodes, then
+   `cad_normals` (cold: search index, sample grids; warm: again); then `project_points` on
+   N points sampled near the tools and on 10 N (time ratio ~10 = linear).
 """
 
 from __future__ import annotations
@@ -51,9 +55,11 @@ def bench_single(n: int, amp: float, label: str, seed: int = 0) -> None:
     t0 = time.perf_counter()
     res = project_to_surface(s, pts)  # cold: includes the sample grid and KD-tree
     t_cold = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    res = project_to_surface(s, pts)
-    t_warm = time.perf_counter() - t0
+    t_warm = math.inf
+    for _ in range(3):  # best of 3: the machine may be shared
+        t0 = time.perf_counter()
+        res = project_to_surface(s, pts)
+        t_warm = min(t_warm, time.perf_counter() - t0)
 
     occ_d = np.full(n, np.nan)
     gp = [gp_Pnt(*map(float, p)) for p in pts]
@@ -80,15 +86,15 @@ def bench_single(n: int, amp: float, label: str, seed: int = 0) -> None:
     diff = res.distance[has] - occ_d[has]
     print(f"\n== one surface ({label}): rational bicubic 10x10 poles, heights +-{amp:.0%} of width, size {size:.1f}, {n} points "
           f"(within 2 % of the surface, 5 % beyond the edges) ==")
-    print(f"{'method':<46}{'seconds':>10}{'points/s':>12}{'ratio':>9}")
+    print(f"{'method':<50}{'seconds':>10}{'points/s':>12}{'ratio':>9}  (ratio: time / our warm time)")
     rows = [
         ("cadbridge project_to_surface (cold)", t_cold),
-        ("cadbridge project_to_surface (warm)", t_warm),
+        ("cadbridge project_to_surface (warm, best of 3)", t_warm),
         ("OCP GeomAPI_ProjectPointOnSurf(P, S) loop", t_occ),
         ("OCP GeomAPI_ProjectPointOnSurf Init+Perform loop", t_occ2),
     ]
     for name, t in rows:
-        print(f"{name:<46}{t:>10.3f}{n / t:>12.0f}{t / t_cold:>9.1f}")
+        print(f"{name:<50}{t:>10.3f}{n / t:>12.0f}{t / t_warm:>9.1f}")
     print(f"statuses: {np.bincount(res.status, minlength=4).tolist()} (CONVERGED, ON_BOUNDARY, BEYOND_TOL, FAILED);"
           f" iterations mean {res.iterations.mean():.2f}, max {res.iterations.max()}")
     print(f"distance vs OCC (where OCC found an extremum, {has.sum()} points): "
@@ -150,15 +156,75 @@ def bench_model(n: int, nx: int, ny: int, seed: int = 1) -> None:
     print(f"time ratio 10N / N = {t / base:.1f} (linear = 10)")
 
 
+def bench_ushape(target_nodes: int = 100_000, mult: int = 10, seed: int = 2) -> None:
+    import tempfile
+
+    from cadbridge.iges import read_iges
+    from cadbridge.mesh.generate import mesh_cad
+    from cadbridge.normals.cad import cad_normals
+    from cadbridge.ushape import export_iges, tool_faces
+
+    faces = {label: f for tool in tool_faces().values() for label, f in tool.items()}
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "ushape_tools.igs"
+        export_iges(faces, path, mode="nurbs")
+        model = read_iges(path)
+        # element size for ~target_nodes triangle nodes: n ~ A / (sqrt(3)/2 h^2) over the area
+        u = np.linspace(0, 1, 41)
+        area = 0.0
+        for f in model.faces:  # benchmark set-up only: area by a 40 x 40 midpoint rule
+            s = f.surface
+            u0, u1, v0, v1 = s.domain
+            uu, vv = np.meshgrid(u0 + (u[:-1] + 0.0125) * (u1 - u0), v0 + (u[:-1] + 0.0125) * (v1 - v0), indexing="ij")
+            der = s.derivatives(uu.ravel(), vv.ravel(), order=1)
+            area += float(np.linalg.norm(np.cross(der[:, 1, 0], der[:, 0, 1]), axis=1).mean()) * (u1 - u0) * (v1 - v0)
+        h = math.sqrt(area / (target_nodes * math.sqrt(3) / 2))
+        t0 = time.perf_counter()
+        mesh = mesh_cad(path, element="tri", size=h)
+        t_mesh = time.perf_counter() - t0
+    n = mesh.n_nodes
+    t0 = time.perf_counter()
+    cn = cad_normals(mesh, model)
+    t_cold = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    cn = cad_normals(mesh, model)
+    t_warm = time.perf_counter() - t0
+    print(f"\n== U-shape tools end to end: {len(model.faces)} faces, area {area:.0f} mm^2, gmsh tri size {h:.3f} mm: "
+          f"{n} nodes, {mesh.n_elements} elements (meshing {t_mesh:.1f} s) ==")
+    print(f"{'step':<44}{'N':>9}{'seconds':>10}{'nodes/s':>11}")
+    print(f"{'cad_normals (cold: index, sample grids)':<44}{n:>9d}{t_cold:>10.2f}{n / t_cold:>11.0f}")
+    print(f"{'cad_normals (warm)':<44}{n:>9d}{t_warm:>10.2f}{n / t_warm:>11.0f}")
+    print(f"statuses {np.bincount(cn.status, minlength=4).tolist()} [C,B,T,F], creases {int(cn.crease.sum())}, "
+          f"max distance {cn.distance.max():.3g}")
+    # N and 10 N points near the tools: mesh nodes pushed off along their normal and jittered
+    rng = np.random.default_rng(seed)
+    idx = build_search_index(model)
+    base = None
+    for k in (1, mult):
+        pick = rng.integers(0, n, n * k)
+        pts = (mesh.nodes[pick] + rng.uniform(-0.5, 0.5, (n * k, 1)) * cn.normals[pick]
+               + rng.uniform(-0.1, 0.1, (n * k, 3)))
+        t0 = time.perf_counter()
+        res = project_points(pts, model, index=idx)
+        t = time.perf_counter() - t0
+        base = base or t
+        print(f"{'project_points, points near the tools':<44}{n * k:>9d}{t:>10.2f}{n * k / t:>11.0f}"
+              f"   statuses {np.bincount(res.status, minlength=4).tolist()}")
+    print(f"time ratio {mult}N / N = {t / base:.1f} (linear = {mult})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--n-single", type=int, default=2000)
+    ap.add_argument("--n-single", type=int, default=20000)
     ap.add_argument("--n-model", type=int, default=20000)
     ap.add_argument("--faces", type=int, default=12, help="model is faces x faces patches")
+    ap.add_argument("--ushape-nodes", type=int, default=100_000, help="target mesh nodes of the U-shape run (0: skip)")
     a = ap.parse_args()
     bench_single(a.n_single, 0.05, 'die-like')
     bench_single(a.n_single, 0.25, 'wild')
     bench_model(a.n_model, a.faces, a.faces)
+    if a.ushape_nodes:
+        bench_ushape(a.ushape_nodes)
 
 
 if __name__ == "__main__":

@@ -127,10 +127,13 @@ def test_trimmed_hole_goes_to_other_face():
     assert np.allclose(res.foot[0], [5, 5, -1], atol=1e-12)
     assert res.distance[0] == pytest.approx(1.3, abs=1e-12)
     assert np.allclose(res.foot[2], [1, 1, 0], atol=1e-12)
-    # without the bottom face the hole point has no valid foot: FAILED with NaN normal
+    # without the bottom face the nearest point of the floor is on the rim of the hole
+    # (radius 2 around (5, 5, 0)): an edge foot, as OpenCASCADE's BRepExtrema finds it
     res2 = project_points(pts[:1], Model(faces=[floor]))
-    assert res2.status[0] == FAILED and res2.face[0] == -1 and np.all(np.isnan(res2.normal[0]))
-    assert "FAILED" in res2.summary()
+    assert res2.status[0] == ON_BOUNDARY and res2.face[0] == 0
+    assert res2.distance[0] == pytest.approx(np.hypot(2.0, 0.3), abs=1e-9)
+    assert np.linalg.norm(res2.foot[0] - [5, 5, 0]) == pytest.approx(2.0, abs=1e-9)
+    assert np.allclose(res2.normal[0], [0, 0, 1])
 
 
 def test_edge_tie_prefers_containing_face():

@@ -8,15 +8,26 @@ face, stored per element corner, so Nagata patches can keep the crease.
 Normals are oriented with the element winding: each corner normal points to the side of
 its element's (polyhedral) normal, and a node normal to the side of the summed normals of
 the elements around it.
+
+Mesh checks before projecting: inconsistent element orientation (two elements traversing a
+shared edge in the same direction) raises `MeshError` naming the pair, unless ``orient=True``
+re-orients the mesh first (`orient_consistently`; the result carries the mesh the corner
+normals refer to). Non-manifold edges (three or more elements on an edge, e.g. a rib standing
+on a plate) are accepted with a `MeshWarning` naming the first edge's nodes and elements:
+every corner takes the normal of its own element's face, which is what Nagata patches need
+there, and the node normal is oriented by the summed element normals as elsewhere.
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from cadbridge.mesh.mesh import Mesh
+from cadbridge.mesh.io import MeshWarning
+from cadbridge.mesh.mesh import Mesh, MeshError
+from cadbridge.mesh.topology import edge_table, non_manifold_edges, orient_consistently, orientation_conflicts
 from cadbridge.model import Model
 from cadbridge.nurbs.project import project_to_surface
 from cadbridge.nurbs.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
@@ -45,6 +56,10 @@ class CadNormals:
     status          (N,) projection status (CONVERGED, ON_BOUNDARY, BEYOND_TOLERANCE, FAILED)
     crease          (N,) bool, node sits on a sharp edge (has several corner normals)
     element_face    list of (E_b,) face index of each element (from its centroid)
+    mesh            the mesh the corner normals refer to (re-oriented if ``orient=True``)
+    flipped         (E,) bool, elements whose winding ``orient=True`` reversed (all False
+                    otherwise)
+    non_manifold    (K, 2) node pairs of the non-manifold edges found (a warning was issued)
     """
 
     normals: np.ndarray
@@ -57,6 +72,9 @@ class CadNormals:
     crease: np.ndarray
     element_face: list[np.ndarray]
     projection: Projection
+    mesh: Mesh | None = None
+    flipped: np.ndarray | None = None
+    non_manifold: np.ndarray | None = None
 
     @property
     def has_creases(self) -> bool:
@@ -86,6 +104,7 @@ def cad_normals(
     crease_angle: float = 20.0,
     flip: bool = False,
     allow_far: bool = False,
+    orient: bool = False,
 ) -> CadNormals:
     """Exact CAD normals at the nodes of ``mesh``.
 
@@ -94,15 +113,42 @@ def cad_normals(
                   make the node a crease node with per-corner normals.
     flip          reverse all normals (choose the other side of the tool).
     allow_far     return nodes beyond tolerance with their status instead of raising.
+    orient        re-orient inconsistently wound elements first (`orient_consistently`)
+                  instead of raising; ``result.mesh`` is the re-oriented mesh.
 
-    Raises `ProjectionError` naming the nodes beyond tolerance (unless ``allow_far``) and
-    ValueError for an empty model or mesh.
+    Raises `ProjectionError` naming the nodes beyond tolerance or failed (unless
+    ``allow_far``; a FAILED node is reported even then, by its status), `MeshError` (a
+    ValueError) naming the first pair of inconsistently oriented elements (unless
+    ``orient``), and ValueError for an empty model or mesh. Warns (`MeshWarning`) about
+    non-manifold edges, naming the first edge's nodes and elements.
     """
     if not model.faces:
         raise ValueError("the CAD model has no faces: nothing to project onto")
     nodes = np.asarray(mesh.nodes, dtype=float)
     if len(nodes) == 0:
         raise ValueError("the mesh has no nodes")
+    table = edge_table(mesh)
+    flipped = np.zeros(mesh.n_elements, dtype=bool)
+    bad = orientation_conflicts(mesh, table)
+    if len(bad):
+        if not orient:
+            raise MeshError(
+                f"inconsistent element orientation: elements {int(bad[0, 0])} and {int(bad[0, 1])} traverse "
+                f"their shared edge in the same direction ({len(bad)} such pairs); pass orient=True to "
+                f"re-orient the mesh"
+            )
+        mesh, flipped = orient_consistently(mesh)
+        table = edge_table(mesh)
+    nm = non_manifold_edges(mesh, table)
+    if nm:
+        (a, b), el = nm.edges[0].tolist(), nm.elements[0].tolist()
+        more = f" (and {len(nm) - 1} more)" if len(nm) > 1 else ""
+        warnings.warn(
+            f"non-manifold edge between nodes {a} and {b}: shared by elements {el}{more}; every corner "
+            f"there takes its own element's face normal",
+            MeshWarning,
+            stacklevel=2,
+        )
     size = model.size()
     tol = 1e-4 * size if tolerance is None else float(tolerance)
 
@@ -112,7 +158,9 @@ def cad_normals(
     if len(far) and not allow_far:
         worst = far[np.argsort(-np.nan_to_num(proj.distance[far], nan=np.inf))][:10]
         lines = ", ".join(
-            f"node {i} at ({nodes[i, 0]:.6g}, {nodes[i, 1]:.6g}, {nodes[i, 2]:.6g}) distance {proj.distance[i]:.3g}"
+            f"node {i} at ({nodes[i, 0]:.6g}, {nodes[i, 1]:.6g}, {nodes[i, 2]:.6g}) "
+            + (f"distance {proj.distance[i]:.6g}" if status[i] != FAILED else
+               f"projection failed (face {int(proj.face[i])})" if proj.face[i] >= 0 else "projection failed")
             for i in worst
         )
         raise ProjectionError(
@@ -140,6 +188,8 @@ def cad_normals(
     dots = np.einsum("ij,ij->i", node_n, acc)
     node_n = node_n * np.where(dots < 0, -1.0, 1.0)[:, None] * sign
 
+    nm_node = np.zeros(len(nodes), dtype=bool)
+    nm_node[nm.edges.ravel()] = True
     corner_normals: list[np.ndarray] = []
     element_face: list[np.ndarray] = []
     crease = np.zeros(len(nodes), dtype=bool)
@@ -165,6 +215,13 @@ def cad_normals(
             sharp = np.einsum("ij,ij->i", nrm, node_n[nid]) < cos_crease
             cn[ei[sharp], ki[sharp]] = nrm[sharp]
             crease[nid[sharp]] = True
+        if len(nm):
+            # at non-manifold nodes the elements of one face may be wound either way (a fin on
+            # both sides of a plate): each corner follows its own element's winding
+            at = nm_node[c]
+            turn = at & (sign * np.einsum("ekj,ej->ek", cn, en) < 0)
+            cn[turn] = -cn[turn]
+            crease[c[turn]] = True
         corner_normals.append(cn)
 
     # every corner at a crease node takes its own element's face normal, including the
@@ -180,4 +237,7 @@ def cad_normals(
         crease=crease,
         element_face=element_face,
         projection=proj,
+        mesh=mesh,
+        flipped=flipped,
+        non_manifold=nm.edges,
     )

@@ -10,6 +10,11 @@ projected Newton method: a direction whose minimum lies outside the domain is cl
 edge and the remaining variable is solved by Newton on that iso-curve (status ON_BOUNDARY);
 closed (periodic) directions wrap instead of clamping.
 
+Line search: a step that increases |r|^2 beyond its round-off (2 |r| e + e^2, e a few ulps
+of the coordinates) is halved; convergence is tested first, so a foot that is already
+orthogonal is never sent back by round-off (this sent 9 of 200 000 points of the many-face
+benchmark into an endless halving loop and FAILED, or worse, stopped at a point ~1e-8 off).
+
 Convergence (P&T 6.1): point coincidence |r| <= eps1, or zero cosine |Su.r|/(|Su||r|) <= eps2
 and |Sv.r|/(|Sv||r|) <= eps2 (directions clamped at an edge count as satisfied), or a step
 |(u'-u) Su + (v'-v) Sv| <= eps1; at most ``max_iter`` iterations. eps1 = eps2 = tol (eps1
@@ -185,11 +190,10 @@ def surface_samples(surface: NurbsSurface) -> SurfaceSamples:
 
 # ---------------------------------------------------------------------------- numba kernel
 @numba.njit(cache=True, inline="always")
-def _ders_basis(span: int, t: float, p: int, knots: np.ndarray, out: np.ndarray) -> None:
-    """P&T A2.3 for one parameter, derivatives up to 2: out (3, p+1)."""
-    ndu = np.empty((p + 1, p + 1))
-    left = np.empty(p + 1)
-    right = np.empty(p + 1)
+def _ders_basis(span: int, t: float, p: int, knots: np.ndarray, out: np.ndarray, ndu: np.ndarray,
+                left: np.ndarray, right: np.ndarray, a: np.ndarray) -> None:
+    """P&T A2.3 for one parameter, derivatives up to 2: out (3, p+1). ndu (p+1, p+1),
+    left/right (p+1,), a (2, p+1) are work arrays (allocated once per thread chunk)."""
     ndu[0, 0] = 1.0
     for j in range(1, p + 1):
         left[j] = t - knots[span + 1 - j]
@@ -207,7 +211,6 @@ def _ders_basis(span: int, t: float, p: int, knots: np.ndarray, out: np.ndarray)
     for j in range(p + 1):
         out[0, j] = ndu[j, p]
     nd = min(2, p)
-    a = np.zeros((2, p + 1))
     for r in range(p + 1):
         s1, s2 = 0, 1
         for i in range(p + 1):
@@ -237,6 +240,9 @@ def _ders_basis(span: int, t: float, p: int, knots: np.ndarray, out: np.ndarray)
         fac *= p - k
 
 
+_KERNEL_CHUNK = 256  # points per parallel task (work arrays are allocated once per task)
+
+
 @numba.njit(cache=True, parallel=True)
 def _ders2_kernel(pw, ku, kv, p, q, u, v):  # pragma: no cover - compiled
     """Rational surface derivatives up to order 2 in u and v (P&T A4.4) at (N,) points:
@@ -245,44 +251,52 @@ def _ders2_kernel(pw, ku, kv, p, q, u, v):  # pragma: no cover - compiled
     nu, nv = pw.shape[0], pw.shape[1]
     out = np.empty((n, 3, 3, 3))
     binom = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 2.0, 1.0]])
-    for t in numba.prange(n):
-        su = np.searchsorted(ku, u[t], side="right") - 1
-        su = min(max(su, p), nu - 1)
-        sv = np.searchsorted(kv, v[t], side="right") - 1
-        sv = min(max(sv, q), nv - 1)
+    nchunk = (n + _KERNEL_CHUNK - 1) // _KERNEL_CHUNK
+    for ch in numba.prange(nchunk):
         bu = np.empty((3, p + 1))
         bv = np.empty((3, q + 1))
-        _ders_basis(su, u[t], p, ku, bu)
-        _ders_basis(sv, v[t], q, kv, bv)
-        aw = np.zeros((3, 3, 4))
+        m = max(p, q) + 1
+        ndu = np.empty((m, m))
+        left = np.empty(m)
+        right = np.empty(m)
+        wa = np.empty((2, m))
+        aw = np.empty((3, 3, 4))
         tmp = np.empty((3, 4))
-        for a in range(p + 1):
-            for l in range(3):
-                for c in range(4):
-                    tmp[l, c] = 0.0
-            for b in range(q + 1):
-                row = pw[su - p + a, sv - q + b]
+        for t in range(ch * _KERNEL_CHUNK, min(n, (ch + 1) * _KERNEL_CHUNK)):
+            su = np.searchsorted(ku, u[t], side="right") - 1
+            su = min(max(su, p), nu - 1)
+            sv = np.searchsorted(kv, v[t], side="right") - 1
+            sv = min(max(sv, q), nv - 1)
+            _ders_basis(su, u[t], p, ku, bu, ndu, left, right, wa)
+            _ders_basis(sv, v[t], q, kv, bv, ndu, left, right, wa)
+            aw[:] = 0.0
+            for a in range(p + 1):
                 for l in range(3):
-                    w = bv[l, b]
                     for c in range(4):
-                        tmp[l, c] += w * row[c]
+                        tmp[l, c] = 0.0
+                for b in range(q + 1):
+                    row = pw[su - p + a, sv - q + b]
+                    for l in range(3):
+                        w = bv[l, b]
+                        for c in range(4):
+                            tmp[l, c] += w * row[c]
+                for k in range(3):
+                    w = bu[k, a]
+                    for l in range(3):
+                        for c in range(4):
+                            aw[k, l, c] += w * tmp[l, c]
+            w0 = aw[0, 0, 3]
             for k in range(3):
-                w = bu[k, a]
                 for l in range(3):
-                    for c in range(4):
-                        aw[k, l, c] += w * tmp[l, c]
-        w0 = aw[0, 0, 3]
-        for k in range(3):
-            for l in range(3):
-                for c in range(3):
-                    val = aw[k, l, c]
-                    for j in range(1, l + 1):
-                        val -= binom[l, j] * aw[0, j, 3] * out[t, k, l - j, c]
-                    for i in range(1, k + 1):
-                        val -= binom[k, i] * aw[i, 0, 3] * out[t, k - i, l, c]
+                    for c in range(3):
+                        val = aw[k, l, c]
                         for j in range(1, l + 1):
-                            val -= binom[k, i] * binom[l, j] * aw[i, j, 3] * out[t, k - i, l - j, c]
-                    out[t, k, l, c] = val / w0
+                            val -= binom[l, j] * aw[0, j, 3] * out[t, k, l - j, c]
+                        for i in range(1, k + 1):
+                            val -= binom[k, i] * aw[i, 0, 3] * out[t, k - i, l, c]
+                            for j in range(1, l + 1):
+                                val -= binom[k, i] * binom[l, j] * aw[i, j, 3] * out[t, k - i, l - j, c]
+                        out[t, k, l, c] = val / w0
     return out
 
 
@@ -320,7 +334,13 @@ def project_to_surface(
     restart from grid samples (other than the first start) that are discrete local minima
     of the distance and are within sqrt(d^2 + (2h)^2) of the point (d: distance found, h: grid
     spacing at the first start), keeping the nearest result — a cheap guard against local minima that costs
-    nothing for points close to the surface.
+    nothing for points close to the surface; feet clamped to an edge (ON_BOUNDARY) are
+    also restarted from up to 6 nearby samples and from half / one grid cell inside the edge
+    (`_edge_check`), since an interior minimum next to an edge can hide between samples.
+
+    Every returned foot is checked for orthogonality (tangential offset <= 1e-9 x surface
+    size, plus coordinate round-off): a point whose iteration stalls is FAILED, never a
+    silently wrong foot.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim == 1:
@@ -352,6 +372,7 @@ def project_to_surface(
         )
     if uv0 is None and global_check:
         _global_check(surface, samples, pts, res, tol, max_iter)
+        _edge_check(surface, samples, pts, res, tol, max_iter)
     if max_distance is not None:
         far = (res.status != FAILED) & (res.distance > max_distance)
         res.status[far] = BEYOND_TOLERANCE
@@ -360,6 +381,7 @@ def project_to_surface(
 
 _CHECK_K = 16  # nearest samples examined by the global check
 _CHECK_SEEDS = 4  # extra Newton starts per point at most
+_EDGE_SEEDS = 6  # extra starts from nearby samples for feet clamped to an edge
 
 
 def _global_check(
@@ -406,7 +428,21 @@ def _global_check(
     far = np.argmax(gd, axis=1)
     far_ok = gd[np.arange(n), far] > 0.0
     is_min[np.arange(n)[far_ok], far[far_ok]] = True
+    # the nearest ball sample more than 2 grid cells away from the foot found: a second valley
+    # of the distance whose minimum falls between samples is not a discrete local minimum
+    fi = np.clip(np.searchsorted(samples.us, res.u), 0, mu - 1)
+    fj = np.clip(np.searchsorted(samples.vs, res.v), 0, mv - 1)
+    away = (np.abs(ii - fi[:, None]) > 2) | (np.abs(jj - fj[:, None]) > 2)
+    if samples.closed_u:
+        away &= ~(np.abs(ii - fi[:, None]) >= mu - 3)
+    if samples.closed_v:
+        away &= ~(np.abs(jj - fj[:, None]) >= mv - 3)
+    away &= cand & np.isfinite(d)[:, None]
+    away[:, 0] = False
+    first_away = np.argmax(away, axis=1)
+    has_away = away[np.arange(n), first_away]
     is_min &= np.cumsum(is_min, axis=1) <= _CHECK_SEEDS
+    is_min[np.arange(n)[has_away], first_away[has_away]] = True  # one more seed at most
     rows, cols = np.nonzero(is_min)
     if rows.size == 0:
         return
@@ -422,6 +458,65 @@ def _global_check(
     for name in ("u", "v", "foot", "distance", "normal", "status"):
         getattr(res, name)[rows] = getattr(extra, name)[extra_idx]
     res.iterations[rows] += extra.iterations[extra_idx]
+
+
+def _edge_check(
+    surface: NurbsSurface, samples: SurfaceSamples, pts: np.ndarray, res: SurfaceProjection, tol: float, max_iter: int
+) -> None:
+    """Feet clamped to a domain edge (ON_BOUNDARY): restart Newton half a grid cell and one
+    grid cell inside the domain from the edge foot. A wavy surface can have an interior
+    minimum within one grid cell of the edge while the distance still decreases outwards at
+    the edge (the edge sample is then the nearest sample and the discrete local-minimum test
+    of `_global_check` cannot see the interior one). Updates ``res`` in place where nearer."""
+    rows = np.nonzero(res.status == ON_BOUNDARY)[0]
+    if rows.size == 0:
+        return
+    u0, u1, v0, v1 = surface.domain
+    us, vs = samples.us, samples.vs
+
+    def inward(t, grid, lo, hi, frac):
+        if len(grid) < 2:
+            return t
+        k = np.clip(np.searchsorted(grid, t), 1, len(grid) - 1)
+        h = grid[k] - grid[k - 1]
+        return np.where(t <= lo, lo + frac * h, np.where(t >= hi, hi - frac * h, t))
+
+    ur, vr = res.u[rows], res.v[rows]
+    starts_u, starts_v, owner = [], [], []
+    for frac in (0.5, 1.0):
+        starts_u.append(inward(ur, us, u0, u1, frac))
+        starts_v.append(inward(vr, vs, v0, v1, frac))
+        owner.append(rows)
+    # ... and from the nearest grid samples within the global check's radius: along an edge
+    # the sampled distance may fall monotonically towards the edge foot although a nearer
+    # interior minimum sits between two samples of that edge (steep, wavy surfaces)
+    k = min(_CHECK_K, len(samples.uv))
+    if k > 1:
+        dk, ik = samples.tree.query(pts[rows], k=k)
+        dk, ik = dk.reshape(len(rows), k), ik.reshape(len(rows), k)
+        d = res.distance[rows]
+        rad = np.sqrt(d * d + (2.0 * samples.spacing[ik[:, 0]]) ** 2)
+        cand = dk <= rad[:, None]
+        cand[:, 0] = False
+        cand &= np.cumsum(cand, axis=1) <= _EDGE_SEEDS
+        rr, cc = np.nonzero(cand)
+        uv = samples.uv[ik[rr, cc]]
+        starts_u.append(uv[:, 0])
+        starts_v.append(uv[:, 1])
+        owner.append(rows[rr])
+    su, sv, owner = np.concatenate(starts_u), np.concatenate(starts_v), np.concatenate(owner)
+    extra = _newton(surface, samples, pts[owner], su, sv, tol, max_iter)
+    d = res.distance[owner]
+    better = (extra.status != FAILED) & (extra.distance < d - 1e-3 * tol * samples.size)
+    if not np.any(better):
+        return
+    idx = np.nonzero(better)[0]
+    order = np.argsort(-extra.distance[idx], kind="stable")  # nearest written last
+    idx = idx[order]
+    tgt = owner[idx]
+    for name in ("u", "v", "foot", "distance", "normal", "status"):
+        getattr(res, name)[tgt] = getattr(extra, name)[idx]
+    res.iterations[tgt] += extra.iterations[idx]
 
 
 def _newton(
@@ -451,6 +546,8 @@ def _newton(
     u, v = wrap_clamp(u, v)
     iters = np.zeros(n, dtype=np.int32)
     done = np.zeros(n, dtype=bool)
+    # absolute round-off of r = S - P per point: a few ulps of the largest coordinate involved
+    noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + size) if n else np.zeros(0)
     # backtracking memory: previous accepted point, its squared distance and the step from it
     u_prev, v_prev = u.copy(), v.copy()
     d2_prev = np.full(n, np.inf)
@@ -469,9 +566,27 @@ def _newton(
         d2 = _dot(r, r)
         iters[act] += 1
 
-        # --- distance went up: go back and halve the previous step (lazy line search)
-        worse = d2 > d2_prev[act] * (1.0 + 1e-13) + (1e-3 * eps1) ** 2
-        worse &= np.isfinite(d2_prev[act])
+        # --- convergence at the current point (P&T 6.1), tested before any backtracking: a
+        # point that is already orthogonal is never sent back by round-off in |r|^2
+        f = _dot(su, r)
+        g = _dot(sv, r)
+        lsu = np.sqrt(_dot(su, su))
+        lsv = np.sqrt(_dot(sv, sv))
+        lr = np.sqrt(d2)
+        # bound constraints: minimum beyond an edge (descent direction -f points outward)
+        act_u = np.zeros(len(act), dtype=bool) if cu else ((ua <= u0) & (f > 0)) | ((ua >= u1) & (f < 0))
+        act_v = np.zeros(len(act), dtype=bool) if cv else ((va <= v0) & (g > 0)) | ((va >= v1) & (g < 0))
+        cos_u = np.abs(f) / np.maximum(lsu * lr, tiny)
+        cos_v = np.abs(g) / np.maximum(lsv * lr, tiny)
+        conv = (lr <= eps1) | (((cos_u <= eps2) | act_u) & ((cos_v <= eps2) | act_v))
+
+        # --- distance went up: go back and halve the previous step (lazy line search). The
+        # threshold allows for round-off in r = S - P (a few ulps of the coordinates):
+        # |r|^2 is only known to ~2 |r| e + e^2, which near the foot exceeds any relative test.
+        e = noise[act]
+        d2p = d2_prev[act]
+        worse = d2 > d2p * (1.0 + 1e-13) + 2.0 * np.sqrt(np.where(np.isfinite(d2p), d2p, 0.0)) * e + e * e
+        worse &= np.isfinite(d2p) & ~conv
         if np.any(worse):
             w = act[worse]
             du_prev[w] *= 0.5
@@ -480,7 +595,8 @@ def _newton(
             der_w = der[worse]
             step = np.linalg.norm((un - u[w])[:, None] * der_w[:, 1, 0] + (vn - v[w])[:, None] * der_w[:, 0, 1], axis=1)
             u[w], v[w] = un, vn
-            # halving has reached noise level: the previous point is the answer
+            # halving has reached noise level: the previous point is the answer (the final
+            # classification checks that it is orthogonal, else the point is FAILED)
             stop = step <= eps1
             if np.any(stop):
                 ws = w[stop]
@@ -489,24 +605,13 @@ def _newton(
             keep = ~worse
             act_w = act[keep]
             s, su, sv, suu, suv, svv, r, d2 = (x[keep] for x in (s, su, sv, suu, suv, svv, r, d2))
+            ua, va, f, g, lsu, lsv, act_u, act_v, conv = (
+                x[keep] for x in (ua, va, f, g, lsu, lsv, act_u, act_v, conv))
         else:
             act_w = act
         if act_w.size == 0:
             act = act[~done[act]]
             continue
-        ua, va = u[act_w], v[act_w]
-
-        f = _dot(su, r)
-        g = _dot(sv, r)
-        lsu = np.sqrt(_dot(su, su))
-        lsv = np.sqrt(_dot(sv, sv))
-        lr = np.sqrt(d2)
-        # bound constraints: minimum beyond an edge (descent direction -f points outward)
-        act_u = np.zeros(len(act_w), dtype=bool) if cu else ((ua <= u0) & (f > 0)) | ((ua >= u1) & (f < 0))
-        act_v = np.zeros(len(act_w), dtype=bool) if cv else ((va <= v0) & (g > 0)) | ((va >= v1) & (g < 0))
-        cos_u = np.abs(f) / np.maximum(lsu * lr, tiny)
-        cos_v = np.abs(g) / np.maximum(lsv * lr, tiny)
-        conv = (lr <= eps1) | (((cos_u <= eps2) | act_u) & ((cos_v <= eps2) | act_v))
 
         # --- Newton step, full Jacobian (thesis eq. 36); Gauss-Newton if not positive definite
         guu, guv, gvv = lsu * lsu, _dot(su, sv), lsv * lsv
@@ -571,8 +676,9 @@ def _newton(
     cos_v = np.abs(g) / np.maximum(lsv * dist, tiny)
     # a binding edge is only reported when the cosine is really non-zero there
     binding = ((edge_u & (cos_u > eps2)) | (edge_v & (cos_v > eps2))) & (dist > eps1)
-    # not converged within max_iter: accept only if the foot is orthogonal to ~1e-9 x size
-    ok = done | (np.maximum(off_u, off_v) <= 1e3 * eps1)
+    # every foot (converged by a test or not) must be orthogonal to ~1e-9 x size: a stalled
+    # iteration (line search at noise level, iteration cap) never passes as a foot point
+    ok = np.maximum(off_u, off_v) <= 1e3 * eps1 + noise
     ok &= np.isfinite(dist) & np.isfinite(u) & np.isfinite(v)
     status = np.where(binding, ON_BOUNDARY, CONVERGED).astype(np.int8)
     status[~ok] = FAILED

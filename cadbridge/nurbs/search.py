@@ -11,8 +11,11 @@
 3. Projection: all candidate points of one face are projected together (vectorised Newton,
    `project_to_surface`); the loop runs over faces, never over points.
 4. Choice: the nearest valid foot wins; a foot outside a face's trim loops is not valid for
-   that face; at equal distance (within ``tie_tol`` x model size) a foot inside a face beats
-   one clamped to a face edge (ON_BOUNDARY).
+   that face but the nearest point of its trim loops is (`project_to_trims`, ON_BOUNDARY);
+   at equal distance (within ``tie_tol`` x model size) a foot inside a face beats
+   one clamped to a face edge (ON_BOUNDARY). A point whose projection FAILED on a face that
+   is nearer (at its last iterate) than the chosen foot is FAILED (``face`` names the face
+   that failed): a failure is reported, never replaced by a foot on a farther face.
 """
 
 from __future__ import annotations
@@ -34,14 +37,15 @@ from cadbridge.nurbs.project import (
 )
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["Projection", "SearchIndex", "build_search_index", "project_points", "span_boxes"]
+__all__ = ["Projection", "SearchIndex", "build_search_index", "project_points", "project_to_trims", "span_boxes"]
 
 
 @dataclass
 class Projection:
     """Result of `project_points` for N points.
 
-    face       (N,) int: index into model.faces, -1 where no valid foot was found
+    face       (N,) int: index into model.faces, -1 where no face gave a foot (where FAILED
+               because a nearer face failed: that face)
     u, v       (N,) parameters on that face (NaN where FAILED)
     foot       (N, 3) nearest point on the model (NaN where FAILED)
     distance   (N,) |P - foot| (NaN where FAILED)
@@ -196,6 +200,77 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray) -> 
     return key % n, key // n
 
 
+def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
+    """Nearest points of the trim loops (outer and holes) of ``face`` to (N, 3) points.
+
+    Each loop curve c(t) (in (u, v)) is followed on the surface, C(t) = S(c(t)); start from
+    the nearest of a sample polyline, then Newton on f(t) = (C - P).C' with
+    f' = C'.C' + (C - P).C'' (C' = Su u' + Sv v', C'' = Suu u'^2 + 2 Suv u' v' + Svv v'^2
+    + Su u'' + Sv v''), t clamped to the curve's domain; the nearest over all curves wins.
+    Vectorised over points; the loop runs over the (few) trim curves.
+    Returns (u (N,), v (N,), foot (N, 3), distance (N,), ok (N,) bool: orthogonal foot or
+    curve end). Raises ValueError if the face has no trim loops.
+    """
+    pts = np.asarray(points, dtype=float).reshape(-1, 3)
+    n = len(pts)
+    trims = face.trims
+    loops = ([] if trims is None or trims.outer is None else [trims.outer]) + ([] if trims is None else list(trims.inner))
+    if not loops:
+        raise ValueError("project_to_trims: the face has no trim loops")
+    surf = face.surface
+    b = surf.bbox()
+    eps1 = tol * max(float(np.linalg.norm(b[1] - b[0])), 1e-300)
+    best = (np.full(n, np.nan), np.full(n, np.nan), np.full((n, 3), np.nan), np.full(n, np.inf), np.zeros(n, dtype=bool))
+    u0, u1, v0, v1 = surf.domain
+
+    def on_surface(curve, t, order):
+        c = curve.derivatives(t, order=2)  # (N, 3, 2): uv, uv', uv''
+        uu = np.clip(c[:, 0, 0], u0, u1)
+        vv = np.clip(c[:, 0, 1], v0, v1)
+        d = surf.derivatives(uu, vv, order=order)
+        return uu, vv, c, d
+
+    for loop in loops:
+        for curve in loop.curves:
+            t0, t1 = curve.domain
+            ts = curve.sample_parameters(32)
+            uu, vv, _, d = on_surface(curve, ts, 0)
+            _, k = cKDTree(d[:, 0, 0]).query(pts)
+            t = ts[np.asarray(k)]
+            done = np.zeros(n, dtype=bool)
+            for _ in range(max_iter):
+                act = np.nonzero(~done)[0]
+                if not len(act):
+                    break
+                uu, vv, c, d = on_surface(curve, t[act], 2)
+                up, vp, upp, vpp = c[:, 1, 0], c[:, 1, 1], c[:, 2, 0], c[:, 2, 1]
+                su, sv = d[:, 1, 0], d[:, 0, 1]
+                c1 = su * up[:, None] + sv * vp[:, None]
+                c2 = (d[:, 2, 0] * (up * up)[:, None] + 2.0 * d[:, 1, 1] * (up * vp)[:, None]
+                      + d[:, 0, 2] * (vp * vp)[:, None] + su * upp[:, None] + sv * vpp[:, None])
+                r = d[:, 0, 0] - pts[act]
+                f = np.einsum("ij,ij->i", r, c1)
+                fp = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
+                fp = np.where(fp > 0, fp, np.einsum("ij,ij->i", c1, c1) + 1e-300)
+                tn = np.clip(t[act] - f / fp, t0, t1)
+                step = np.abs(tn - t[act]) * np.linalg.norm(c1, axis=1)
+                t[act] = tn
+                done[act[step <= eps1]] = True
+            uu, vv, c, d = on_surface(curve, t, 1)
+            c1 = d[:, 1, 0] * c[:, 1, 0:1] + d[:, 0, 1] * c[:, 1, 1:2]
+            r = d[:, 0, 0] - pts
+            dist = np.linalg.norm(r, axis=1)
+            off = np.abs(np.einsum("ij,ij->i", r, c1)) / np.maximum(np.linalg.norm(c1, axis=1), 1e-300)
+            ok = (off <= 1e3 * eps1) | (t <= t0) | (t >= t1)
+            better = np.where(ok, dist, np.inf) < best[3]
+            best[0][better], best[1][better], best[2][better] = uu[better], vv[better], d[better, 0, 0]
+            best[3][better], best[4][better] = dist[better], True
+    return best
+
+
+_BLOCK = 65536  # points projected together at most (larger inputs go block by block)
+
+
 def project_points(
     points,
     model: Model,
@@ -227,6 +302,13 @@ def project_points(
     elif index.n_faces != len(model.faces):
         raise ValueError("index was built for another model")
     n = len(pts)
+    if n > _BLOCK:
+        # blocks of points keep the per-face work arrays (derivatives: 216 bytes per point
+        # and iteration) cache- and memory-friendly: time stays linear in N
+        parts = [project_points(pts[a : a + _BLOCK], model, max_distance=max_distance, tol=tol,
+                                tie_tol=tie_tol, index=index) for a in range(0, n, _BLOCK)]
+        return Projection(*(np.concatenate([getattr(r, f) for r in parts]) for f in
+                            ("face", "u", "v", "foot", "distance", "normal", "status", "candidates")))
     size = index.size
 
     # 1. upper bound from the nearest valid sample
@@ -260,7 +342,19 @@ def project_points(
         pnorm[a:b], pstat[a:b] = r.normal, r.status
         ok = r.status != FAILED
         if face.trims is not None and np.any(ok):
-            ok[ok] = face.contains(r.u[ok], r.v[ok])
+            inside = face.contains(r.u[ok], r.v[ok])
+            out = np.nonzero(ok)[0][~inside]
+            ok[out] = False
+            if len(out) and (face.trims.outer is not None or face.trims.inner):
+                # the nearest point of the untrimmed surface is cut away: the nearest point
+                # of the trimmed face lies on its trim boundary
+                tu, tv, tf, td, tok = project_to_trims(face, pts[cp[a:b][out]], tol=tol)
+                sel = out[tok]
+                idx = a + sel
+                pu[idx], pv[idx], pfoot[idx], pdist[idx] = tu[tok], tv[tok], tf[tok], td[tok]
+                pnorm[idx] = face.surface.normal(tu[tok], tv[tok])
+                pstat[idx] = ON_BOUNDARY
+                ok[sel] = True
         valid[a:b] = ok
 
     # 4. nearest valid foot per point; interior beats edge at equal distance
@@ -283,6 +377,20 @@ def project_points(
         face[tgt], u[tgt], v[tgt] = cf[win], pu[win], pv[win]
         foot[tgt], dist[tgt], normal[tgt] = pfoot[win], pdist[win], pnorm[win]
         status[tgt] = np.where(pstat[win] == ON_BOUNDARY, ON_BOUNDARY, CONVERGED)
+    # a candidate face whose projection FAILED but whose last iterate is already nearer
+    # than the chosen foot: the true nearest point lies on that face and is unknown, so the
+    # point is FAILED too (never a foot on a farther face passed off as the nearest)
+    bad = (pstat == FAILED) & np.isfinite(pdist)
+    if np.any(bad):
+        bi = np.nonzero(bad)[0]
+        tgt = cp[bi]
+        nearer = (status[tgt] != FAILED) & (pdist[bi] < dist[tgt] - tie_tol * size)
+        if np.any(nearer):
+            t = tgt[nearer]
+            face[t] = cf[bi[nearer]]
+            u[t], v[t], foot[t], dist[t] = np.nan, np.nan, np.nan, np.nan
+            normal[t] = np.nan
+            status[t] = FAILED
     if max_distance is not None:
         status[(status != FAILED) & (dist > max_distance)] = BEYOND_TOLERANCE
     return Projection(face, u, v, foot, dist, normal, status, candidates)
