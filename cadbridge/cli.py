@@ -189,7 +189,8 @@ def _normals_for(mesh, args, model=None):
     from cadbridge.normals.estimators import estimate_normals
 
     if args.method == "cad":
-        cn = cad_normals(mesh, model, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far)
+        cn = cad_normals(mesh, model, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far,
+                         orient=getattr(args, "orient", False))
         return cn.normals, cn.corner_normals, "cad", cn
     blocks = [np.asarray(b.data) for b in mesh.cells]
     n = estimate_normals(mesh.nodes, blocks, method=args.method)
@@ -204,7 +205,9 @@ def cmd_normals(args: argparse.Namespace) -> int:
 
     if args.method == "cad" and not args.cad:
         raise UsageError("--method cad (the default) needs --cad FILE.igs; or pick an estimator, e.g. --method mwe")
-    mesh = read_mesh(args.mesh)
+    from cadbridge.pipeline import _consistently_oriented
+
+    mesh = _consistently_oriented(read_mesh(args.mesh), args.orient)
     model = None
     if args.cad:
         from cadbridge.iges import read_iges
@@ -242,7 +245,7 @@ def cmd_nagata(args: argparse.Namespace) -> int:
         result = nagata_from_mesh(
             args.mesh, cad=args.cad, output=args.output, method=args.method, name=args.name,
             report=not args.no_report, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far,
-            grid=args.grid, progress=progress,
+            grid=args.grid, progress=progress, orient=args.orient,
         )
     _say(result.summary())
     return EXIT_OK
@@ -293,6 +296,8 @@ def _add_normal_options(p: argparse.ArgumentParser, default: str = "cad") -> Non
     p.add_argument("--tolerance", type=float, default=None, help="max node-to-CAD distance (default 1e-4 x model size)")
     p.add_argument("--flip", action="store_true", help="reverse the normals (other side of the tool)")
     p.add_argument("--allow-far", action="store_true", help="keep going when nodes are beyond the tolerance")
+    p.add_argument("--orient", action="store_true",
+                   help="re-orient inconsistently wound elements (default: stop and name them)")
 
 
 def build_parser() -> argparse.ArgumentParser:

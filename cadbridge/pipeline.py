@@ -401,8 +401,29 @@ def _normals(mesh: Mesh, model, method: str, *, tolerance=None, flip=False, allo
     return n, [n[b] for b in blocks], None, None, None
 
 
-def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress
-                     ) -> list[ToolResult]:
+def _consistently_oriented(mesh: Mesh, orient: bool) -> Mesh:
+    """``mesh`` if its elements agree in orientation, else re-oriented (``orient``) or an
+    error naming the first pair of elements that disagree."""
+    from cadbridge.mesh.mesh import MeshError
+    from cadbridge.mesh.topology import orient_consistently, orientation_conflicts
+
+    bad = orientation_conflicts(mesh)
+    if len(bad) == 0:
+        return mesh
+    if not orient:
+        raise MeshError(
+            f"{mesh.name}: inconsistent element orientation: elements {int(bad[0, 0])} and {int(bad[0, 1])} "
+            f"traverse their shared edge in the same direction ({len(bad)} such pairs); use --orient to "
+            f"re-orient the mesh"
+        )
+    oriented, _ = orient_consistently(mesh)
+    oriented.name = mesh.name
+    return oriented
+
+
+def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress,
+                     orient: bool = False) -> list[ToolResult]:
+    mesh = _consistently_oriented(mesh, orient)
     progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
                    f" ({len(mesh.nodes)} nodes)")
     normals, corners, node_face, node_dist, elem_face = _normals(
@@ -446,8 +467,11 @@ def nagata_from_mesh(
     allow_far: bool = False,
     grid: int = 10,
     progress=None,
+    orient: bool = False,
 ) -> RunResult:
-    """`cadbridge nagata`: tool file(s) + report from a user mesh (and the CAD)."""
+    """`cadbridge nagata`: tool file(s) + report from a user mesh (and the CAD).
+
+    ``orient`` re-orients an inconsistently wound mesh instead of stopping with an error."""
     from cadbridge.mesh.io import read_mesh
 
     progress = progress or NoProgress()
@@ -463,7 +487,8 @@ def nagata_from_mesh(
     mesh = read_mesh(mesh_path)
     mesh.name = Path(mesh_path).stem
     projector = CadProjector(model, progress) if model is not None else None
-    tools = _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress)
+    tools = _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress,
+                             orient)
     units = model.units.name if model is not None else "MM"
     result = RunResult(Path(output), tools)
     with staged_output(output) as tmp:
@@ -501,7 +526,8 @@ def convert(
                     radius_divisions=radius_divisions, length_divisions=length_divisions)
     mesh.name = Path(cad).stem
     projector = CadProjector(model, progress)
-    tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress)
+    tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
+                             orient=True)
     result = RunResult(Path(output), tools)
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
