@@ -96,12 +96,35 @@ def _element_normals(nodes: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return n / np.where(ln > 0, ln, 1.0)
 
 
+def _on_c0_knot_lines(model: Model, proj: Projection) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes whose foot lies on a crease knot line (constant u / constant v) of its face
+    (`NurbsSurface.crease_knots`: a C0 knot across which the normal jumps).
+
+    Returns (on_u, on_v) (N,) bools and the feet's (u, v) (N,) with the parameters on such a
+    line snapped exactly onto the knot (a foot at 2 - 1e-15 must evaluate both sides of 2).
+    """
+    on_u = np.zeros(len(proj.face), dtype=bool)
+    on_v = np.zeros(len(proj.face), dtype=bool)
+    uu, vv = np.array(proj.u, dtype=float), np.array(proj.v, dtype=float)
+    for f in np.unique(proj.face[proj.face >= 0]):
+        s = model.faces[f].surface
+        u0, u1, v0, v1 = s.domain
+        sel = np.flatnonzero(proj.face == f)
+        for k, lo, hi, par, out in zip(s.crease_knots(), (u0, v0), (u1, v1), (uu, vv), (on_u, on_v)):
+            if len(k):
+                gap = np.abs(par[sel, None] - k[None, :])
+                near = np.min(gap, axis=1) <= 1e-9 * (hi - lo)
+                out[sel] = near
+                par[sel[near]] = k[np.argmin(gap[near], axis=1)]
+    return on_u, on_v, uu, vv
+
+
 def cad_normals(
     mesh: Mesh,
     model: Model,
     *,
     tolerance: float | None = None,
-    crease_angle: float = 20.0,
+    crease_angle: float = 5.0,
     flip: bool = False,
     allow_far: bool = False,
     orient: bool = False,
@@ -188,6 +211,8 @@ def cad_normals(
     dots = np.einsum("ij,ij->i", node_n, acc)
     node_n = node_n * np.where(dots < 0, -1.0, 1.0)[:, None] * sign
 
+    kink_u, kink_v, knot_u, knot_v = _on_c0_knot_lines(model, proj)
+
     nm_node = np.zeros(len(nodes), dtype=bool)
     nm_node[nm.edges.ravel()] = True
     corner_normals: list[np.ndarray] = []
@@ -197,6 +222,7 @@ def cad_normals(
     offset = 0
     for c, en in zip(blocks, elem_normals):
         ef = elem_face_all[offset : offset + len(c)]
+        uc, vc = cproj.u[offset : offset + len(c)], cproj.v[offset : offset + len(c)]
         offset += len(c)
         element_face.append(ef)
         cn = node_n[c].copy()  # (E, k, 3)
@@ -211,6 +237,24 @@ def cad_normals(
                 sel = fids == f
                 sp = project_to_surface(model.faces[f].surface, nodes[nid[sel]])
                 nrm[sel] = sp.normal
+            nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * sign
+            sharp = np.einsum("ij,ij->i", nrm, node_n[nid]) < cos_crease
+            cn[ei[sharp], ki[sharp]] = nrm[sharp]
+            crease[nid[sharp]] = True
+        # corners at nodes on a C0 knot line inside their own face (a crease within one NURBS
+        # surface): the one-sided normal from the element's side of the knot
+        kink = (kink_u[c] | kink_v[c]) & (ef[:, None] == proj.face[c])
+        if np.any(kink):
+            ei, ki = np.nonzero(kink)
+            nid = c[ei, ki]
+            side_u = np.where(uc[ei] >= knot_u[nid], 1, -1)
+            side_v = np.where(vc[ei] >= knot_v[nid], 1, -1)
+            nrm = np.empty((len(nid), 3))
+            fids = ef[ei]
+            for f in np.unique(fids):  # loop over faces, vectorised over corners
+                sel = fids == f
+                nrm[sel] = model.faces[f].surface.normal(knot_u[nid[sel]], knot_v[nid[sel]],
+                                                         side_u=side_u[sel], side_v=side_v[sel])
             nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * sign
             sharp = np.einsum("ij,ij->i", nrm, node_n[nid]) < cos_crease
             cn[ei[sharp], ki[sharp]] = nrm[sharp]

@@ -61,15 +61,21 @@ def _small_knots_ok(k: list[float], p: int, n_ctrl: int) -> bool:
     return not any(map(eq, inner, inner[p:]))
 
 
-def find_span(knots: np.ndarray, p: int, u: np.ndarray) -> np.ndarray:
+def find_span(knots: np.ndarray, p: int, u: np.ndarray, side=None) -> np.ndarray:
     """Knot span index i with knots[i] <= u < knots[i+1] for each u (A2.1), (N,) int.
 
     Parameters outside the domain are clamped to the first/last span, and u at the right end
     of the domain belongs to the last non-empty span, so no basis function is lost there.
+    ``side`` (N,) of -1/+1 picks, for u exactly at an interior knot, the span on that side
+    (knots[i] < u <= knots[i+1] for -1): one-sided derivatives across a C0 knot.
     """
     knots = np.asarray(knots, dtype=float)
     n = len(knots) - p - 2  # index of the last control point
-    span = np.searchsorted(knots, np.asarray(u, dtype=float), side="right") - 1
+    u = np.asarray(u, dtype=float)
+    span = np.searchsorted(knots, u, side="right") - 1
+    if side is not None:
+        left = np.searchsorted(knots, u, side="left") - 1
+        span = np.where(np.asarray(side) < 0, np.maximum(left, p), span)
     return np.clip(span, p, n)
 
 

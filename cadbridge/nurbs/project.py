@@ -347,6 +347,10 @@ def project_to_surface(
         pts = pts.reshape(1, 3)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"points must have shape (N, 3), got {pts.shape}")
+    pieces = smooth_pieces(surface)
+    if len(pieces) > 1 and uv0 is None:
+        kw = dict(tol=tol, max_iter=max_iter, max_distance=max_distance, n_starts=n_starts, global_check=global_check)
+        return _nearest_of_pieces(surface, pieces, [project_to_surface(pc, pts, **kw) for pc in pieces])
     n = len(pts)
     samples = surface_samples(surface)
     if uv0 is not None:
@@ -377,6 +381,63 @@ def project_to_surface(
         far = (res.status != FAILED) & (res.distance > max_distance)
         res.status[far] = BEYOND_TOLERANCE
     return res
+
+
+_PIECES: "weakref.WeakKeyDictionary[NurbsSurface, list[NurbsSurface]]" = weakref.WeakKeyDictionary()
+
+
+def smooth_pieces(surface: NurbsSurface) -> list[NurbsSurface]:
+    """The surface split along its crease knot lines (`NurbsSurface.crease_knots`: interior
+    knots across which the normal jumps) into smooth pieces (cached); ``[surface]`` when
+    there are none.
+
+    Newton cannot converge onto a crease inside one surface (the distance is not
+    differentiable there); on the smooth pieces the crease is an edge, handled by clamping.
+    """
+    hit = _PIECES.get(surface)
+    if hit is None:
+        u0, u1, v0, v1 = surface.domain
+        ku, kv = surface.crease_knots()
+        eu = np.concatenate([[u0], ku, [u1]])
+        ev = np.concatenate([[v0], kv, [v1]])
+        if len(eu) == 2 and len(ev) == 2:
+            hit = [surface]
+        else:
+            hit = [surface.with_domain((a, b, c, d)) for a, b in zip(eu[:-1], eu[1:]) for c, d in zip(ev[:-1], ev[1:])]
+        _PIECES[surface] = hit
+    return hit
+
+
+def _nearest_of_pieces(surface: NurbsSurface, pieces: list[NurbsSurface], results: list[SurfaceProjection]
+                       ) -> SurfaceProjection:
+    """Per point the nearest valid foot over the pieces; a foot on an internal C0 line is an
+    interior point of the whole surface (CONVERGED, normal one-sided from its piece's side)."""
+    d = np.stack([np.where(r.status == FAILED, np.inf, r.distance) for r in results])
+    d = np.where(np.isfinite(d), d, np.inf)
+    best = np.argmin(d, axis=0)
+    rows = np.arange(d.shape[1])
+    pick = lambda name: np.stack([getattr(r, name) for r in results])[best, rows]  # noqa: E731
+    out = SurfaceProjection(pick("u"), pick("v"), pick("foot"), pick("distance"), pick("normal"),
+                            pick("status").copy(), np.stack([r.iterations for r in results]).sum(axis=0))
+    u0, u1, v0, v1 = surface.domain
+    dom = np.array([pc.domain for pc in pieces])[best]  # (N, 4) of each point's piece
+    eps_u, eps_v = 1e-12 * (u1 - u0), 1e-12 * (v1 - v0)
+    at_lo_u = (np.abs(out.u - dom[:, 0]) <= eps_u) & (dom[:, 0] > u0)
+    at_hi_u = (np.abs(out.u - dom[:, 1]) <= eps_u) & (dom[:, 1] < u1)
+    at_lo_v = (np.abs(out.v - dom[:, 2]) <= eps_v) & (dom[:, 2] > v0)
+    at_hi_v = (np.abs(out.v - dom[:, 3]) <= eps_v) & (dom[:, 3] < v1)
+    inner = (at_lo_u | at_hi_u | at_lo_v | at_hi_v) & (out.status != FAILED)
+    if np.any(inner):
+        side_u = np.where(at_hi_u[inner], -1, 1)
+        side_v = np.where(at_hi_v[inner], -1, 1)
+        out.normal[inner] = surface.normal(out.u[inner], out.v[inner], side_u=side_u, side_v=side_v)
+        # still on the outer boundary in the other direction? keep ON_BOUNDARY then
+        on_outer = ((np.abs(out.u[inner] - u0) <= eps_u) | (np.abs(out.u[inner] - u1) <= eps_u)
+                    | (np.abs(out.v[inner] - v0) <= eps_v) | (np.abs(out.v[inner] - v1) <= eps_v))
+        st = out.status[inner]
+        st[(st == ON_BOUNDARY) & ~on_outer] = CONVERGED
+        out.status[inner] = st
+    return out
 
 
 _CHECK_K = 16  # nearest samples examined by the global check

@@ -213,12 +213,16 @@ class NurbsSurface:
         )
 
     # ------------------------------------------------------------------ evaluation
-    def derivatives(self, u, v, order: int = 2) -> np.ndarray:
+    def derivatives(self, u, v, order: int = 2, side_u=None, side_v=None) -> np.ndarray:
         """All partial derivatives up to ``order`` in each direction, analytically.
 
         u, v : (N,) parameters. Returns (N, order+1, order+1, 3) with
         [:, k, l] = d^(k+l) S / du^k dv^l (rational quotient rule, P&T A4.4).
+        side_u, side_v : optional (N,) of -1/+1: at a knot, the one-sided derivatives from
+        that side (they differ across a C0 knot, e.g. a crease inside one NURBS face).
         """
+        if side_u is not None or side_v is not None:
+            return self._derivatives_numpy(u, v, order, side_u, side_v)
         u = np.atleast_1d(np.asarray(u, dtype=float))
         v = np.atleast_1d(np.asarray(v, dtype=float))
         u, v = np.broadcast_arrays(u, v)
@@ -234,22 +238,26 @@ class NurbsSurface:
                          u, v, out)
         return out
 
-    def _derivatives_numpy(self, u, v, order: int = 2) -> np.ndarray:
-        """Reference numpy implementation of `derivatives` (same results, kept for checks)."""
+    def _derivatives_numpy(self, u, v, order: int = 2, side_u=None, side_v=None) -> np.ndarray:
+        """numpy implementation of `derivatives` (same results; also the one-sided path)."""
         u = np.atleast_1d(np.asarray(u, dtype=float))
         v = np.atleast_1d(np.asarray(v, dtype=float))
         u, v = np.broadcast_arrays(u, v)
         u, v = u.ravel(), v.ravel()
+        su = None if side_u is None else np.broadcast_to(np.asarray(side_u), u.shape)
+        sv = None if side_v is None else np.broadcast_to(np.asarray(side_v), u.shape)
         out = np.empty((u.size, order + 1, order + 1, 3))
         for s in range(0, u.size, _CHUNK):
-            out[s : s + _CHUNK] = self._derivatives_block(u[s : s + _CHUNK], v[s : s + _CHUNK], order)
+            blk = slice(s, s + _CHUNK)
+            out[blk] = self._derivatives_block(u[blk], v[blk], order,
+                                               None if su is None else su[blk], None if sv is None else sv[blk])
         return out
 
-    def _homogeneous_derivatives(self, u: np.ndarray, v: np.ndarray, d: int) -> np.ndarray:
+    def _homogeneous_derivatives(self, u: np.ndarray, v: np.ndarray, d: int, side_u=None, side_v=None) -> np.ndarray:
         """Derivatives of the homogeneous surface Sw = (wx, wy, wz, w): (N, d+1, d+1, 4)."""
         p, q = self.degree_u, self.degree_v
-        su = find_span(self.knots_u, p, u)
-        sv = find_span(self.knots_v, q, v)
+        su = find_span(self.knots_u, p, u, side_u)
+        sv = find_span(self.knots_v, q, v, side_v)
         nu_d = ders_basis_funs(su, u, p, self.knots_u, d)  # (N, d+1, p+1)
         nv_d = ders_basis_funs(sv, v, q, self.knots_v, d)  # (N, d+1, q+1)
         iu = su[:, None] - p + np.arange(p + 1)
@@ -258,8 +266,8 @@ class NurbsSurface:
         tmp = np.einsum("nlb,nabc->nalc", nv_d, pw)  # (N, p+1, d+1, 4)
         return np.einsum("nka,nalc->nklc", nu_d, tmp)  # (N, d+1, d+1, 4)
 
-    def _derivatives_block(self, u: np.ndarray, v: np.ndarray, d: int) -> np.ndarray:
-        aw = self._homogeneous_derivatives(u, v, d)
+    def _derivatives_block(self, u: np.ndarray, v: np.ndarray, d: int, side_u=None, side_v=None) -> np.ndarray:
+        aw = self._homogeneous_derivatives(u, v, d, side_u, side_v)
         if not self.rational:
             return aw[..., :3].copy()
         a = aw[..., :3]
@@ -284,15 +292,17 @@ class NurbsSurface:
 
     __call__ = evaluate
 
-    def normal(self, u, v, return_flags: bool = False):
+    def normal(self, u, v, return_flags: bool = False, side_u=None, side_v=None):
         """Unit normals in the direction of Su x Sv: u, v (N,) -> (N, 3).
+
+        ``side_u``/``side_v`` (N,) of -1/+1 give one-sided normals at knots (see `derivatives`).
 
         At degenerate points (a collapsed edge or pole, where Su or Sv vanishes or they are
         parallel) the limit normal approached from inside the domain is returned: with Sv = 0
         it is +-Su x Suv, with Su = 0 it is +-Suv x Sv. With ``return_flags`` the (N,) bool
         array saying which points were degenerate is returned as well.
         """
-        der = self.derivatives(u, v, order=1)
+        der = self.derivatives(u, v, order=1, side_u=side_u, side_v=side_v)
         su, sv, suv = der[:, 1, 0], der[:, 0, 1], der[:, 1, 1]
         n = np.cross(su, sv)
         ln = np.linalg.norm(n, axis=1)
@@ -325,6 +335,38 @@ class NurbsSurface:
         with np.errstate(invalid="ignore", divide="ignore"):
             n = n / ln[:, None]
         return (n, degenerate) if return_flags else n
+
+    def crease_knots(self, angle: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Interior knots across which the surface normal jumps (a crease inside the face).
+
+        Candidates are knots of multiplicity >= degree inside the domain (where the surface
+        may be only C0); a candidate is kept when the one-sided normals at 17 points along
+        its knot line differ by more than ``angle`` radians. A rational circle's double
+        knots (C0 parametrisation, smooth geometry) are not creases. Returns (knots_u,
+        knots_v) sorted arrays; cached (the surface is immutable).
+        """
+        cache = self.__dict__.setdefault("_crease_cache", {})
+        if angle not in cache:
+            u0, u1, v0, v1 = self.domain
+            t = np.linspace(0.0, 1.0, 17)
+            out = []
+            for knots, p, lo, hi, other in ((self.knots_u, self.degree_u, u0, u1, v0 + (v1 - v0) * t),
+                                            (self.knots_v, self.degree_v, v0, v1, u0 + (u1 - u0) * t)):
+                k, counts = np.unique(knots, return_counts=True)
+                keep = []
+                for kk in k[(counts >= p) & (k > lo) & (k < hi)]:
+                    at = np.full(len(other), kk)
+                    uv = (at, other) if knots is self.knots_u else (other, at)
+                    side = np.ones(len(other))
+                    sides = ((-side, None), (side, None)) if knots is self.knots_u else ((None, -side), (None, side))
+                    n1 = self.normal(*uv, side_u=sides[0][0], side_v=sides[0][1])
+                    n2 = self.normal(*uv, side_u=sides[1][0], side_v=sides[1][1])
+                    cos = np.clip(np.einsum("ij,ij->i", n1, n2), -1.0, 1.0)
+                    if np.nanmax(np.arccos(cos)) > angle:
+                        keep.append(kk)
+                out.append(np.array(keep, dtype=float))
+            cache[angle] = (out[0], out[1])
+        return cache[angle]
 
     # ------------------------------------------------------------------ geometry helpers
     def bbox(self) -> np.ndarray:
