@@ -410,11 +410,15 @@ def smooth_pieces(surface: NurbsSurface) -> list[NurbsSurface]:
 
 def _nearest_of_pieces(surface: NurbsSurface, pieces: list[NurbsSurface], results: list[SurfaceProjection]
                        ) -> SurfaceProjection:
-    """Per point the nearest valid foot over the pieces; a foot on an internal C0 line is an
-    interior point of the whole surface (CONVERGED, normal one-sided from its piece's side)."""
+    """Per point the nearest valid foot over the pieces; a foot on an internal crease line is
+    an interior point of the whole surface (CONVERGED, normal one-sided from its piece's side)."""
     d = np.stack([np.where(r.status == FAILED, np.inf, r.distance) for r in results])
     d = np.where(np.isfinite(d), d, np.inf)
-    best = np.argmin(d, axis=0)
+    # ties (a foot on a crease line is in both pieces): the last piece, i.e. the one above
+    # the knot, so the normal there follows the usual convention knots[i] <= u < knots[i+1]
+    dmin = d.min(axis=0)
+    tie = d <= dmin + 1e-12 * (1.0 + np.where(np.isfinite(dmin), dmin, 0.0))
+    best = d.shape[0] - 1 - np.argmax(tie[::-1], axis=0)
     rows = np.arange(d.shape[1])
     pick = lambda name: np.stack([getattr(r, name) for r in results])[best, rows]  # noqa: E731
     out = SurfaceProjection(pick("u"), pick("v"), pick("foot"), pick("distance"), pick("normal"),
