@@ -26,7 +26,6 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -44,7 +43,6 @@ __all__ = [
     "surface_samples",
     "sample_parameters",
     "closed_directions",
-    "derivatives2",
 ]
 
 CONVERGED: int = 0  # interior stationary point of the distance (foot is orthogonal)
@@ -119,7 +117,6 @@ class SurfaceSamples:
     closed_u: bool
     closed_v: bool
     spacing: np.ndarray  # (M,) largest distance from each sample to its grid neighbours
-    pw: np.ndarray  # (nu, nv, 4) homogeneous control net (w x, w y, w z, w)
 
 
 _CACHE: "weakref.WeakKeyDictionary[NurbsSurface, SurfaceSamples]" = weakref.WeakKeyDictionary()
@@ -179,133 +176,10 @@ def surface_samples(surface: NurbsSurface) -> SurfaceSamples:
         h[:, :-1] = np.maximum(h[:, :-1], dv)
         h[:, 1:] = np.maximum(h[:, 1:], dv)
     h = h.ravel()
-    pw = np.empty(surface.control_points.shape[:2] + (4,))
-    pw[..., :3] = surface.control_points * surface.weights[..., None]
-    pw[..., 3] = surface.weights
-    s = SurfaceSamples(us, vs, uv, pts, cKDTree(pts), size, cu, cv, h, pw)
+    s = SurfaceSamples(us, vs, uv, pts, cKDTree(pts), size, cu, cv, h)
     _CACHE[surface] = s
     return s
 
-
-
-# ---------------------------------------------------------------------------- numba kernel
-@numba.njit(cache=True, inline="always")
-def _ders_basis(span: int, t: float, p: int, knots: np.ndarray, out: np.ndarray, ndu: np.ndarray,
-                left: np.ndarray, right: np.ndarray, a: np.ndarray) -> None:
-    """P&T A2.3 for one parameter, derivatives up to 2: out (3, p+1). ndu (p+1, p+1),
-    left/right (p+1,), a (2, p+1) are work arrays (allocated once per thread chunk)."""
-    ndu[0, 0] = 1.0
-    for j in range(1, p + 1):
-        left[j] = t - knots[span + 1 - j]
-        right[j] = knots[span + j] - t
-        saved = 0.0
-        for r in range(j):
-            ndu[j, r] = right[r + 1] + left[j - r]
-            temp = ndu[r, j - 1] / ndu[j, r]
-            ndu[r, j] = saved + right[r + 1] * temp
-            saved = left[j - r] * temp
-        ndu[j, j] = saved
-    for k in range(3):
-        for j in range(p + 1):
-            out[k, j] = 0.0
-    for j in range(p + 1):
-        out[0, j] = ndu[j, p]
-    nd = min(2, p)
-    for r in range(p + 1):
-        s1, s2 = 0, 1
-        for i in range(p + 1):
-            a[0, i] = 0.0
-            a[1, i] = 0.0
-        a[0, 0] = 1.0
-        for k in range(1, nd + 1):
-            d = 0.0
-            rk, pk = r - k, p - k
-            if r >= k:
-                a[s2, 0] = a[s1, 0] / ndu[pk + 1, rk]
-                d = a[s2, 0] * ndu[rk, pk]
-            j1 = 1 if rk >= -1 else -rk
-            j2 = k - 1 if r - 1 <= pk else p - r
-            for j in range(j1, j2 + 1):
-                a[s2, j] = (a[s1, j] - a[s1, j - 1]) / ndu[pk + 1, rk + j]
-                d += a[s2, j] * ndu[rk + j, pk]
-            if r <= pk:
-                a[s2, k] = -a[s1, k - 1] / ndu[pk + 1, r]
-                d += a[s2, k] * ndu[r, pk]
-            out[k, r] = d
-            s1, s2 = s2, s1
-    fac = float(p)
-    for k in range(1, nd + 1):
-        for j in range(p + 1):
-            out[k, j] *= fac
-        fac *= p - k
-
-
-_KERNEL_CHUNK = 256  # points per parallel task (work arrays are allocated once per task)
-
-
-@numba.njit(cache=True, parallel=True)
-def _ders2_kernel(pw, ku, kv, p, q, u, v):  # pragma: no cover - compiled
-    """Rational surface derivatives up to order 2 in u and v (P&T A4.4) at (N,) points:
-    (N, 3, 3, 3) with [:, k, l] = d^(k+l)S/du^k dv^l. pw (nu, nv, 4) homogeneous net."""
-    n = u.shape[0]
-    nu, nv = pw.shape[0], pw.shape[1]
-    out = np.empty((n, 3, 3, 3))
-    binom = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 2.0, 1.0]])
-    nchunk = (n + _KERNEL_CHUNK - 1) // _KERNEL_CHUNK
-    for ch in numba.prange(nchunk):
-        bu = np.empty((3, p + 1))
-        bv = np.empty((3, q + 1))
-        m = max(p, q) + 1
-        ndu = np.empty((m, m))
-        left = np.empty(m)
-        right = np.empty(m)
-        wa = np.empty((2, m))
-        aw = np.empty((3, 3, 4))
-        tmp = np.empty((3, 4))
-        for t in range(ch * _KERNEL_CHUNK, min(n, (ch + 1) * _KERNEL_CHUNK)):
-            su = np.searchsorted(ku, u[t], side="right") - 1
-            su = min(max(su, p), nu - 1)
-            sv = np.searchsorted(kv, v[t], side="right") - 1
-            sv = min(max(sv, q), nv - 1)
-            _ders_basis(su, u[t], p, ku, bu, ndu, left, right, wa)
-            _ders_basis(sv, v[t], q, kv, bv, ndu, left, right, wa)
-            aw[:] = 0.0
-            for a in range(p + 1):
-                for l in range(3):
-                    for c in range(4):
-                        tmp[l, c] = 0.0
-                for b in range(q + 1):
-                    row = pw[su - p + a, sv - q + b]
-                    for l in range(3):
-                        w = bv[l, b]
-                        for c in range(4):
-                            tmp[l, c] += w * row[c]
-                for k in range(3):
-                    w = bu[k, a]
-                    for l in range(3):
-                        for c in range(4):
-                            aw[k, l, c] += w * tmp[l, c]
-            w0 = aw[0, 0, 3]
-            for k in range(3):
-                for l in range(3):
-                    for c in range(3):
-                        val = aw[k, l, c]
-                        for j in range(1, l + 1):
-                            val -= binom[l, j] * aw[0, j, 3] * out[t, k, l - j, c]
-                        for i in range(1, k + 1):
-                            val -= binom[k, i] * aw[i, 0, 3] * out[t, k - i, l, c]
-                            for j in range(1, l + 1):
-                                val -= binom[k, i] * binom[l, j] * aw[i, j, 3] * out[t, k - i, l - j, c]
-                        out[t, k, l, c] = val / w0
-    return out
-
-
-def derivatives2(surface: NurbsSurface, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Same as ``surface.derivatives(u, v, order=2)`` (N, 3, 3, 3), by a compiled kernel."""
-    smp = surface_samples(surface)
-    u = np.ascontiguousarray(u, dtype=float)
-    v = np.ascontiguousarray(v, dtype=float)
-    return _ders2_kernel(smp.pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v, u, v)
 
 
 # ---------------------------------------------------------------------------- projection
@@ -624,7 +498,7 @@ def _newton(
         if act.size == 0:
             break
         ua, va = u[act], v[act]
-        der = derivatives2(surface, ua, va)
+        der = surface.derivatives(ua, va, order=2)
         s, su, sv = der[:, 0, 0], der[:, 1, 0], der[:, 0, 1]
         suu, suv, svv = der[:, 2, 0], der[:, 1, 1], der[:, 0, 2]
         r = s - pts[act]
