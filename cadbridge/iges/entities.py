@@ -18,7 +18,7 @@ from cadbridge.iges.analytic import (POLY_REL_TOL, Frame, MappedLoops, ParamMap,
                                      torus_map)
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record
-from cadbridge.iges.parameters import Params, read_params
+from cadbridge.iges.parameters import Params, prepare_params, read_params
 from cadbridge.model import Diagnostic, Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
@@ -40,6 +40,11 @@ STANDARD_COLORS = {1: (0.0, 0.0, 0.0), 2: (1.0, 0.0, 0.0), 3: (0.0, 1.0, 0.0), 4
                    5: (1.0, 1.0, 0.0), 6: (1.0, 0.0, 1.0), 7: (0.0, 1.0, 1.0), 8: (1.0, 1.0, 1.0)}
 
 Affine = tuple[np.ndarray, np.ndarray]  # (R (3, 3), t (3,)) for x -> R x + t
+_MISSING = object()
+_LINE_KNOTS = np.array([0.0, 0.0, 1.0, 1.0])
+_LINE_KNOTS.setflags(write=False)
+_ONES2 = np.ones(2)
+_ONES2.setflags(write=False)
 
 
 def _closed(loop, surface: NurbsSurface, rel: float = 1e-6) -> bool:
@@ -77,7 +82,9 @@ def to_2d(c: NurbsCurve) -> NurbsCurve:
     """Drop z of a parameter-space curve: (u, v, 0) -> (u, v)."""
     if c.dim == 2:
         return c
-    return NurbsCurve(c.degree, c.knots, c.control_points[:, :2], c.weights, c.domain)
+    # the (u, v) columns of a valid curve: the same checks would pass again
+    return NurbsCurve._trusted(c.degree, c.knots, c.control_points[:, :2], c.weights,
+                               (float(c.domain[0]), float(c.domain[1])), c.rational)
 
 
 def _is_identity(a: Affine | None) -> bool:
@@ -125,6 +132,7 @@ class Builder:
         self._active: list[int] = []  # entities under construction (cycle guard, error location)
         self._keys: list[tuple[str, int]] = []
         self._failed_at: tuple | None = None  # (DE, line, type) where an exception first passed
+        prepare_params(entries, precs, pdelim, rdelim)  # compiled scan of the plain records (fast path)
 
     # ------------------------------------------------------------------ infrastructure
     def note(self, message: str, de: int | None = None, line: int | None = None) -> None:
@@ -160,6 +168,20 @@ class Builder:
     def visiting(self, de: int, kind: str = ""):
         """Guard one level of pointer following: raises on a cycle (the same DE entered again
         for the same purpose) or on nesting deeper than MAX_DEPTH."""
+        self._enter(de, kind)
+        try:
+            yield
+        except Exception:
+            if self._failed_at is None:
+                self._failed_at = self.current_location()
+            raise
+        finally:
+            self._active.pop()
+            self._keys.pop()
+
+    def _enter(self, de: int, kind: str = "") -> None:
+        """`visiting`'s checks and push (the caller pops ``_active`` and ``_keys`` in a
+        ``finally``, noting ``_failed_at`` on an exception, as `visiting` does)."""
         key = (kind, de)
         if key in self._keys:
             e = self.entries[de]
@@ -172,15 +194,6 @@ class Builder:
                             line=e.line, de=de, entity_type=e.entity_type)
         self._active.append(de)
         self._keys.append(key)
-        try:
-            yield
-        except Exception:
-            if self._failed_at is None:
-                self._failed_at = self.current_location()
-            raise
-        finally:
-            self._active.pop()
-            self._keys.pop()
 
     def current_location(self) -> tuple[int | None, int | None, int | None]:
         """(DE, line, entity type) of the innermost entity under construction (or where the
@@ -196,10 +209,20 @@ class Builder:
         return p.error(str(exc), 1, field)
 
     def _cached(self, key: tuple, make):
-        if key not in self._cache:
-            with self.visiting(key[1], key[0]):
-                self._cache[key] = make()
-        return self._cache[key]
+        v = self._cache.get(key, _MISSING)
+        if v is not _MISSING:
+            return v
+        self._enter(key[1], key[0])  # `visiting`, inlined (hot path)
+        try:
+            v = self._cache[key] = make()
+        except Exception:
+            if self._failed_at is None:
+                self._failed_at = self.current_location()
+            raise
+        finally:
+            self._active.pop()
+            self._keys.pop()
+        return v
 
     # ------------------------------------------------------------------ 124 transformations
     def matrix(self, de: int) -> Affine:
@@ -281,10 +304,10 @@ class Builder:
             self._own_end[de] = 7
             if np.array_equal(v[:3], v[3:]):
                 raise p.error("line with coincident end points", 1, "X1")
-            try:
-                pieces = [_construct().line(v[:3], v[3:])]
-            except ValueError as exc:
-                raise self._wrap(p, exc) from None
+            # `construct.line(v[:3], v[3:])`, built directly: `Params.reals` values are finite,
+            # so its NurbsCurve checks pass (same knots, points, unit weights and domain)
+            pieces = [NurbsCurve._trusted(1, _LINE_KNOTS, v.reshape(2, 3), _ONES2,
+                                          (_LINE_KNOTS[1], _LINE_KNOTS[2]), False)]
         elif t == 100:
             v = p.reals(1, 7, "ZT..Y3")
             self._own_end[de] = 8
@@ -365,21 +388,32 @@ class Builder:
         knots = p.reals(t0, nk, "T")
         self._check_knots(p, knots, t0, m, "T")
         w = p.reals(w0, k + 1, "W")
-        bad = np.flatnonzero(~(w > 0))
-        if bad.size:
-            j = int(bad[0])
+        if not (w > 0).all():
+            j = int(np.flatnonzero(~(w > 0))[0])
             raise p.error(f"weight {w[j]!r} is not positive", w0 + j, f"W({j})")
         cp = p.reals(c0, 3 * (k + 1), "X,Y,Z").reshape(k + 1, 3)
         a, b = p.real(v0, "V0"), p.real(v0 + 1, "V1")
         self._own_end[p.de] = v0 + 2 + (3 if p.has(v0 + 4) else 0)
         lo, hi = knots[m], knots[k + 1]
         a, b = self._clamp_range(p, a, b, lo, hi, v0, "V0", "V1")
+        if lo <= a < b <= hi:
+            # knots non-decreasing (checked above), values finite (`Params.reals` rejects
+            # overflow), weights positive, lo <= a < b <= hi: NurbsCurve's checks reduce to
+            # the interior knot multiplicity; when it passes, the same curve without
+            # re-validation (anything else: the constructor, and its error, below)
+            inner = knots[m + 1 : k + 1]
+            if inner.size <= m or not (inner[m:] == inner[:-m]).any():
+                knots.setflags(write=False)
+                wr = w.min() < w.max()
+                return NurbsCurve._trusted(m, knots, cp, w, (float(a), float(b)), bool(wr))
         try:
             return NurbsCurve(m, knots, cp, w, (a, b))
         except ValueError as exc:
             raise p.error(str(exc), t0, "T") from None
 
     def _check_knots(self, p: Params, knots: np.ndarray, start: int, m: int, name: str) -> None:
+        if (knots[1:] >= knots[:-1]).all():
+            return
         d = np.diff(knots)
         bad = np.flatnonzero(~(d >= 0))
         if bad.size:
@@ -426,9 +460,8 @@ class Builder:
         tv = p.reals(t0, nb, "T")
         self._check_knots(p, tv, t0, m2, "T")
         w = p.reals(w0, c, "W")
-        bad = np.flatnonzero(~(w > 0))
-        if bad.size:
-            j = int(bad[0])
+        if not (w > 0).all():
+            j = int(np.flatnonzero(~(w > 0))[0])
             raise p.error(f"weight {w[j]!r} is not positive", w0 + j, f"W({j % (k1 + 1)},{j // (k1 + 1)})")
         xyz = p.reals(x0, 3 * c, "X,Y,Z")
         # IGES order: first index (u) fastest -> reshape (v, u), then transpose to [i along u, j along v]
@@ -670,8 +703,16 @@ class Builder:
         instances) is applied after the entity's own transformation."""
         e = self.entries[de]
         try:
-            with self.visiting(de):
+            self._enter(de)  # `visiting`, inlined
+            try:
                 face = self._face(de)
+            except Exception:
+                if self._failed_at is None:
+                    self._failed_at = self.current_location()
+                raise
+            finally:
+                self._active.pop()
+                self._keys.pop()
         except Unsupported as u:
             self.diagnostics.append(Diagnostic(f"face skipped: {u}", u.line if u.line else e.line,
                                                u.de if u.de else de, u.etype if u.etype else e.entity_type))

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from cadbridge.iges.directory import DirectoryEntry
 from cadbridge.iges.errors import IgesError
-from cadbridge.iges.lexer import _NOT_DELIMS, Record, RecordList, Token, TokenList, tokenize_lazy
+from cadbridge.iges.lexer import _NOT_DELIMS, Record, RecordList, Token, TokenList, _new_token, tokenize_lazy
 from cadbridge.iges.values import MAX_TOKEN, parse_int_text, parse_real, parse_real_text
 
-__all__ = ["Params", "read_params"]
+__all__ = ["Params", "read_params", "prepare_params", "FastTokens"]
 
 
 _DROP_REAL_CHARS = str.maketrans("", "", "0123456789.+-EeDd\n")  # deletes the real alphabet
@@ -48,20 +50,48 @@ class Params:
     Every accessor raises `IgesError` naming the file line, DE, entity type and field.
     """
 
+    _f = None  # `_Fast` scan of the P section when the tokens are a `FastTokens` (else None)
+    _t0 = 0  # index of this record's first token in the scan
+
     def __init__(self, entry: DirectoryEntry, tokens: list[Token] | TokenList, filename: str,
                  last_line: int) -> None:
         self.entry = entry
         self.tokens = tokens
+        self._n = len(tokens)
         self._values: np.ndarray | bool | None = None  # all fields as floats, if they all are reals
         # token texts and string flags, read without building Token objects
         if isinstance(tokens, TokenList):
-            self._texts = tokens.texts
+            self._texts_ = tokens.texts
             self._strings = None  # a TokenList holds no Hollerith strings
         else:
-            self._texts = [t.text for t in tokens]
+            self._texts_ = [t.text for t in tokens]
             self._strings = [t.is_string for t in tokens]
         self.filename = filename
         self.last_line = last_line  # line of the record delimiter's P line (for missing fields)
+
+    @classmethod
+    def _scanned(cls, entry: DirectoryEntry, tokens: "FastTokens", filename: str, last_line: int) -> "Params":
+        """Params over a plain record of the compiled scan (texts made only when needed)."""
+        self = cls.__new__(cls)
+        self.entry = entry
+        self.tokens = tokens
+        self._n = tokens.n
+        self._f = tokens.f
+        self._t0 = tokens.t0
+        self._rec_ok = tokens.rec_ok
+        self._values = None
+        self._texts_ = None
+        self._strings = None
+        self.filename = filename
+        self.last_line = last_line
+        return self
+
+    @property
+    def _texts(self) -> list[str]:
+        t = self._texts_
+        if t is None:
+            t = self._texts_ = self.tokens.texts
+        return t
 
     @property
     def de(self) -> int:
@@ -90,19 +120,22 @@ class Params:
         return self.tokens[k].line if 0 <= k < len(self.tokens) else self.last_line
 
     def has(self, k: int) -> bool:
-        return 0 < k < len(self.tokens)
+        return 0 < k < self._n
 
     def require(self, last: int, what: str) -> None:
         """Raise unless fields 1..last exist (checked before any allocation)."""
-        if last >= len(self.tokens):
+        if last >= self._n:
             raise self.error(f"{what}: needs {last} parameters, the entity has {len(self.tokens) - 1}",
                              len(self.tokens), what)
 
     def int(self, k: int, name: str, default: int | None = None) -> int:
-        if k >= len(self.tokens):
+        if k >= self._n:
             if default is not None:
                 return default
             raise self.error("missing parameter", k, name)
+        f = self._f
+        if f is not None and k >= 0 and f.iex[self._t0 + k]:  # a plain integer, converted by the scan
+            return f.ival[self._t0 + k]
         try:
             return parse_int_text(self._texts[k], self._strings is not None and self._strings[k],
                                   0 if default is None else default)
@@ -110,10 +143,13 @@ class Params:
             raise self.error(str(e), k, name) from None
 
     def real(self, k: int, name: str, default: float | None = None) -> float:
-        if k >= len(self.tokens):
+        if k >= self._n:
             if default is not None:
                 return default
             raise self.error("missing parameter", k, name)
+        f = self._f
+        if f is not None and k >= 0 and f.nonempty_ok[self._t0 + k]:  # a number, converted by the scan
+            return f.fval[self._t0 + k]
         try:
             return parse_real_text(self._texts[k], self._strings is not None and self._strings[k],
                                    0.0 if default is None else default)
@@ -121,7 +157,7 @@ class Params:
             raise self.error(str(e), k, name) from None
 
     def string(self, k: int, name: str, default: str | None = None) -> str:
-        if k >= len(self.tokens):
+        if k >= self._n:
             if default is not None:
                 return default
             raise self.error("missing parameter", k, name)
@@ -135,6 +171,11 @@ class Params:
     def reals(self, start: int, count: int, name: str) -> np.ndarray:
         """Fields start..start+count-1 as a float array (count already validated)."""
         self.require(start + count - 1, name)
+        f = self._f
+        if f is not None and start >= 0:
+            i = self._t0 + start
+            if self._rec_ok or f.ok[i : i + count].all():
+                return f.values[i : i + count].copy()
         toks = self.tokens
         if self._values is None and self._strings is None:
             # first call: convert the whole record at once (fails on empty fields etc.)
@@ -170,15 +211,141 @@ class Params:
 
 class _PSection:
     """Bulk view of a P section: columns 1-64 of all records joined (record i starts at
-    64 * i) and each record's DE back pointer as an int (-1 when not plain digits)."""
+    64 * i) and each record's DE back pointer as an int (-1 when not plain digits).
+    ``fast``: the compiled scan of the plain records (`_Fast`), or None."""
 
-    __slots__ = ("n", "body", "back", "lines")
+    __slots__ = ("n", "body", "back", "lines", "fast")
 
-    def __init__(self, precs: list[Record]) -> None:
+    def __init__(self, precs: list[Record], back: list[int] | None = None) -> None:
         self.n = len(precs)
         self.body = "".join([r.text[:64] for r in precs])
-        self.back = [_back_int(r.text[65:72]) for r in precs]
+        if back is None:
+            self.back = [_back_int(r.text[65:72]) for r in precs]
+        else:  # from the scan: -3 where it left the decision to `_back_int`
+            for j in [j for j, v in enumerate(back) if v == -3]:
+                back[j] = _back_int(precs[j].text[65:72])
+            self.back = back
         self.lines = [r.line for r in precs]
+        self.fast = None
+
+
+class _Fast:
+    """The compiled scan (`cadbridge.iges.pscan`) of one P section, as plain lists indexed by
+    token: ``ival``/``iex`` integer value and whether it is exact (a plain integer field);
+    ``fval``/``nonempty_ok`` real value and whether it is a number converted exactly (not
+    empty); ``ok`` (numpy) the same but empty fields allowed (read as 0.0 by `Params.reals`);
+    ``values`` (numpy) the reals; ``tstart``/``tend``/``trec`` field offsets in the body
+    (stripped) and record index of the raw field's start. ``entity``: DE -> (first token,
+    count, last record, whole record numeric), for the entry object scanned; ``delims`` the
+    parameter and record delimiters of the scan."""
+
+    __slots__ = ("body", "lines", "ival", "iex", "fval", "nonempty_ok", "ok", "values", "tstart", "tend", "trec",
+                 "entity", "delims")
+
+
+class FastTokens(Sequence):
+    """The tokens of a plain record from the compiled scan, made on demand (like `TokenList`):
+    a read-only list of `Token`s; ``texts`` and ``lines`` are built on first use."""
+
+    __slots__ = ("f", "t0", "n", "rec_ok", "_texts", "_lines")
+
+    def __init__(self, f: _Fast, t0: int, n: int, rec_ok: bool) -> None:
+        self.f, self.t0, self.n, self.rec_ok = f, t0, n, rec_ok
+        self._texts: list[str] | None = None
+        self._lines: list[int] | None = None
+
+    @property
+    def texts(self) -> list[str]:
+        if self._texts is None:
+            f, a, b = self.f, self.t0, self.t0 + self.n
+            body = f.body
+            self._texts = [body[s:e] for s, e in zip(f.tstart[a:b].tolist(), f.tend[a:b].tolist())]
+        return self._texts
+
+    @property
+    def lines(self) -> list[int]:
+        if self._lines is None:
+            ln = self.f.lines
+            self._lines = [ln[r] for r in self.f.trec[self.t0 : self.t0 + self.n].tolist()]
+        return self._lines
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(self.n))]
+        return _new_token(Token, (self.texts[k], self.lines[k], False))
+
+    def __iter__(self):
+        for text, line in zip(self.texts, self.lines):
+            yield _new_token(Token, (text, line, False))
+
+    def __eq__(self, other) -> bool:
+        return list(self) == list(other) if isinstance(other, (list, TokenList, FastTokens)) else NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        return f"FastTokens({list(self)!r})"
+
+
+SCAN_MIN_RECORDS = 0  # P sections shorter than this are read by the Python path alone
+
+
+def prepare_params(entries: dict[int, DirectoryEntry], precs: list[Record], pdelim: str, rdelim: str) -> None:
+    """Scan the whole P section once (compiled kernel) for `read_params`'s fast path. Does
+    nothing (the Python path then reads every record) for a short section, records not of
+    72 columns, delimiters the kernel cannot take, or when numba is unavailable."""
+    if not isinstance(precs, RecordList) or len(precs) < SCAN_MIN_RECORDS or not precs:
+        return
+    if isinstance(precs.derived, _PSection) and precs.derived.n == len(precs) and precs.derived.fast is not None:
+        return
+    if (len(pdelim) != 1 or len(rdelim) != 1 or pdelim in _NOT_DELIMS or rdelim in _NOT_DELIMS
+            or not (32 < ord(pdelim) < 127 and 32 < ord(rdelim) < 127) or pdelim == rdelim):
+        return
+    raw = "".join([r.text for r in precs])
+    if len(raw) != 72 * len(precs):
+        return
+    try:
+        from cadbridge.iges.pscan import scan_parameters
+    except ImportError:  # pragma: no cover - numba missing: the Python path alone
+        return
+    ents = list(entries.values())
+    (back, status, t_first, t_count, last_rec, all_ok, tstart, tend, trec, kind, exact, ival,
+     fval) = scan_parameters(raw.encode("latin-1"), len(precs), [e.param_pointer - 1 for e in ents],
+                             [e.param_count for e in ents], [e.de for e in ents], [e.entity_type for e in ents],
+                             pdelim, rdelim, MAX_TOKEN)
+    bulk = _PSection(precs, back.tolist())
+    f = _Fast()
+    f.body = bulk.body
+    f.lines = bulk.lines
+    fexact = (exact & 1).astype(bool)
+    # valid numbers the kernel could not convert exactly: Python's float, in one batch
+    redo = np.flatnonzero((kind != 3) & ~fexact)
+    if redo.size:
+        body = bulk.body
+        texts = [body[s:e] for s, e in zip(tstart[redo].tolist(), tend[redo].tolist())]
+        vals = np.array([float(t.replace("D", "E").replace("d", "e")) for t in texts])
+        fval[redo] = vals
+        fexact[redo] = np.isfinite(vals)  # an overflow is reported by the Python path
+    ok = fexact & (kind != 3)
+    f.ok = ok
+    f.values = fval
+    f.fval = fval.tolist()
+    f.nonempty_ok = (ok & (kind != 0)).tolist()
+    f.iex = ((exact & 2) != 0).tolist()
+    f.ival = ival.tolist()
+    f.tstart, f.tend, f.trec = tstart, tend, trec  # numpy: sliced per record when texts are needed
+    sel = np.flatnonzero(status)
+    if redo.size and sel.size:  # the batch may have turned a record non-numeric (overflow)
+        all_ok[sel] = np.logical_and.reduceat(ok, t_first[sel])
+    f.delims = (pdelim, rdelim)
+    des = [ents[k] for k in sel.tolist()]
+    f.entity = dict(zip([e.de for e in des], zip(des, t_first[sel].tolist(), t_count[sel].tolist(),
+                                                  last_rec[sel].tolist(), all_ok[sel].astype(bool).tolist())))
+    bulk.fast = f
+    precs.derived = bulk
 
 
 def _back_int(field: str) -> int:
@@ -199,6 +366,12 @@ def _read_params_bulk(entry: DirectoryEntry, precs: RecordList, pdelim: str, rde
     bulk = precs.derived
     if not isinstance(bulk, _PSection) or bulk.n != len(precs):
         bulk = precs.derived = _PSection(precs)
+    f = bulk.fast
+    if f is not None:
+        hit = f.entity.get(entry.de)
+        if hit is not None and hit[0] is entry and f.delims == (pdelim, rdelim):
+            _, a, c, r, rec_ok = hit
+            return Params._scanned(entry, FastTokens(f, a, c, rec_ok), filename, bulk.lines[r])
     if len(bulk.body) != 64 * bulk.n:  # records not padded to 72 columns: general path
         return None
     de = entry.de
