@@ -4,8 +4,6 @@ precision, so reading the file back reproduces every surface bit for bit."""
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from os import PathLike
@@ -14,6 +12,7 @@ from typing import Iterable
 
 import numpy as np
 
+from cadbridge.io.atomic import atomic_write
 from cadbridge.model import Face, Model, Units
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
@@ -219,16 +218,5 @@ def write_iges(model_or_faces: Model | Iterable[Face], path: str | PathLike, *, 
         model, faces = None, list(model_or_faces)
     path = Path(path)
     text = iges_text(faces, model, units=units, author=author, filename=path.name)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w", encoding="latin-1", newline="\n") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    with atomic_write(path, "w", encoding="latin-1") as fh:
+        fh.write(text)
