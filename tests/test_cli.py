@@ -22,8 +22,6 @@ import pytest
 from cadbridge.cli import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_OK, Progress, build_parser, main
 
 SAMPLES = Path(__file__).resolve().parent.parent / "iges_samples"
-#: a deliberate OCC-disagreement reader case (being moved out of the samples)
-NOT_CONVERTED = {"placed_by_chained_124.igs"}
 SUMMARY_ROW = re.compile(
     r"^\s+(?P<tool>\S+)\s+(?P<source>\S+)\s+(?P<nodes>\d+)\s+(?P<elems>\d+)\s+(?P<shape>\S+)\s+(?P<normal>\S+)°$"
 )
@@ -246,8 +244,6 @@ def test_bad_input_one_line_and_nothing_written(argv, code, die_mesh, tmp_path, 
 # ----------------------------------------------------------------------------- convert
 def _samples():
     for p in sorted(SAMPLES.glob("*.igs")):
-        if p.name in NOT_CONVERTED:
-            continue
         yield pytest.param(p, id=p.stem)
 
 

@@ -13,7 +13,6 @@ surface tags follow OCC's face order of the file, which we pair with our faces g
 - normals: ours against ``gmsh.model.getNormal(tag, node_uv)`` within 1e-9 rad, up to one
   sign per face (gmsh returns the normal of the surface, the face may be reversed).
 
-`placed_by_chained_124.igs` is skipped (OCC, hence gmsh, applies chained 124 matrices wrongly).
 """
 
 from __future__ import annotations
@@ -34,7 +33,7 @@ from cadbridge.occ.reference import occ_eval, occ_read  # noqa: E402
 from cadbridge.occ.verify import pair_faces  # noqa: E402
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
-FILES = sorted(p.name for p in SAMPLES.glob("*.igs") if p.name != "placed_by_chained_124.igs")
+FILES = sorted(p.name for p in SAMPLES.glob("*.igs"))
 
 
 def _angle(a, b):

@@ -17,8 +17,6 @@ on the paired OCC surface).
   and (where the nearest point is unique) foot within 1e-9 x model size; our normal against
   OCC's normal of the paired surface at our foot.
 
-`placed_by_chained_124.igs` is skipped: OCC applies chained 124 matrices wrongly (a reader
-test case, see iges_samples/README.md), so it is no reference for it.
 """
 
 from __future__ import annotations
@@ -41,7 +39,7 @@ from cadbridge.occ.reference import occ_normal, occ_project, occ_read, occ_read_
 from cadbridge.occ.verify import pair_faces  # noqa: E402
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
-FILES = sorted(p.name for p in SAMPLES.glob("*.igs") if p.name != "placed_by_chained_124.igs")
+FILES = sorted(p.name for p in SAMPLES.glob("*.igs"))
 N_FACE = 40  # points per face
 REL = 1e-9  # foot tolerance relative to the model size
 ANG = 1e-9  # normal tolerance, radians

@@ -31,9 +31,9 @@ def regenerated(tmp_path_factory) -> Path:
     return out
 
 
-@pytest.mark.parametrize("name", list(ms.SAMPLES))
+@pytest.mark.parametrize("name", list(ms.SAMPLES) + list(ms.TEST_DATA))
 def test_sample_regenerates_identically(regenerated: Path, name: str) -> None:
-    committed = SAMPLES_DIR / name
+    committed = (SAMPLES_DIR if name in ms.SAMPLES else ms.TEST_DATA_DIR) / name
     assert committed.exists(), f"{name} missing: run iges_samples/make_samples.py"
     assert ms.entity_counts(regenerated / name) == ms.entity_counts(committed)
     assert (regenerated / name).read_bytes() == committed.read_bytes(), f"{name} differs: rerun make_samples.py"
