@@ -323,12 +323,21 @@ def run_isolated(fn, *args, what: str = "", timeout: float | None = None):
     A hard crash of the child (segmentation fault, abort) raises `OccCrashError` mentioning
     ``what``; exceptions raised by ``fn`` propagate. ``fn`` must be importable (module level).
     """
-    with cf.ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn")) as pool:
+    with cf.ProcessPoolExecutor(max_workers=1, mp_context=mp.get_context("spawn"), initializer=_quiet_stdout) as pool:
         fut = pool.submit(fn, *args)
         try:
             return fut.result(timeout=timeout)
         except cf.process.BrokenProcessPool as exc:
             raise OccCrashError(f"{what}: the verification process died (OpenCASCADE crashed reading the file?)") from exc
+
+
+def _quiet_stdout() -> None:
+    """In the child: send file descriptor 1 to /dev/null. OpenCASCADE's reader prints to it,
+    and the child inherits the caller's stdout (a terminal, a pipe, pytest-xdist's channel):
+    only the result travels back, through the executor."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.close(devnull)
 
 
 def _segfault(*_args) -> None:
