@@ -179,3 +179,25 @@ def test_quad_mode_has_no_flat_corners(name):
         b = x[:, (k + 1) % 4] - x[:, k]
         cos = np.einsum("ij,ij->i", a, b) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
         assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 150.0
+
+
+def test_meshing_leaves_sigpipe_ignored(tmp_path):
+    """After mesh_cad a write to a closed pipe raises BrokenPipeError (Python's behaviour)
+    instead of killing the process: gmsh resets SIGPIPE to terminate at the C level.
+    Reference: the same write in a fresh interpreter. Run in a subprocess so a regression
+    cannot take pytest down."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    sample = Path(__file__).parents[1] / "iges_samples" / "ushape_die_nurbs.igs"
+    code = (
+        "import os\n"
+        "from cadbridge.mesh.generate import mesh_cad\n"
+        f"mesh_cad({str(sample)!r}, element='quad')\n"
+        "r, w = os.pipe(); os.close(r)\n"
+        "try:\n    os.write(w, b'x')\nexcept BrokenPipeError:\n    print('broken pipe raised')\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "broken pipe raised" in res.stdout

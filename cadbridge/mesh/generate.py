@@ -79,6 +79,7 @@ class GmshSession:
             else:
                 gmsh.initialize(readConfigFiles=False, interruptible=False)
                 self._owner = True
+                _restore_python_signals()
             self.set("General.Terminal", 1 if self.verbose else 0)
             self.set("General.Verbosity", 5 if self.verbose else 1)
             gmsh.model.add(self._model)
@@ -129,10 +130,29 @@ class GmshSession:
                     except Exception:
                         pass
         finally:
+            _restore_python_signals()
             _LOCK.release()
 
     def __exit__(self, *exc) -> None:
         self._cleanup()
+
+
+def _restore_python_signals() -> None:
+    """Give SIGPIPE and SIGINT back the handlers Python keeps for them.
+
+    gmsh resets SIGPIPE to its default (terminate) at the C level: afterwards a write to a
+    closed pipe (e.g. to a crashed worker process) would kill the whole process instead of
+    raising BrokenPipeError. Python's bookkeeping still holds the intended handlers.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return  # signal handlers can only be set from the main thread
+    for sig in (signal.SIGPIPE, signal.SIGINT):
+        handler = signal.getsignal(sig)
+        if handler is not None:
+            signal.signal(sig, handler)
 
 
 class FaceInfo:
