@@ -51,6 +51,10 @@ def test_insert_knot_invariant(pk, seed, frac, r):
         return
     k2, cw = ops.insert_knot(kn, p, c._pw, u, r)
     assert len(k2) == len(kn) + r and mult(k2, u) == s + r and cw.shape[0] == c._pw.shape[0] + r
+    if np.any((np.diff(k2) > 0) & (np.diff(k2) < 1e-300)):  # denormal span: rejected, see below
+        with pytest.raises(ValueError, match="differ by less than"):
+            ops.curve_from_homogeneous(p, k2, cw)
+        return
     c2 = ops.curve_from_homogeneous(p, k2, cw)
     t = dense(c)
     assert np.abs(c2(t) - c(t)).max() < 1e-12
@@ -67,6 +71,11 @@ def test_refine_matches_repeated_insertion_and_is_invariant(pk, seed, fracs):
     X = np.array([x for x in np.unique(X) if mult(kn, x) + 1 <= p])
     if X.size == 0:
         return
+    gaps = np.diff(np.unique(np.concatenate([kn, X])))
+    if np.any(gaps < 1e-300):  # a denormal-length span: rejected by the constructor (tested below)
+        with pytest.raises(ValueError, match="differ by less than"):
+            ops.curve_from_homogeneous(p, *ops.refine_knots(kn, p, c._pw, X))
+        return
     k2, cw = ops.refine_knots(kn, p, c._pw, X)
     k3, cw3 = kn, c._pw
     for x in X:
@@ -75,6 +84,15 @@ def test_refine_matches_repeated_insertion_and_is_invariant(pk, seed, fracs):
     assert np.abs(cw - cw3).max() < 1e-12
     t = dense(c)
     assert np.abs(ops.curve_from_homogeneous(p, k2, cw)(t) - c(t)).max() < 1e-12
+
+
+def test_denormal_span_is_rejected():
+    """Knots 0 and 5e-324 (found by hypothesis): the basis recurrence divides by the span and
+    overflows to NaN, so the constructor refuses the knot vector with a clear message."""
+    from cadbridge.nurbs import NurbsCurve
+
+    with pytest.raises(ValueError, match="differ by less than"):
+        NurbsCurve(1, [0.0, 0.0, 5e-324, 1.0, 1.0], [[0, 0, 0], [1, 0, 0], [2, 0, 0]])
 
 
 def test_insert_knot_matches_occ():

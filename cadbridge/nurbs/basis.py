@@ -15,11 +15,15 @@ import numpy as np
 __all__ = ["find_span", "basis_funs", "ders_basis_funs", "validate_knots", "find_span_one", "ders_basis_one"]
 
 
+_MIN_SPAN = 1e-300  # shorter non-empty knot spans make 1 / span overflow in the recurrences
+
+
 def validate_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str = "knots") -> None:
     """Raise ValueError unless ``knots`` is a valid knot vector for ``n_ctrl`` control points.
 
     Checks: length n_ctrl + degree + 1, finite, non-decreasing, no interior knot of
-    multiplicity above ``degree`` + 1 and a non-empty domain [knots[p], knots[n_ctrl]].
+    multiplicity above ``degree`` + 1, a non-empty domain [knots[p], knots[n_ctrl]] and no
+    non-empty span shorter than 1e-300 (its reciprocal would overflow to inf / NaN).
     """
     knots = np.asarray(knots, dtype=float)
     if (knots.ndim == 1 and 1 <= degree < n_ctrl and len(knots) == n_ctrl + degree + 1
@@ -42,6 +46,11 @@ def validate_knots(knots: np.ndarray, degree: int, n_ctrl: int, what: str = "kno
         raise ValueError(f"{what}: knots decrease at index {i + 1} ({knots[i]!r} > {knots[i + 1]!r})")
     if not knots[n_ctrl] > knots[degree]:
         raise ValueError(f"{what}: empty parameter domain [{knots[degree]!r}, {knots[n_ctrl]!r}]")
+    tiny = (diffs > 0) & (diffs < _MIN_SPAN)
+    if np.any(tiny):
+        i = int(np.argmax(tiny))
+        raise ValueError(f"{what}: knots {knots[i]!r} and {knots[i + 1]!r} differ by less than {_MIN_SPAN:g} "
+                         f"(a span whose reciprocal overflows): make them equal")
     # multiplicity check on the domain part (the ends may carry up to p+1 equal knots)
     inner = knots[degree + 1 : n_ctrl]
     if inner.size:
@@ -56,6 +65,8 @@ def _small_knots_ok(k: list[float], p: int, n_ctrl: int) -> bool:
     if not all(map(isfinite, k)) or k != sorted(k):  # finite, non-decreasing
         return False
     if not k[n_ctrl] > k[p]:
+        return False
+    if any(0.0 < b - a < _MIN_SPAN for a, b in zip(k, k[1:])):
         return False
     inner = k[p + 1 : n_ctrl]  # sorted: a run longer than p means inner[i] == inner[i + p]
     return not any(map(eq, inner, inner[p:]))
