@@ -119,7 +119,7 @@ def plot_section_error(
             ax.axvline(b, color="0.45", linestyle=":", linewidth=1.0,
                        label="element boundary" if i == 0 else None, zorder=1)
     if ref is not None:
-        ax.plot(*ref, color="k", linestyle="--", linewidth=1.2, label="polyhedral", zorder=2)
+        ax.plot(*ref, color="k", linestyle="--", linewidth=1.2, label="polyhedral", zorder=5)  # on top: it coincides with collapsed patches
     for i, (name, (s, e)) in enumerate(data.items()):
         ax.plot(s, e, label=name, linewidth=1.5, marker=_MARKERS[i % len(_MARKERS)],
                 markersize=4, markevery=max(1, s.size // 12),

@@ -96,6 +96,38 @@ def _element_normals(nodes: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return n / np.where(ln > 0, ln, 1.0)
 
 
+def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, proj: Projection
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Face index and centroid (u, v) of every element (all blocks, global order), (E,) each.
+
+    An element whose corners all project CONVERGED onto one face lies on that face: its
+    centroid parameters are the mean of the corners' (exact for the side of a knot line,
+    which is all they are used for). The other elements get their centroid projected.
+    """
+    if not blocks:
+        return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
+    face = np.empty(sum(len(c) for c in blocks), dtype=np.int64)
+    u = np.empty(len(face))
+    v = np.empty(len(face))
+    todo = []
+    offset = 0
+    for c in blocks:
+        f = proj.face[c]
+        inside = np.all(f == f[:, :1], axis=1) & np.all(proj.status[c] == CONVERGED, axis=1)
+        sl = slice(offset, offset + len(c))
+        face[sl] = np.where(inside, f[:, 0], -1)
+        u[sl] = proj.u[c].mean(axis=1)
+        v[sl] = proj.v[c].mean(axis=1)
+        todo.append(offset + np.flatnonzero(~inside))
+        offset += len(c)
+    todo = np.concatenate(todo)
+    if len(todo):
+        cent = np.concatenate([nodes[c].mean(axis=1) for c in blocks])[todo]
+        cp = project_points(cent, model, max_distance=None)
+        face[todo], u[todo], v[todo] = cp.face, cp.u, cp.v
+    return face, u, v
+
+
 def _on_c0_knot_lines(model: Model, proj: Projection) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Nodes whose foot lies on a crease knot line (constant u / constant v) of its face
     (`NurbsSurface.crease_knots`: a C0 knot across which the normal jumps).
@@ -196,11 +228,11 @@ def cad_normals(
     node_n = np.array(proj.normal, dtype=float)
     sign = -1.0 if flip else 1.0
 
-    # element faces: project element centroids (robust for nodes on face boundaries)
+    # element faces and the (u, v) of their centroids: from the nodes where all corners lie
+    # inside one face (CONVERGED on it); elsewhere (elements at face borders) by projecting
+    # the element centroid
     blocks = [np.asarray(b.data) for b in mesh.cells]
-    centroids = np.concatenate([nodes[c].mean(axis=1) for c in blocks]) if blocks else np.zeros((0, 3))
-    cproj = project_points(centroids, model, max_distance=None)
-    elem_face_all = np.asarray(cproj.face)
+    elem_face_all, elem_u, elem_v = _element_faces(nodes, blocks, model, proj)
 
     # orient node normals with the winding: sum of element normals around each node
     acc = np.zeros_like(nodes)
@@ -222,7 +254,7 @@ def cad_normals(
     offset = 0
     for c, en in zip(blocks, elem_normals):
         ef = elem_face_all[offset : offset + len(c)]
-        uc, vc = cproj.u[offset : offset + len(c)], cproj.v[offset : offset + len(c)]
+        uc, vc = elem_u[offset : offset + len(c)], elem_v[offset : offset + len(c)]
         offset += len(c)
         element_face.append(ef)
         cn = node_n[c].copy()  # (E, k, 3)
