@@ -788,20 +788,8 @@ class Builder:
             self._own_end[de] = 4 + n
             for j, b in enumerate(bdpts):
                 self.entry(b, p, 4 + j, f"BDPT({j + 1})", types=(141,))
-            if se.entity_type == 128:
-                surface, _ = self.surface(sde)
-                loops = []
-                for b in bdpts:
-                    with self.visiting(b):
-                        loops.append(self.boundary(b))
-                if loops and all(l is not None for l in loops):
-                    trims = Trim(loops[0], loops[1:])  # the first boundary is the outer one
-            else:
-                raws = []
-                for b in bdpts:
-                    with self.visiting(b):
-                        raws.append(self.boundary_raw(b))
-                surface, trims = self.mapped_trims(sde, raws[0] if raws else None, raws[1:], de)
+            # the first boundary is the outer one
+            surface, trims = self._bounded(sde, se, bdpts, self.boundary, self.boundary_raw, True, de)
             surface = apply_surface(surface, self.transform(de))
             t_s = se.entity_type
         elif t == 510:
@@ -816,23 +804,8 @@ class Builder:
             self._own_end[de] = 4 + n
             for j, lp in enumerate(lps):
                 self.entry(lp, p, 4 + j, f"LOOP({j + 1})", types=(508,))
-            if se.entity_type == 128:
-                surface, _ = self.surface(sde)
-                loops = []
-                for lp in lps:
-                    with self.visiting(lp):
-                        loops.append(self.brep_loop(lp))
-                if loops and all(l is not None for l in loops):
-                    trims = Trim(loops[0], loops[1:]) if of == 1 else Trim(None, loops)
-            else:
-                raws = []
-                for lp in lps:
-                    with self.visiting(lp):
-                        raws.append(self.loop_raw(lp))
-                if of == 1:
-                    surface, trims = self.mapped_trims(sde, raws[0] if raws else None, raws[1:], de)
-                else:
-                    surface, trims = self.mapped_trims(sde, None, raws, de)
+            # OF = 1: the first loop is the outer boundary; else all loops are holes
+            surface, trims = self._bounded(sde, se, lps, self.brep_loop, self.loop_raw, of == 1, de)
             surface = apply_surface(surface, self.transform(de))
             t_s = se.entity_type
         else:
@@ -841,6 +814,28 @@ class Builder:
             t_s = t
         return Face(surface=surface, de=de, name=self.name(de, sde), color=self.color(de, sde),
                     level=max(e.level, 0), trims=trims, entity_type=t, surface_de=sde, surface_type=t_s)
+
+    def _bounded(self, sde: int, se, loop_des: list[int], load, load_raw, first_is_outer: bool, de: int):
+        """(surface, trims) of a face bounded by the loops ``loop_des`` (143 boundaries, 510
+        loops): over a 128 the loops' parameter curves as they are (``load``), over other
+        surfaces mapped into the NURBS parameters (``load_raw`` + `mapped_trims`)."""
+        if se.entity_type == 128:
+            surface, _ = self.surface(sde)
+            loops = []
+            for x in loop_des:
+                with self.visiting(x):
+                    loops.append(load(x))
+            trims = None
+            if loops and all(lp is not None for lp in loops):
+                trims = Trim(loops[0], loops[1:]) if first_is_outer else Trim(None, loops)
+            return surface, trims
+        raws = []
+        for x in loop_des:
+            with self.visiting(x):
+                raws.append(load_raw(x))
+        if first_is_outer:
+            return self.mapped_trims(sde, raws[0] if raws else None, raws[1:], de)
+        return self.mapped_trims(sde, None, raws, de)
 
     # ------------------------------------------------------------------ trims over non-128 surfaces
     def point116(self, de: int, src: Params, k: int, name: str) -> np.ndarray:
