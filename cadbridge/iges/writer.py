@@ -8,7 +8,7 @@ import time
 from dataclasses import dataclass, field
 from os import PathLike
 from pathlib import Path
-from typing import Iterable
+from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -51,6 +51,7 @@ class _Entity:
     label: str = ""
     color: int = 0
     de: int = 0
+    subscript: int = 0
 
 
 @dataclass
@@ -103,7 +104,7 @@ def _properties(name_de: int) -> list[str]:
     return ["0", "1", str(name_de)] if name_de else []
 
 
-def _add_face(f: _File, face: Face) -> None:
+def _add_face(f: _File, face: Face, label: str = "", subscript: int = 0) -> None:
     color = 0
     if face.color is not None:
         rgb = tuple(float(c) for c in face.color)
@@ -117,7 +118,7 @@ def _add_face(f: _File, face: Face) -> None:
     loops = [] if trims is None else ([trims.outer] if trims.outer is not None else []) + list(trims.inner)
     if not loops:
         f.add(_Entity(128, _surface_params(face.surface) + _properties(name_de), status=ST_INDEPENDENT,
-                      color=color))
+                      color=color, label=label, subscript=subscript))
         return
     sde = f.add(_Entity(128, _surface_params(face.surface), status=ST_DEPENDENT, color=color))
     cos = []
@@ -129,7 +130,8 @@ def _add_face(f: _File, face: Face) -> None:
     n2 = len(loops) - has_outer
     params = [str(sde), "1" if has_outer else "0", str(n2), str(cos[0]) if has_outer else "0"]
     params += [str(c) for c in cos[1 if has_outer else 0 :]]
-    f.add(_Entity(144, params + _properties(name_de), status=ST_INDEPENDENT, color=color))
+    f.add(_Entity(144, params + _properties(name_de), status=ST_INDEPENDENT, color=color, label=label,
+                  subscript=subscript))
 
 
 def _as_2d(c: NurbsCurve) -> NurbsCurve:
@@ -175,17 +177,26 @@ def _global(model: Model | None, units: Units, author: str | None, filename: str
 
 
 def iges_text(faces: list[Face], model: Model | None = None, *, units: Units | None = None,
-              author: str | None = None, filename: str = "model.igs") -> str:
+              author: str | None = None, filename: str = "model.igs",
+              labels: Sequence[tuple[str, int]] | None = None, description: str | None = None) -> str:
     """The IGES file text for ``faces`` (see `write_iges`)."""
     units = units or (model.units if model is not None else Units())
+    if labels is not None:
+        labels = list(labels)
+        if len(labels) != len(faces):
+            raise ValueError(f"{len(labels)} labels for {len(faces)} faces")
+        for lab, _ in labels:
+            if len(lab) > 8 or not lab.isascii() or not lab.isprintable():
+                raise ValueError(f"IGES entity labels are at most 8 printable ASCII characters: {lab!r}")
     f = _File()
-    for face in faces:
-        _add_face(f, face)
+    for k, face in enumerate(faces):
+        _add_face(f, face, *(labels[k] if labels is not None else ("", 0)))
     max_coord = 0.0
     for face in faces:
         max_coord = max(max_coord, float(np.max(np.abs(face.surface.bbox()))))
     out: list[str] = []
-    start = ["cadbridge IGES 5.3 export"]
+    text = description or "cadbridge IGES 5.3 export"
+    start = [text[i : i + 72] for i in range(0, len(text), 72)]
     out += [s.ljust(72)[:72] + f"S{k + 1:7d}" for k, s in enumerate(start)]
     gl = _global(model, units, author, filename, max_coord)
     out += [s.ljust(72) + f"G{k + 1:7d}" for k, s in enumerate(gl)]
@@ -197,7 +208,7 @@ def iges_text(faces: list[Face], model: Model | None = None, *, units: Units | N
         for s in body:
             plines.append(s.ljust(64) + f" {e.de:7d}P{len(plines) + 1:7d}")
         d1 = f"{e.etype:8d}{pptr:8d}{0:8d}{0:8d}{0:8d}{0:8d}{0:8d}{0:8d}{e.status:>8s}"
-        d2 = f"{e.etype:8d}{0:8d}{e.color:8d}{len(body):8d}{e.form:8d}{'':8s}{'':8s}{e.label[:8]:>8s}{0:8d}"
+        d2 = f"{e.etype:8d}{0:8d}{e.color:8d}{len(body):8d}{e.form:8d}{'':8s}{'':8s}{e.label[:8]:>8s}{e.subscript:8d}"
         dlines.append(d1 + f"D{len(dlines) + 1:7d}")
         dlines.append(d2 + f"D{len(dlines) + 1:7d}")
     out += dlines + plines
@@ -207,16 +218,20 @@ def iges_text(faces: list[Face], model: Model | None = None, *, units: Units | N
 
 
 def write_iges(model_or_faces: Model | Iterable[Face], path: str | PathLike, *, units: Units | None = None,
-               author: str | None = None) -> None:
+               author: str | None = None, labels: Sequence[tuple[str, int]] | None = None,
+               description: str | None = None) -> None:
     """Write faces as IGES 5.3: a 128 per face; trimmed faces as 144 over the 128 with 142
     curves on surface whose parameter-space curves are 126 (a 102 when a loop has several
     pieces; model-space curves written when the loop has them). Colours as 314, names as
-    406 form 15. The file is written to a temporary file beside ``path`` and renamed."""
+    406 form 15. ``labels`` optionally gives each face's DE entity label (at most 8
+    characters) and subscript; ``description`` the Start section text. The file is written
+    to a temporary file beside ``path`` and renamed."""
     if isinstance(model_or_faces, Model):
         model, faces = model_or_faces, list(model_or_faces.faces)
     else:
         model, faces = None, list(model_or_faces)
     path = Path(path)
-    text = iges_text(faces, model, units=units, author=author, filename=path.name)
+    text = iges_text(faces, model, units=units, author=author, filename=path.name, labels=labels,
+                     description=description)
     with atomic_write(path, "w", encoding="latin-1") as fh:
         fh.write(text)

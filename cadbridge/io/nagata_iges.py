@@ -18,12 +18,10 @@ S_u x S_v = x_eta x x_zeta (quad) and = u (x_eta x x_zeta) (triangle).
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Sequence
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_write
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = [
@@ -31,7 +29,6 @@ __all__ = [
     "nagata_control_points",
     "nagata_to_surfaces",
     "write_nagata_iges",
-    "write_surfaces_iges",
 ]
 
 # Bernstein change of basis for degree 2: t^k = sum_i M[k, i] B_i(t), M[k, i] = C(i, k) / C(2, k)
@@ -100,125 +97,28 @@ def write_nagata_iges(
     """Write every Nagata patch as an IGES 5.3 entity 128 (polynomial Bézier) surface.
 
     Order: triangles then quads (global element numbering). ``names`` (one per patch, at most
-    8 characters) go to the DE entity label; without names the labels are "NTRI"/"NQUAD" and
-    the entity subscript is the 1-based global patch number.
+    8 characters) go to the DE entity label; without names the labels are "NTRI"/"NQUAD". The
+    entity subscript is the 1-based global patch number. Written by `cadbridge.iges.write_iges`.
     """
+    from cadbridge.iges.globals import units_from_flag
+    from cadbridge.iges.writer import write_iges
+    from cadbridge.model import Face
+
     tri = _as_coefficients(tri_coefficients, 6, "tri_coefficients")
     quad = _as_coefficients(quad_coefficients, 8, "quad_coefficients")
-    surfaces = nagata_to_surfaces(tri, quad)
-    if names is None:
-        names = ["NTRI"] * len(tri) + ["NQUAD"] * len(quad)
-    write_surfaces_iges(surfaces, path, units=units, names=names,
-                        description=f"cadbridge Nagata patches: {len(tri)} triangles, {len(quad)} quads")
-
-
-# -------------------------------------------------------------------------- IGES emitter
-def _real(x: float) -> str:
-    """Round-trip float with an explicit '.' or 'E' (IGES real)."""
-    s = repr(float(x)).upper()
-    if not np.isfinite(x):
-        raise ValueError(f"non-finite value {x!r} cannot be written to IGES")
-    return s if ("." in s or "E" in s) else s + ".0"
-
-
-def _hollerith(s: str) -> str:
-    return f"{len(s)}H{s}"
-
-
-def _pack(tokens: list[str], width: int) -> list[str]:
-    """Pack delimited tokens (each ending in ',' or ';') into lines of at most ``width`` chars.
-
-    Tokens are never split unless a single token is longer than a line (only possible for
-    long Hollerith strings in the Global section).
-    """
-    lines: list[str] = []
-    cur = ""
-    for tok in tokens:
-        if len(cur) + len(tok) <= width:
-            cur += tok
-            continue
-        if cur:
-            lines.append(cur)
-        while len(tok) > width:
-            lines.append(tok[:width])
-            tok = tok[width:]
-        cur = tok
-    if cur:
-        lines.append(cur)
-    return lines
-
-
-def _entity128_tokens(s: NurbsSurface) -> list[str]:
-    """Parameter data of a rational B-spline surface (IGES 5.3 section 4.24)."""
-    nu, nv = s.shape
-    p, q = s.degree_u, s.degree_v
-    k1, k2 = nu - 1, nv - 1  # IGES K1, K2: upper indices of the (0-based) control net
-    vals: list[str] = ["128", str(k1), str(k2), str(p), str(q), "0", "0", "0" if s.rational else "1", "0", "0"]
-    vals += [_real(x) for x in s.knots_u]
-    vals += [_real(x) for x in s.knots_v]
-    # weights and control points with the first (u) index varying fastest
-    vals += [_real(x) for x in s.weights.T.ravel()]
-    for pt in s.control_points.transpose(1, 0, 2).reshape(-1, 3):
-        vals += [_real(c) for c in pt]
-    vals += [_real(x) for x in s.domain]
-    return [v + "," for v in vals[:-1]] + [vals[-1] + ";"]
-
-
-def _fixed(text: str, letter: str, seq: int) -> str:
-    return f"{text:<72.72}{letter}{seq:7d}"
-
-
-def write_surfaces_iges(
-    surfaces: Sequence[NurbsSurface],
-    path: str | os.PathLike,
-    *,
-    units: str = "MM",
-    names: Sequence[str] | None = None,
-    description: str = "cadbridge surfaces",
-) -> None:
-    """Write NURBS surfaces as independent IGES 5.3 entity 128 records (fixed 80 columns)."""
     unit = units.upper()
     if unit not in IGES_UNIT_FLAGS:
         raise ValueError(f"unknown IGES unit {units!r}; known: {sorted(IGES_UNIT_FLAGS)}")
-    if names is not None:
-        names = list(names)
-        if len(names) != len(surfaces):
-            raise ValueError(f"{len(names)} names for {len(surfaces)} surfaces")
-        for nm in names:
-            if len(nm) > 8 or not nm.isascii() or not nm.isprintable():
-                raise ValueError(f"IGES entity labels are at most 8 printable ASCII characters: {nm!r}")
-    else:
-        names = [""] * len(surfaces)
-
-    filename = os.path.basename(os.fspath(path))
-    stamp = time.strftime("%Y%m%d.%H%M%S", time.gmtime())
-    max_coord = max((float(np.abs(s.control_points).max()) for s in surfaces), default=0.0)
-    start = [description[i : i + 72] for i in range(0, max(len(description), 1), 72)]
-    glob = [
-        ",", ";",  # parameter and record delimiters (written as 1H, and 1H;)
-        _hollerith("cadbridge"), _hollerith(filename), _hollerith("cadbridge"), _hollerith("cadbridge 0.1"),
-        "32", "38", "6", "308", "15", _hollerith("cadbridge"),
-        "1.0", str(IGES_UNIT_FLAGS[unit]), _hollerith(unit), "1", "1.0", _hollerith(stamp),
-        "1E-10", _real(max_coord), "", "", "11", "0", _hollerith(stamp),
-    ]
-    glob[0], glob[1] = "1H,", "1H;"
-    g_tokens = [t + "," for t in glob[:-1]] + [glob[-1] + ";"]
-    g_lines = _pack(g_tokens, 72)
-
-    d_lines: list[str] = []
-    p_lines: list[str] = []
-    for idx, (surf, label) in enumerate(zip(surfaces, names)):
-        de = 2 * idx + 1  # sequence number of the first DE line (odd, 1-based)
-        first_p = len(p_lines) + 1
-        body = _pack(_entity128_tokens(surf), 64)
-        p_lines += [f"{b:<64.64} {de:7d}" for b in body]  # cols 66-72: DE back pointer
-        d_lines.append(f"{128:8d}{first_p:8d}{0:8d}{0:8d}{0:8d}{0:8d}{0:8d}{0:8d}{'00000000':>8}")
-        d_lines.append(f"{128:8d}{0:8d}{0:8d}{len(body):8d}{0:8d}{'':8}{'':8}{label:>8.8}{idx + 1:8d}")
-
-    out = [_fixed(t, "S", i) for i, t in enumerate(start, 1)]
-    out += [_fixed(t, "G", i) for i, t in enumerate(g_lines, 1)]
-    out += [_fixed(t, "D", i) for i, t in enumerate(d_lines, 1)]
-    out += [f"{t:<72.72}P{i:7d}" for i, t in enumerate(p_lines, 1)]
-    out.append(_fixed(f"S{len(start):7d}G{len(g_lines):7d}D{len(d_lines):7d}P{len(p_lines):7d}", "T", 1))
-    with atomic_write(path, "w") as fh:
-        fh.write("\n".join(out) + "\n")
+    surfaces = nagata_to_surfaces(tri, quad)
+    if names is None:
+        names = ["NTRI"] * len(tri) + ["NQUAD"] * len(quad)
+    names = list(names)
+    if len(names) != len(surfaces):
+        raise ValueError(f"{len(names)} names for {len(surfaces)} patches")
+    write_iges(
+        [Face(surface=s, de=0) for s in surfaces],
+        path,
+        units=units_from_flag(IGES_UNIT_FLAGS[unit], unit),
+        labels=[(nm, k + 1) for k, nm in enumerate(names)],
+        description=f"cadbridge Nagata patches: {len(tri)} triangles, {len(quad)} quads",
+    )
