@@ -80,32 +80,10 @@ def fmt_time(t: float) -> str:
 
 # ---------------------------------------------------------------------------- peers
 def to_occ(s: NurbsSurface):
-    """Geom_BSplineSurface with the same poles/weights/knots (OCP arrays are 1-based)."""
-    from OCP.Geom import Geom_BSplineSurface
-    from OCP.gp import gp_Pnt
-    from OCP.TColgp import TColgp_Array2OfPnt
-    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal, TColStd_Array2OfReal
+    """OCC Geom_BSplineSurface of the same data (the peer evaluator)."""
+    from cadbridge.occ.reference import occ_bspline_surface
 
-    nu, nv = s.shape
-    poles = TColgp_Array2OfPnt(1, nu, 1, nv)
-    wts = TColStd_Array2OfReal(1, nu, 1, nv)
-    for i in range(nu):
-        for j in range(nv):
-            poles.SetValue(i + 1, j + 1, gp_Pnt(*(float(c) for c in s.control_points[i, j])))
-            wts.SetValue(i + 1, j + 1, float(s.weights[i, j]))
-
-    def knots_mults(k):
-        vals, mult = np.unique(k, return_counts=True)
-        a = TColStd_Array1OfReal(1, len(vals))
-        m = TColStd_Array1OfInteger(1, len(vals))
-        for i, (x, c) in enumerate(zip(vals, mult)):
-            a.SetValue(i + 1, float(x))
-            m.SetValue(i + 1, int(c))
-        return a, m
-
-    ku, mu = knots_mults(s.knots_u)
-    kv, mv = knots_mults(s.knots_v)
-    return Geom_BSplineSurface(poles, wts, ku, kv, mu, mv, s.degree_u, s.degree_v, False, False)
+    return occ_bspline_surface(s)
 
 
 def occ_d1(gs, u, v) -> np.ndarray:

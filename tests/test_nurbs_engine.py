@@ -46,38 +46,8 @@ def random_surface(rng, p=3, q=2, nu=6, nv=5, rational=True):
     return NurbsSurface(p, q, ku, kv, cp, w)
 
 
-def _knots_mults(knots):
-    vals, mults = np.unique(knots, return_counts=True)
-    kv = TColStd_Array1OfReal(1, len(vals))  # OCC arrays are 1-based
-    km = TColStd_Array1OfInteger(1, len(vals))
-    for i, (x, m) in enumerate(zip(vals, mults), start=1):
-        kv.SetValue(i, float(x))
-        km.SetValue(i, int(m))
-    return kv, km
-
-
-def occ_surface(s: NurbsSurface) -> Geom_BSplineSurface:
-    nu, nv = s.shape
-    poles = TColgp_Array2OfPnt(1, nu, 1, nv)
-    wts = TColStd_Array2OfReal(1, nu, 1, nv)
-    for i in range(nu):
-        for j in range(nv):
-            poles.SetValue(i + 1, j + 1, gp_Pnt(*map(float, s.control_points[i, j])))
-            wts.SetValue(i + 1, j + 1, float(s.weights[i, j]))
-    ku, mu = _knots_mults(s.knots_u)
-    kv, mv = _knots_mults(s.knots_v)
-    return Geom_BSplineSurface(poles, wts, ku, kv, mu, mv, s.degree_u, s.degree_v, False, False)
-
-
-def occ_curve(c: NurbsCurve) -> Geom_BSplineCurve:
-    n = len(c.control_points)
-    poles = TColgp_Array1OfPnt(1, n)
-    wts = TColStd_Array1OfReal(1, n)
-    for i in range(n):
-        poles.SetValue(i + 1, gp_Pnt(*map(float, c.control_points[i])))
-        wts.SetValue(i + 1, float(c.weights[i]))
-    k, m = _knots_mults(c.knots)
-    return Geom_BSplineCurve(poles, wts, k, m, c.degree, False)
+from cadbridge.occ.reference import occ_bspline_curve as occ_curve  # noqa: E402
+from cadbridge.occ.reference import occ_bspline_surface as occ_surface  # noqa: E402
 
 
 def occ_d2(g, u, v):

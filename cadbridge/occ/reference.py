@@ -28,7 +28,7 @@ from OCP.TopExp import TopExp_Explorer
 from OCP.TopLoc import TopLoc_Location
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape
 
-__all__ = ["OccFace", "OccReadError", "occ_eval", "occ_inside", "occ_normal", "occ_project", "occ_read", "occ_read_shape"]
+__all__ = ["OccFace", "OccReadError", "occ_bspline_curve", "occ_bspline_surface", "occ_eval", "occ_inside", "occ_normal", "occ_project", "occ_read", "occ_read_shape"]
 
 
 class OccReadError(RuntimeError):
@@ -209,3 +209,51 @@ if __name__ == "__main__":  # python -m cadbridge.occ.reference FILE: print OCC'
     for f in occ_read(sys.argv[1]):
         b = ", ".join(f"{x:.6g}" for x in f.bounds)
         print(f"face {f.index}: {f.kind} bounds ({b}) {'reversed' if f.reversed else 'forward'}")
+
+
+def _knots_mults(knots: np.ndarray):
+    """Distinct knots and their multiplicities as OCC 1-based arrays."""
+    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal
+
+    vals, mult = np.unique(np.asarray(knots, dtype=float), return_counts=True)
+    k = TColStd_Array1OfReal(1, len(vals))
+    m = TColStd_Array1OfInteger(1, len(vals))
+    for i, (x, c) in enumerate(zip(vals, mult)):
+        k.SetValue(i + 1, float(x))
+        m.SetValue(i + 1, int(c))
+    return k, m
+
+
+def occ_bspline_surface(s):
+    """OCC `Geom_BSplineSurface` with the poles, weights and knots of a `NurbsSurface`
+    (an independent evaluator of the same data; OCC arrays are 1-based)."""
+    from OCP.Geom import Geom_BSplineSurface
+    from OCP.TColgp import TColgp_Array2OfPnt
+    from OCP.TColStd import TColStd_Array2OfReal
+
+    nu, nv = s.shape
+    poles = TColgp_Array2OfPnt(1, nu, 1, nv)
+    wts = TColStd_Array2OfReal(1, nu, 1, nv)
+    for i in range(nu):
+        for j in range(nv):
+            poles.SetValue(i + 1, j + 1, gp_Pnt(*(float(c) for c in s.control_points[i, j])))
+            wts.SetValue(i + 1, j + 1, float(s.weights[i, j]))
+    ku, mu = _knots_mults(s.knots_u)
+    kv, mv = _knots_mults(s.knots_v)
+    return Geom_BSplineSurface(poles, wts, ku, kv, mu, mv, s.degree_u, s.degree_v, False, False)
+
+
+def occ_bspline_curve(c):
+    """OCC `Geom_BSplineCurve` with the poles, weights and knots of a 3D `NurbsCurve`."""
+    from OCP.Geom import Geom_BSplineCurve
+    from OCP.TColgp import TColgp_Array1OfPnt
+    from OCP.TColStd import TColStd_Array1OfReal
+
+    n = len(c.control_points)
+    poles = TColgp_Array1OfPnt(1, n)
+    wts = TColStd_Array1OfReal(1, n)
+    for i in range(n):
+        poles.SetValue(i + 1, gp_Pnt(*(float(x) for x in c.control_points[i])))
+        wts.SetValue(i + 1, float(c.weights[i]))
+    k, m = _knots_mults(c.knots)
+    return Geom_BSplineCurve(poles, wts, k, m, c.degree, False)
