@@ -267,6 +267,7 @@ def test_tight_bbox(domain):
     if domain is not None:
         s = s.with_domain(domain)
     tb = ops.tight_bbox(s)
+    assert np.array_equal(tb, s.bbox(tight=True))
     bb = s.bbox()
     assert np.all(tb[0] >= bb[0] - 1e-15) and np.all(tb[1] <= bb[1] + 1e-15)
     u, v = s.grid(100, 100)
