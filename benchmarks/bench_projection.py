@@ -27,7 +27,7 @@ from test_project import cylinder, random_surface, sphere, to_occ, torus  # noqa
 
 from cadbridge.model import Face, Model  # noqa: E402
 from cadbridge.nurbs.project import FAILED, ON_BOUNDARY, project_to_surface, surface_samples  # noqa: E402
-from cadbridge.nurbs.search import build_search_index, project_points  # noqa: E402
+from cadbridge.search import build_search_index, project_points  # noqa: E402
 
 
 def points_near(rng, s, n, spread, beyond=0.0):

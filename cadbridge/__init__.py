@@ -12,7 +12,7 @@ from cadbridge.model import Diagnostic, Face, Model, Trim, TrimLoop, Units
 from cadbridge.nagata import NagataMesh
 from cadbridge.normals.estimators import METHODS, estimate_normals
 from cadbridge.nurbs import NurbsCurve, NurbsSurface
-from cadbridge.nurbs.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
+from cadbridge.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
 
 __version__ = "0.1.0"
 

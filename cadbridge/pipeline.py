@@ -152,7 +152,7 @@ class CadProjector:
     chunk = 20000
 
     def __init__(self, model, progress=None) -> None:
-        from cadbridge.nurbs.search import build_search_index
+        from cadbridge.search import build_search_index
 
         self.model = model
         self.index = build_search_index(model)
@@ -161,7 +161,7 @@ class CadProjector:
         self.last_off_trims = 0
 
     def _untrimmed_model(self):
-        from cadbridge.nurbs.search import build_search_index
+        from cadbridge.search import build_search_index
 
         if self._untrimmed is None:
             faces = [dataclasses.replace(f, trims=None) for f in self.model.faces]
@@ -170,8 +170,8 @@ class CadProjector:
         return self._untrimmed
 
     def project(self, points: np.ndarray):
-        """The `cadbridge.nurbs.search.Projection` of ``points`` (untrimmed fallback applied)."""
-        from cadbridge.nurbs.search import project_points
+        """The `cadbridge.search.Projection` of ``points`` (untrimmed fallback applied)."""
+        from cadbridge.search import project_points
 
         points = np.asarray(points, dtype=float)
         parts = []

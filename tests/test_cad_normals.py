@@ -25,7 +25,7 @@ from cadbridge.mesh import CellBlock, Mesh, MeshError, MeshWarning
 from cadbridge.model import Model
 from cadbridge.normals.cad import ProjectionError, cad_normals
 from cadbridge.nurbs.project import BEYOND_TOLERANCE
-from cadbridge.nurbs.search import project_points
+from cadbridge.search import project_points
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
 

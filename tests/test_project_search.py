@@ -1,4 +1,4 @@
-"""Global projection over a model (cadbridge.nurbs.search.project_points).
+"""Global projection over a model (cadbridge.search.project_points).
 
 References: analytic planes and an exact rational quarter-cylinder fillet (closest point in
 closed form), and a brute-force reference that projects every point onto every face
@@ -16,7 +16,7 @@ from test_project import circle_arc, cylinder, random_surface, sphere
 from cadbridge.model import Face, Model, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.project import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, project_to_surface
-from cadbridge.nurbs.search import build_search_index, project_points, span_boxes
+from cadbridge.search import build_search_index, project_points, span_boxes
 from cadbridge.nurbs.surface import NurbsSurface
 
 

@@ -34,7 +34,7 @@ from test_project import occ_reference  # noqa: E402  (OCC interior + boundary r
 
 from cadbridge.iges import read_iges  # noqa: E402
 from cadbridge.nurbs.project import CONVERGED, FAILED, ON_BOUNDARY, project_to_surface  # noqa: E402
-from cadbridge.nurbs.search import project_points  # noqa: E402
+from cadbridge.search import project_points  # noqa: E402
 from cadbridge.occ.reference import occ_normal, occ_project, occ_read, occ_read_shape  # noqa: E402
 from cadbridge.occ.verify import pair_faces  # noqa: E402
 

@@ -30,7 +30,7 @@ from cadbridge.mesh.mesh import Mesh, MeshError
 from cadbridge.mesh.topology import edge_table, non_manifold_edges, orient_consistently, orientation_conflicts
 from cadbridge.model import Model
 from cadbridge.nurbs.project import project_to_surface
-from cadbridge.nurbs.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
+from cadbridge.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
 
 __all__ = ["CadNormals", "ProjectionError", "cad_normals"]
 
