@@ -7,13 +7,14 @@ from the same poles, weights and knots) and the analytic sphere.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cadbridge.nurbs import NurbsCurve, NurbsSurface
-from cadbridge.nurbs.basis import basis_funs, ders_basis_funs, find_span
+from cadbridge.nurbs.basis import basis_funs, ders1_basis_one, ders_basis_funs, find_span, find_span_one
 
 occ = pytest.importorskip("OCP")
 from OCP.Geom import Geom_BSplineCurve, Geom_BSplineSurface  # noqa: E402
@@ -214,3 +215,70 @@ def test_sphere_pole_normal_is_axis_and_flagged():
     ref = -s(u[inner], vv[inner]) / R
     ang = np.arctan2(np.linalg.norm(np.cross(n, ref), axis=1), np.sum(n * ref, axis=1))
     assert ang.max() < 1e-12
+
+
+# ---------------------------------------------------------------------------- compiled kernels
+@pytest.mark.parametrize("rational", [True, False])
+@pytest.mark.parametrize("p,q", [(1, 1), (2, 2), (3, 3), (5, 5), (1, 5), (4, 2)])
+def test_first_order_kernel_bit_identical_to_generic_and_numpy(p, q, rational):
+    """Reference: the generic order-d numba kernel (_ders_serial with d = 1) and the numpy path
+    (_derivatives_numpy), which use the same sums in the same order: the specialised
+    first-order kernel must reproduce both exactly, at random (u, v), at the domain ends and on
+    interior knots (multiple knots included), serial and parallel."""
+    import cadbridge.nurbs.surface as surf
+
+    rng = np.random.default_rng(100 * p + 10 * q + rational)
+    nu, nv = p + 7, q + 6
+
+    def knots(deg, n):
+        inner = np.sort(rng.uniform(0.05, 0.95, n - deg - 1))
+        inner[1 : min(deg, 3)] = inner[0]  # a knot of multiplicity min(degree, 3)
+        return np.concatenate([[0.0] * (deg + 1), inner, [1.0] * (deg + 1)])
+
+    ku, kv = knots(p, nu), knots(q, nv)
+    w = rng.uniform(0.3, 3.0, (nu, nv)) if rational else None
+    s = NurbsSurface(p, q, ku, kv, rng.uniform(-1, 1, (nu, nv, 3)), w)
+    n = surf._PARALLEL_MIN + 777  # over the threshold: the parallel kernel
+    u = rng.uniform(0, 1, n)
+    v = rng.uniform(0, 1, n)
+    u[:6] = [0.0, 1.0, ku[p + 1], ku[nu - 1], 1.0, 0.0]
+    v[:6] = [1.0, 0.0, kv[q + 1], kv[nv - 1], 0.0, 0.5]
+    got = s.derivatives(u, v, order=1)  # parallel specialised kernel
+    small = s.derivatives(u[:500], v[:500], order=1)  # serial specialised kernel
+    generic = np.empty_like(got)
+    surf._ders_serial(s._pw, s.knots_u, s.knots_v, p, q, 1, s.rational, u, v, generic)
+    ref = s._derivatives_numpy(u, v, order=1)
+    assert np.array_equal(got, generic)
+    assert np.array_equal(small, generic[:500])
+    assert np.array_equal(got, ref)
+
+
+@numba.njit
+def _spans_and_d1_basis(knots, p, n_ctrl, x, spans, out):  # pragma: no cover - compiled
+    """find_span_one and ders1_basis_one at each x: spans (N,), out (N, 2, p+1)."""
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    nb = np.empty(p + 1)
+    for t in range(x.shape[0]):
+        spans[t] = find_span_one(knots, p, n_ctrl, x[t])
+        ders1_basis_one(spans[t], x[t], p, knots, left, right, nb, out[t])
+
+
+@HYP
+@given(knot_vectors(), st.integers(0, 2**31 - 1))
+def test_compiled_span_and_first_derivative_basis_match_numpy(pk, seed):
+    """Reference: the numpy find_span / ders_basis_funs (A2.1 / A2.3) on the same parameters:
+    find_span_one gives the same spans (knots, domain ends and parameters
+    outside the domain included) and ders1_basis_one the same values and first derivatives
+    bit for bit."""
+    p, knots = pk
+    n_ctrl = len(knots) - p - 1
+    rng = np.random.default_rng(seed)
+    a, b = knots[0], knots[-1]
+    x = np.concatenate([rng.uniform(a, b, 50), np.unique(knots), [a - 1.0, b + 1.0]])
+    spans = np.empty(len(x), dtype=np.int64)
+    out = np.empty((len(x), 2, p + 1))
+    _spans_and_d1_basis(knots, p, n_ctrl, x, spans, out)
+    ref_span = find_span(knots, p, x)
+    assert np.array_equal(spans, ref_span)
+    assert np.array_equal(out, ders_basis_funs(ref_span, x, p, knots, 1))

@@ -12,7 +12,8 @@ from operator import eq
 import numba
 import numpy as np
 
-__all__ = ["find_span", "basis_funs", "ders_basis_funs", "validate_knots", "find_span_one", "ders_basis_one"]
+__all__ = ["find_span", "basis_funs", "ders_basis_funs", "validate_knots", "find_span_one", "ders_basis_one",
+           "ders1_basis_one"]
 
 
 _MIN_SPAN = 1e-300  # shorter non-empty knot spans make 1 / span overflow in the recurrences
@@ -236,3 +237,40 @@ def ders_basis_one(span, x, p, knots, n, ndu, left, right, a, out):  # pragma: n
         for j in range(p + 1):
             out[k, j] *= factor
         factor *= p - k
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def ders1_basis_one(span, x, p, knots, left, right, nb, out):  # pragma: no cover - compiled
+    """`ders_basis_one` with n = 1 (p >= 1), without the (p+1, p+1) table: out[0, j] =
+    N_{span-p+j,p}(x), out[1, j] its first derivative. The degree p-1 functions are built in
+    place in nb (A2.2), then the last step gives both the degree p values and the derivatives
+    p (N_{j-1,p-1} / d_{j-1} - N_{j,p-1} / d_j), d_r = right[r+1] + left[p-r] (the knot
+    differences ndu[p, r] of A2.3): the same operations in the same order as ``ders_basis_one``,
+    bit-identical results. Scratch: left/right/nb (p+1,); out (2, p+1)."""
+    nb[0] = 1.0
+    for j in range(1, p):
+        left[j] = x - knots[span + 1 - j]
+        right[j] = knots[span + j] - x
+        saved = 0.0
+        for r in range(j):
+            temp = nb[r] / (right[r + 1] + left[j - r])
+            nb[r] = saved + right[r + 1] * temp
+            saved = left[j - r] * temp
+        nb[j] = saved
+    left[p] = x - knots[span + 1 - p]
+    right[p] = knots[span + p] - x
+    saved = 0.0
+    prev = 0.0  # 1 / d_{r-1}
+    for r in range(p):
+        den = right[r + 1] + left[p - r]
+        temp = nb[r] / den
+        out[0, r] = saved + right[r + 1] * temp
+        saved = left[p - r] * temp
+        inv = 1.0 / den
+        d = -inv * nb[r]
+        if r >= 1:
+            d = prev * nb[r - 1] + d
+        out[1, r] = d * p
+        prev = inv
+    out[0, p] = saved
+    out[1, p] = (prev * nb[p - 1]) * p

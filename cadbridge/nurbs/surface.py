@@ -7,7 +7,8 @@ from math import comb
 import numba
 import numpy as np
 
-from cadbridge.nurbs.basis import ders_basis_funs, ders_basis_one, find_span, find_span_one, validate_knots
+from cadbridge.nurbs.basis import (ders1_basis_one, ders_basis_funs, ders_basis_one, find_span, find_span_one,
+                                   validate_knots)
 
 __all__ = ["NurbsSurface"]
 
@@ -93,6 +94,109 @@ def _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, start, stop, binom):  
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _d1_range(pw, ku, kv, p, q, rational, u, v, out, start, stop):  # pragma: no cover - compiled
+    """`_ders_range` for d = 1 (S, Su, Sv, Suv into out (N, 2, 2, 3)), specialised: basis values
+    and first derivatives by `ders1_basis_one` into (2, p+1) / (2, q+1), the 16 homogeneous sums in scalars, the
+    quotient rule written out. The same operations in the same order as the generic kernel
+    (binomials of order 1 are 1.0, an exact factor), so the results are bit-identical."""
+    nu, nv = pw.shape[0], pw.shape[1]
+    nbu = np.empty(p + 1)
+    nbv = np.empty(q + 1)
+    lu = np.empty(p + 1)
+    ru = np.empty(p + 1)
+    lv = np.empty(q + 1)
+    rv = np.empty(q + 1)
+    bu = np.empty((2, p + 1))
+    bv = np.empty((2, q + 1))
+    for t in range(start, stop):
+        x = u[t]
+        y = v[t]
+        su = find_span_one(ku, p, nu, x)
+        sv = find_span_one(kv, q, nv, y)
+        ders1_basis_one(su, x, p, ku, lu, ru, nbu, bu)
+        ders1_basis_one(sv, y, q, kv, lv, rv, nbv, bv)
+        i0 = su - p
+        j0 = sv - q
+        # homogeneous sums A_kl = sum_a Nu^(k)_a sum_b Nv^(l)_b Pw_ab, coordinates x y z w
+        a00x = a00y = a00z = a00w = 0.0
+        a01x = a01y = a01z = a01w = 0.0
+        a10x = a10y = a10z = a10w = 0.0
+        a11x = a11y = a11z = a11w = 0.0
+        for a in range(p + 1):
+            t0x = t0y = t0z = t0w = 0.0  # sum_b Nv_b Pw_ab
+            t1x = t1y = t1z = t1w = 0.0  # sum_b Nv'_b Pw_ab
+            for b in range(q + 1):
+                pt = pw[i0 + a, j0 + b]
+                px, py, pz, pw_ = pt[0], pt[1], pt[2], pt[3]
+                w = bv[0, b]
+                t0x += w * px
+                t0y += w * py
+                t0z += w * pz
+                t0w += w * pw_
+                w = bv[1, b]
+                t1x += w * px
+                t1y += w * py
+                t1z += w * pz
+                t1w += w * pw_
+            w = bu[0, a]
+            a00x += w * t0x
+            a00y += w * t0y
+            a00z += w * t0z
+            a00w += w * t0w
+            a01x += w * t1x
+            a01y += w * t1y
+            a01z += w * t1z
+            a01w += w * t1w
+            w = bu[1, a]
+            a10x += w * t0x
+            a10y += w * t0y
+            a10z += w * t0z
+            a10w += w * t0w
+            a11x += w * t1x
+            a11y += w * t1y
+            a11z += w * t1z
+            a11w += w * t1w
+        o = out[t]
+        if not rational:
+            o[0, 0, 0] = a00x
+            o[0, 0, 1] = a00y
+            o[0, 0, 2] = a00z
+            o[0, 1, 0] = a01x
+            o[0, 1, 1] = a01y
+            o[0, 1, 2] = a01z
+            o[1, 0, 0] = a10x
+            o[1, 0, 1] = a10y
+            o[1, 0, 2] = a10z
+            o[1, 1, 0] = a11x
+            o[1, 1, 1] = a11y
+            o[1, 1, 2] = a11z
+            continue
+        # P&T A4.4 with k, l <= 1: S = A/w, S_v = (A_v - w_v S)/w, S_u = (A_u - w_u S)/w,
+        # S_uv = (A_uv - w_v S_u - w_u S_v - w_uv S)/w (subtractions in the generic order)
+        sx = a00x / a00w
+        sy = a00y / a00w
+        sz = a00z / a00w
+        svx = (a01x - a01w * sx) / a00w
+        svy = (a01y - a01w * sy) / a00w
+        svz = (a01z - a01w * sz) / a00w
+        sux = (a10x - a10w * sx) / a00w
+        suy = (a10y - a10w * sy) / a00w
+        suz = (a10z - a10w * sz) / a00w
+        o[0, 0, 0] = sx
+        o[0, 0, 1] = sy
+        o[0, 0, 2] = sz
+        o[0, 1, 0] = svx
+        o[0, 1, 1] = svy
+        o[0, 1, 2] = svz
+        o[1, 0, 0] = sux
+        o[1, 0, 1] = suy
+        o[1, 0, 2] = suz
+        o[1, 1, 0] = (((a11x - a01w * sux) - a10w * svx) - a11w * sx) / a00w
+        o[1, 1, 1] = (((a11y - a01w * suy) - a10w * svy) - a11w * sy) / a00w
+        o[1, 1, 2] = (((a11z - a01w * suz) - a10w * svz) - a11w * sz) / a00w
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _ders_serial(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cover - compiled
     _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, 0, u.shape[0], _binomials(d))
 
@@ -103,6 +207,18 @@ def _ders_parallel(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cove
     binom = _binomials(d)
     for blk in numba.prange((n + _BLOCK - 1) // _BLOCK):
         _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK), binom)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _d1_serial(pw, ku, kv, p, q, rational, u, v, out):  # pragma: no cover - compiled
+    _d1_range(pw, ku, kv, p, q, rational, u, v, out, 0, u.shape[0])
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _d1_parallel(pw, ku, kv, p, q, rational, u, v, out):  # pragma: no cover - compiled
+    n = u.shape[0]
+    for blk in numba.prange((n + _BLOCK - 1) // _BLOCK):
+        _d1_range(pw, ku, kv, p, q, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK))
 
 
 class NurbsSurface:
@@ -233,9 +349,14 @@ class NurbsSurface:
             raise ValueError(f"order must be >= 0, got {order}")
         out = np.empty((u.size, d + 1, d + 1, 3))
         if u.size:
-            kernel = _ders_parallel if u.size >= _PARALLEL_MIN else _ders_serial
-            kernel(self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, d, self.rational,
-                         u, v, out)
+            par = u.size >= _PARALLEL_MIN
+            if d == 1:
+                kernel = _d1_parallel if par else _d1_serial
+                kernel(self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, self.rational, u, v, out)
+            else:
+                kernel = _ders_parallel if par else _ders_serial
+                kernel(self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, d, self.rational,
+                       u, v, out)
         return out
 
     def _derivatives_numpy(self, u, v, order: int = 2, side_u=None, side_v=None) -> np.ndarray:
