@@ -65,7 +65,7 @@ class TrimLoop:
         """Polyline through the loop, (M, 2) in (u, v); first point not repeated at the end."""
         pieces = []
         for c in self.curves:
-            if c.degree == 1 and tuple(c.domain) == (c.knots[1], c.knots[-2]):
+            if isinstance(c, NurbsCurve) and c.degree == 1 and tuple(c.domain) == (c.knots[1], c.knots[-2]):
                 pts = c.control_points[:, :2]  # a polyline is its own polygon
             else:
                 pts = c.evaluate(c.sample_parameters(samples_per_span))[:, :2]
@@ -75,23 +75,12 @@ class TrimLoop:
         return np.concatenate(pieces, axis=0)
 
     @cached_property
-    def outline(self) -> tuple[np.ndarray, float]:
-        """(polygon (M, 2), band): a fine polygon of the loop and twice its largest chord
-        deviation from the true curves, so a point on the curve is within ``band`` of it."""
-        poly = self.polygon(_OUTLINE_SAMPLES)
-        dev = 0.0
-        for c in self.curves:
-            if c.degree == 1:
-                continue  # straight pieces: no chord error
-            t = c.sample_parameters(_OUTLINE_SAMPLES)
-            p = c.evaluate(t)[:, :2]
-            mid = c.evaluate(0.5 * (t[:-1] + t[1:]))[:, :2]
-            if len(mid):
-                dev = max(dev, float(np.max(np.linalg.norm(mid - 0.5 * (p[:-1] + p[1:]), axis=1))))
-        return poly, 2.0 * dev
+    def boundary(self):
+        """The loop's `cadbridge.trims.LoopBoundary`: polygon with chord bounds and the grid
+        index of its edges, built once (the curves are not to change afterwards)."""
+        from cadbridge.trims import LoopBoundary  # lazy: data flows model -> trims
 
-
-_OUTLINE_SAMPLES = 32  # polygon points per knot span of a trim curve
+        return LoopBoundary(self.curves)
 
 
 @dataclass
@@ -105,66 +94,30 @@ class Trim:
     inner: list[TrimLoop] = field(default_factory=list)
 
     def contains(self, u: np.ndarray, v: np.ndarray, tol: float = 0.0) -> np.ndarray:
-        """Whether each (u, v) lies inside the trimmed region, its boundary included.
-
-        Even-odd rule against fine polygons of the loops; points within the polygon's chord
-        error (plus ``tol``, in parameter units) of a loop count as on the boundary, i.e.
-        inside, so a mesh node on a trim edge belongs to the faces on both sides. (N,) bool.
+        """Whether each (u, v) (N,) lies in the closed trimmed region, decided on the exact
+        trim curves (`cadbridge.trims`): inside or on the outer loop and not strictly inside
+        a hole; a point within ``tol`` (parameter units) of a loop's exact curve is on it,
+        i.e. inside, so a mesh node on a trim edge belongs to the faces on both sides. (N,) bool.
         """
-        uv = np.column_stack([np.ravel(u), np.ravel(v)]).astype(float)
-        loops = [(self.outer, True)] if self.outer is not None else []
-        loops += [(h, False) for h in self.inner]
-        inside = np.ones(len(uv), dtype=bool)
-        for loop, is_outer in loops:
-            in_loop = points_in_polygon(uv, loop.outline[0])
-            inside &= in_loop if is_outer else ~in_loop
-        out = np.flatnonzero(~inside)
-        for loop, _ in loops:  # outside, but on a loop (within its chord error)?
-            if len(out) == 0:
-                break
-            poly, band = loop.outline
-            near = distance_to_polygon(uv[out], poly) <= band + tol
-            inside[out[near]] = True
-            out = out[~near]
-        return inside
+        from cadbridge.trims import trim_contains  # lazy: data flows model -> trims
+
+        return trim_contains(self, u, v, tol)
 
 
-def points_in_polygon(points: np.ndarray, polygon: np.ndarray, chunk: int = 4096) -> np.ndarray:
-    """Crossing-number test of (N, 2) points against a closed (M, 2) polygon. Returns (N,) bool."""
-    points = np.asarray(points, dtype=float)
-    poly = np.asarray(polygon, dtype=float)
-    if len(poly) < 3:
-        return np.zeros(len(points), dtype=bool)
-    a = poly
-    b = np.roll(poly, -1, axis=0)
-    out = np.empty(len(points), dtype=bool)
-    for s in range(0, len(points), chunk):
-        p = points[s : s + chunk, None, :]
-        ay, by = a[None, :, 1], b[None, :, 1]
-        straddle = (ay > p[..., 1]) != (by > p[..., 1])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_cross = a[None, :, 0] + (p[..., 1] - ay) * (b[None, :, 0] - a[None, :, 0]) / (by - ay)
-        crossings = straddle & (p[..., 0] < x_cross)
-        out[s : s + chunk] = (np.count_nonzero(crossings, axis=1) % 2) == 1
-    return out
+def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Even-odd test of (N, 2) points against a closed (M, 2) polygon through a grid index of
+    its edges (`cadbridge.trims.polygon_contains`). Returns (N,) bool."""
+    from cadbridge.trims import polygon_contains
+
+    return polygon_contains(points, polygon)
 
 
-def distance_to_polygon(points: np.ndarray, polygon: np.ndarray, chunk: int = 2048) -> np.ndarray:
-    """Distance of (N, 2) points to the closed polyline (M, 2), (N,)."""
-    points = np.asarray(points, dtype=float)
-    a = np.asarray(polygon, dtype=float)
-    if len(a) == 0:
-        return np.full(len(points), np.inf)
-    b = np.roll(a, -1, axis=0)
-    ab = b - a
-    ll = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    out = np.empty(len(points))
-    for s in range(0, len(points), chunk):
-        p = points[s : s + chunk, None, :]
-        t = np.clip(np.einsum("nmj,mj->nm", p - a[None], ab) / ll, 0.0, 1.0)
-        d = p - (a[None] + t[..., None] * ab[None])
-        out[s : s + chunk] = np.sqrt(np.min(np.einsum("nmj,nmj->nm", d, d), axis=1))
-    return out
+def distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Distance of (N, 2) points to the closed polyline (M, 2), (N,), through a KD-tree of
+    edge midpoints (`cadbridge.trims.polygon_distance`)."""
+    from cadbridge.trims import polygon_distance
+
+    return polygon_distance(points, polygon)
 
 
 @dataclass
@@ -184,6 +137,7 @@ class Face:
     entity_type: int = 128  # IGES type of the top-level entity (128, 144, 143, 108, 118, 120, 122)
     surface_de: int | None = None
     surface_type: int = 128  # IGES type of the underlying surface entity
+    trim_delta: float | None = None  # file's trim tolerance: max |S(c2d(t)) - C3d|, model units (iges.trimcheck)
 
     def contains(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Whether (u, v) (arrays (N,)) lie inside the face: in the domain and inside the trims."""

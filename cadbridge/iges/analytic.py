@@ -24,9 +24,16 @@ angles equal the NURBS parameter only at knots.) The frame of every revolved sur
 its angle 0 along X and increases right-handed about the axis A (Y = A x X), as OCC's
 gp_Ax3 does.
 
-Curves whose whole chain is affine (planes) are transformed exactly (control points);
-everything else becomes a degree-1 polyline through mapped samples, refined until the
-chord error in (u, v) is below ``POLY_REL_TOL`` x the domain size.
+Curves whose whole chain is affine (planes) are transformed exactly (control points).
+Every other parameter-space curve becomes a `MappedCurve`: the file's curve c(t) composed
+with the exact map to NURBS (u, v) -- affine, then per coordinate the closed-form relation
+angle <-> parameter of a rational quadratic arc (`ArcMap`) -- with analytic first and second
+derivatives by the chain rule. A loop derived from model-space curves becomes an
+`InvertedCurve`: the 3D curve through the surface's exact inversion (closed form for
+190-198, meridian-plane Newton on the generatrix for 120), derivatives by the chain rule
+through the surface Jacobian. Both offer the NurbsCurve interface the trim code uses
+(``domain``, ``degree``, ``knots``, ``evaluate``, ``derivatives``, ``sample_parameters``)
+and ``to_nurbs`` (a polyline within ``POLY_REL_TOL``) for writers that need control points.
 """
 
 from __future__ import annotations
@@ -40,7 +47,8 @@ import numpy as np
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["Frame", "ParamMap", "ax2_x_direction", "sample_chain", "POLY_REL_TOL"]
+__all__ = ["ArcMap", "Frame", "InvertedCurve", "MappedCurve", "ParamMap", "ax2_x_direction", "sample_chain",
+           "POLY_REL_TOL"]
 
 POLY_REL_TOL = 1e-6  # chord error of a polyline trim, relative to the (u, v) domain size
 MIN_PER_SPAN = 16  # samples per knot span of the sampled curve at least
@@ -112,6 +120,9 @@ class ParamMap:
     uv_fn          natural -> NURBS (u, v) for the surface ``build`` returned, given the
                    natural ranges; uv_affine says whether it is the identity
     fixed_range    natural ranges that cannot change (a 120's [SA, TA]), or None
+    pcurve_pre     per natural coordinate an `ArcMap` applied after ``pcurve_affine`` (or None)
+    uv_parts       natural ranges -> ((src, ArcMap | None), (src, ArcMap | None)): NURBS u, v
+                   as scalar maps of natural coordinate src (what `MappedCurve` composes)
     """
 
     kind: str
@@ -124,6 +135,8 @@ class ParamMap:
     uv_identity: bool = False
     fixed_range: tuple | None = None
     surface: NurbsSurface | None = None  # for fixed surfaces (118, 120, 122)
+    pcurve_pre: tuple = (None, None)
+    uv_parts: Callable[[tuple, tuple], tuple] = lambda r0, r1: ((0, None), (1, None))
 
 
 def _affine(m, b) -> tuple[np.ndarray, np.ndarray]:
@@ -175,6 +188,252 @@ def _unwrap_rows(nat: np.ndarray, angular: tuple[bool, bool]) -> np.ndarray:
     return nat
 
 
+# ---------------------------------------------------------------------------- exact maps
+@dataclass(frozen=True)
+class ArcMap:
+    """Scalar map x -> start_out + arc_parameter(x - start_in, sweep): the NURBS parameter of a
+    rational quadratic arc (``construct.circular_arc`` / ``revolved_surface``) at the angle x,
+    x clipped to [start_in, start_in + sweep]. Closed form per quarter segment of width d:
+    with T = tan(rel / 2), rel the angle from the segment's middle,
+    f = start_out + (k + (1 + T / tan(d/4)) / 2) d, f' = d (1 + T^2) / (4 tan(d/4)),
+    f'' = f' T; f is C1 at the segment breaks, f'' jumps there (`breaks`)."""
+
+    start_in: float
+    sweep: float
+    start_out: float = 0.0
+
+    def __call__(self, x: np.ndarray, order: int = 2) -> list[np.ndarray]:
+        """[f, f', f''][:order+1] at x (N,)."""
+        c = _construct()
+        n = c.arc_segments(self.sweep)
+        d = self.sweep / n
+        a = np.clip(np.asarray(x, dtype=float) - self.start_in, 0.0, self.sweep)
+        k = np.clip(np.floor(a / d), 0, n - 1)
+        tt = np.tan((a - k * d - d / 2) / 2)
+        q = 1.0 / np.tan(d / 4)
+        out = [self.start_out + (k + 0.5 * (1.0 + tt * q)) * d]
+        if order >= 1:
+            f1 = 0.25 * d * q * (1.0 + tt * tt)
+            out.append(f1)
+            if order >= 2:
+                out.append(f1 * tt)
+        return out
+
+    def breaks(self) -> np.ndarray:
+        """Angles (in x) where f'' jumps, (n-1,)."""
+        n = _construct().arc_segments(self.sweep)
+        return self.start_in + self.sweep / n * np.arange(1, n)
+
+
+def _apply_scalar(m: ArcMap | None, y: np.ndarray, order: int) -> np.ndarray:
+    """(N, order+1) derivatives of m(y(t)) from those of y(t), (N, order+1) (Faa di Bruno, order <= 2)."""
+    if m is None:
+        return y
+    f = m(y[:, 0], order)
+    out = np.empty_like(y)
+    out[:, 0] = f[0]
+    if order >= 1:
+        out[:, 1] = f[1] * y[:, 1]
+    if order >= 2:
+        out[:, 2] = f[2] * y[:, 1] ** 2 + f[1] * y[:, 2]
+    return out
+
+
+class _TrimCurve:
+    """What the trim code needs of a trim curve in NURBS (u, v): ``domain``, ``degree``
+    (at least 2: a mapped curve is not straight), ``knots`` (the base curve's, plus the
+    parameters where an `ArcMap` break is crossed: f'' jumps there), ``evaluate``,
+    ``derivatives``, ``sample_parameters``; subclasses define ``derivatives``."""
+
+    base: NurbsCurve
+    dim = 2
+    rational = False
+
+    @property
+    def domain(self) -> tuple[float, float]:
+        return self.base.domain
+
+    @property
+    def degree(self) -> int:
+        return max(2, self.base.degree)
+
+    def derivatives(self, t, order: int = 1) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def evaluate(self, t) -> np.ndarray:
+        """Points (u, v): t (N,) -> (N, 2)."""
+        return self.derivatives(t, order=0)[:, 0]
+
+    __call__ = evaluate
+
+    def sample_parameters(self, per_span: int = 16) -> np.ndarray:
+        """As `NurbsCurve.sample_parameters`, over this curve's knots (breaks included), (M,)."""
+        return NurbsCurve.sample_parameters(self, per_span)  # type: ignore[arg-type]
+
+    def bbox(self) -> np.ndarray:
+        """Box of dense samples, (2, 2)."""
+        p = self.evaluate(self.sample_parameters(16))
+        return np.array([p.min(axis=0), p.max(axis=0)])
+
+    def to_nurbs(self, rel_tol: float = POLY_REL_TOL) -> NurbsCurve:
+        """Degree-1 NurbsCurve through samples of this curve, bisected until the chord error
+        is below rel_tol x the size of the curve's box (for writers needing control points)."""
+        box = self.bbox()
+        tol = rel_tol * max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+        t = self.sample_parameters(MIN_PER_SPAN)
+        for _ in range(MAX_REFINE):
+            p = self.evaluate(t)
+            tm = 0.5 * (t[:-1] + t[1:])
+            err = np.linalg.norm(self.evaluate(tm) - 0.5 * (p[:-1] + p[1:]), axis=1)
+            bad = np.flatnonzero(~(err <= tol))
+            if bad.size == 0:
+                break
+            t = np.insert(t, bad + 1, tm[bad])
+        p = self.evaluate(t)
+        m = len(p)
+        return NurbsCurve(1, np.concatenate([[t[0]], t, [t[-1]]]), p)
+
+    @property
+    def knots(self) -> np.ndarray:
+        """Base knots plus the parameters where a natural coordinate crosses a break of its
+        ArcMap (found on first use: sign changes on samples, then Illinois regula falsi)."""
+        kn = self.__dict__.get("_knots")
+        if kn is None:
+            kn = self.__dict__["_knots"] = self._knots_with_breaks()
+        return kn
+
+    def _natural(self, t) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _break_values(self) -> list[tuple[int, np.ndarray]]:
+        """(natural coordinate, values at which a derivative jumps)."""
+        return [(src, m.breaks()) for src, m in self.post if m is not None]
+
+    def _knots_with_breaks(self) -> np.ndarray:
+        extra = []
+        t = self.base.sample_parameters(8)
+        nat = None
+        for src, values in self._break_values():
+            if len(values) and nat is None:
+                nat = self._natural(t)
+            for b in values:
+                g = nat[:, src] - b
+                idx = np.flatnonzero(np.sign(g[:-1]) * np.sign(g[1:]) < 0)
+                if not idx.size:
+                    continue
+                lo, hi, glo, ghi = t[idx].copy(), t[idx + 1].copy(), g[idx].copy(), g[idx + 1].copy()
+                x = lo
+                for _ in range(60):  # Illinois: superlinear, bracket kept
+                    x = (lo * ghi - hi * glo) / (ghi - glo)
+                    gx = self._natural(x)[:, src] - b
+                    same = np.sign(gx) == np.sign(glo)
+                    lo, glo, ghi = np.where(same, x, lo), np.where(same, gx, glo), np.where(same, 0.5 * ghi, ghi)
+                    hi, glo = np.where(same, hi, x), np.where(same, glo, 0.5 * glo)
+                    ghi = np.where(same, ghi, gx)
+                    if np.all(np.abs(gx) <= 1e-14 * max(1.0, abs(b))):
+                        break
+                extra.append(x)
+        kn = np.asarray(self.base.knots)
+        return np.sort(np.concatenate([kn] + extra)) if extra else kn
+
+
+class MappedCurve(_TrimCurve):
+    """A parameter-space trim curve c(t) (IGES (s, t), 2D NurbsCurve) mapped exactly into the
+    NURBS (u, v) of the converted surface:
+
+        y(t) = M c(t) + b            (affine: degrees -> radians, swaps, the 2 pi unwrap shift)
+        n_k  = pre_k(y_k)            (natural coordinates; ArcMap for a 120's 100 generatrix)
+        uv_j = post_j(n_{src_j})     (NURBS parameters; ArcMap for angles)
+
+    Derivatives by the chain rule: y' = M c', y'' = M c''; (f o y)' = f' y',
+    (f o y)'' = f'' y'^2 + f' y''. Exact to rounding (no sampling)."""
+
+    def __init__(self, base: NurbsCurve, m: np.ndarray, b: np.ndarray, pre: tuple, post: tuple) -> None:
+        self.base = base
+        self.m = np.asarray(m, dtype=float)
+        self.b = np.asarray(b, dtype=float)
+        self.pre = tuple(pre)
+        self.post = tuple(post)
+
+    def _break_values(self) -> list[tuple[int, np.ndarray]]:
+        out = [(k, m(m.breaks(), 0)[0]) for k, m in enumerate(self.pre) if m is not None]  # pre is monotone
+        return out + super()._break_values()
+
+    def _natural_ders(self, t, order: int) -> np.ndarray:
+        c = self.base.derivatives(t, order)  # (N, order+1, 2)
+        y = c @ self.m.T
+        y[:, 0] += self.b
+        nat = np.empty_like(y)
+        for k in (0, 1):
+            nat[:, :, k] = _apply_scalar(self.pre[k], y[:, :, k], order)
+        return nat
+
+    def _natural(self, t) -> np.ndarray:
+        return self._natural_ders(t, 0)[:, 0]
+
+    def derivatives(self, t, order: int = 1) -> np.ndarray:
+        """Derivatives of (u, v)(t) up to ``order`` (<= 2): t (N,) -> (N, order+1, 2)."""
+        if order > 2:
+            raise ValueError("MappedCurve derivatives are implemented up to order 2")
+        nat = self._natural_ders(t, order)
+        out = np.empty_like(nat)
+        for j, (src, mp) in enumerate(self.post):
+            out[:, :, j] = _apply_scalar(mp, nat[:, :, src], order)
+        return out
+
+
+class InvertedCurve(_TrimCurve):
+    """A model-space trim curve C(t) (3D NurbsCurve) through the surface's inversion:
+    uv(t) = post(points_fn(C(t)) + shift), angular natural coordinates kept continuous by
+    unwrapping against a reference table (t_ref, nat_ref) sampled along the curve.
+
+    Derivatives through the surface S at uv(t) (exact when C lies on S, i.e. up to the file's
+    delta): with J = [Su Sv], J^T J uv' = J^T C' and
+    J^T J uv'' = J^T (C'' - Suu u'^2 - 2 Suv u' v' - Svv v'^2)."""
+
+    def __init__(self, base: NurbsCurve, points_fn, shift: np.ndarray, post: tuple, angular: tuple[bool, bool],
+                 t_ref: np.ndarray, nat_ref: np.ndarray, surface: NurbsSurface) -> None:
+        self.base = base
+        self.points_fn = points_fn
+        self.shift = np.asarray(shift, dtype=float)
+        self.post = tuple(post)
+        self.angular = angular
+        self.t_ref = np.asarray(t_ref, dtype=float)
+        self.nat_ref = np.asarray(nat_ref, dtype=float)
+        self.surface = surface
+
+    def _natural(self, t) -> np.ndarray:
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        nat = np.array(self.points_fn(self.base.evaluate(t)), dtype=float) + self.shift
+        for k in (0, 1):
+            if self.angular[k]:
+                nat[:, k] = _unwrap_to(nat[:, k], np.interp(t, self.t_ref, self.nat_ref[:, k]))
+        return nat
+
+    def derivatives(self, t, order: int = 1) -> np.ndarray:
+        """Derivatives of (u, v)(t) up to ``order`` (<= 2): t (N,) -> (N, order+1, 2)."""
+        if order > 2:
+            raise ValueError("InvertedCurve derivatives are implemented up to order 2")
+        t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+        nat = self._natural(t)
+        uv = np.column_stack([_apply_scalar(mp, nat[:, src : src + 1], 0)[:, 0] for src, mp in self.post])
+        out = np.zeros((len(t), order + 1, 2))
+        out[:, 0] = uv
+        if order == 0:
+            return out
+        u0, u1, v0, v1 = self.surface.domain
+        d = self.surface.derivatives(np.clip(uv[:, 0], u0, u1), np.clip(uv[:, 1], v0, v1), order=order)
+        c = self.base.derivatives(t, order)
+        jac = np.stack([d[:, 1, 0], d[:, 0, 1]], axis=2)  # (N, 3, 2)
+        jtj = np.einsum("nia,nib->nab", jac, jac)
+        out[:, 1] = np.linalg.solve(jtj, np.einsum("nia,ni->na", jac, c[:, 1])[..., None])[..., 0]
+        if order >= 2:
+            up, vp = out[:, 1, 0:1], out[:, 1, 1:2]
+            rhs = c[:, 2] - d[:, 2, 0] * up * up - 2.0 * d[:, 1, 1] * up * vp - d[:, 0, 2] * vp * vp
+            out[:, 2] = np.linalg.solve(jtj, np.einsum("nia,ni->na", jac, rhs)[..., None])[..., 0]
+        return out
+
+
 # ---------------------------------------------------------------------------- constructors
 def _construct():
     from cadbridge.nurbs import construct
@@ -205,6 +464,16 @@ def _revolve(frame: Frame, generatrix: NurbsCurve, r1) -> NurbsSurface:
     w = None if s.weights is None else np.asarray(s.weights).T
     return NurbsSurface(s.degree_v, s.degree_u, s.knots_v, s.knots_u, np.asarray(s.control_points).transpose(1, 0, 2),
                         w, (v0, v1, u0, u1))
+
+
+def _theta_map(r1) -> ArcMap:
+    """revolved v(theta) on the angle range r1 as an ArcMap."""
+    return ArcMap(float(r1[0]), float(r1[1]) - float(r1[0]), float(r1[0]))
+
+
+def _phi_map(r0) -> ArcMap:
+    """arc parameter of phi on the range r0 as an ArcMap."""
+    return ArcMap(float(r0[0]), float(r0[1]) - float(r0[0]), 0.0)
 
 
 def _theta_v(nat: np.ndarray, r1) -> np.ndarray:
@@ -239,7 +508,7 @@ def cylinder_map(frame: Frame, radius: float, cone_tan: float = 0.0, kind: str =
         return np.column_stack([_theta_v(nat[:, 1], r1), nat[:, 0]])
 
     return ParamMap(kind, lambda st: _apply_affine(aff, np.asarray(st, dtype=float)), aff, pts, (False, True),
-                    build, uv)
+                    build, uv, uv_parts=lambda r0, r1: ((1, _theta_map(r1)), (0, None)))
 
 
 def _tube_arc(frame: Frame, center: np.ndarray, r: float, r0) -> NurbsCurve:
@@ -276,8 +545,11 @@ def sphere_map(frame: Frame, radius: float) -> ParamMap:
         r0 = (max(r0[0], -pi / 2), min(r0[1], pi / 2))
         return np.column_stack([_theta_v(nat[:, 1], r1), _phi_u(nat[:, 0], r0)])
 
+    def parts(r0, r1):
+        return (1, _theta_map(r1)), (0, _phi_map((max(r0[0], -pi / 2), min(r0[1], pi / 2))))
+
     return ParamMap("sphere", lambda st: _apply_affine(aff, np.asarray(st, dtype=float)), aff, pts, (False, True),
-                    build, uv)
+                    build, uv, uv_parts=parts)
 
 
 def torus_map(frame: Frame, major: float, minor: float) -> ParamMap:
@@ -299,7 +571,7 @@ def torus_map(frame: Frame, major: float, minor: float) -> ParamMap:
         return np.column_stack([_theta_v(nat[:, 1], r1), _phi_u(nat[:, 0], r0)])
 
     return ParamMap("torus", lambda st: _apply_affine(aff, np.asarray(st, dtype=float)), aff, pts, (True, True),
-                    build, uv)
+                    build, uv, uv_parts=lambda r0, r1: ((1, _theta_map(r1)), (0, _phi_map(r0))))
 
 
 def _project(surface: NurbsSurface):
@@ -315,29 +587,84 @@ def _project(surface: NurbsSurface):
     return fn
 
 
-def revolution_map(surface: NurbsSurface, sa: float, ta: float,
-                   gen_fn: Callable[[np.ndarray], np.ndarray], gen_affine: tuple[float, float] | None) -> ParamMap:
+def _meridian_inverse(origin: np.ndarray, axis: np.ndarray, generatrix: NurbsCurve):
+    """Exact inversion of the surface revolving the 3D ``generatrix`` about the line
+    (origin, axis): a model point P -> (generatrix parameter u, rotation angle theta).
+    theta = atan2 in the frame whose X is the generatrix's radial direction (right-handed
+    about the axis); u from the nearest point of the generatrix to P rotated back into the
+    generatrix half-plane (KD-tree over samples, then Newton on the curve). None when the
+    generatrix lies on the axis."""
+    from scipy.spatial import cKDTree
+
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    o = np.asarray(origin, dtype=float)
+    ts = generatrix.sample_parameters(32)
+    g = generatrix.evaluate(ts)
+    rad = (g - o) - np.outer((g - o) @ a, a)
+    rr = np.linalg.norm(rad, axis=1)
+    if not rr.max() > 0:
+        return None
+    x = rad[int(np.argmax(rr))] / rr.max()
+    y = np.cross(a, x)
+    tree = cKDTree(g)
+    t0, t1 = generatrix.domain
+
+    def fn(p):
+        r = np.asarray(p, dtype=float) - o
+        h = r @ a
+        rx, ry = r @ x, r @ y
+        q = o + np.outer(h, a) + np.outer(np.hypot(rx, ry), x)
+        t = ts[tree.query(q)[1]]
+        for _ in range(6):
+            d = generatrix.derivatives(t, 2)
+            e = d[:, 0] - q
+            f = np.einsum("ij,ij->i", e, d[:, 1])
+            g1 = np.einsum("ij,ij->i", d[:, 1], d[:, 1])
+            fp = g1 + np.einsum("ij,ij->i", e, d[:, 2])
+            t = np.clip(t - f / np.where(fp > 0, fp, g1 + 1e-300), t0, t1)
+        return np.column_stack([t, np.arctan2(ry, rx)])
+
+    return fn
+
+
+def revolution_map(surface: NurbsSurface, sa: float, ta: float, gen_affine: tuple[float, float] | None,
+                   gen_arc: ArcMap | None = None, axis: tuple[np.ndarray, np.ndarray] | None = None,
+                   generatrix: NurbsCurve | None = None) -> ParamMap:
     """120: IGES (s, t) = (generatrix parameter, angle theta in radians); natural (u, theta)
-    with u = gen_fn(s) the NURBS generatrix parameter; v = revolved v(theta) on [SA, TA]."""
+    with u the NURBS generatrix parameter: u = a s + b (``gen_affine``) or the ArcMap of a 100
+    generatrix (IGES parametrises it by angle); v = revolved v(theta) on [SA, TA]. Model points
+    invert exactly through ``_meridian_inverse`` when the (model-space) axis and generatrix are
+    given, else by projection onto the surface."""
     c = _construct()
-    proj = _project(surface)
-    aff = None
     if gen_affine is not None:
         aff = _affine([[gen_affine[0], 0.0], [0.0, 1.0]], np.array([gen_affine[1], 0.0]))
+    else:
+        aff = _affine(np.eye(2), np.zeros(2))
+    pre = (gen_arc, None)
 
     def pc(st):
-        st = np.asarray(st, dtype=float)
-        return np.column_stack([gen_fn(st[:, 0]), st[:, 1]])
+        y = _apply_affine(aff, np.asarray(st, dtype=float))
+        if gen_arc is not None:
+            y[:, 0] = gen_arc(y[:, 0], 0)[0]
+        return y
 
-    def pts(p):
-        uv = proj(p)
-        return np.column_stack([uv[:, 0], c.revolved_v_to_angle(uv[:, 1], sa, ta)])
+    pts = None
+    if axis is not None and generatrix is not None:
+        pts = _meridian_inverse(axis[0], axis[1], generatrix)
+    if pts is None:
+        proj = _project(surface)
+        if proj is not None:
+            def pts(p):
+                uv = proj(p)
+                return np.column_stack([uv[:, 0], c.revolved_v_to_angle(uv[:, 1], sa, ta)])
 
     def uv(nat, r0, r1):
         return np.column_stack([nat[:, 0], _theta_v(nat[:, 1], (sa, ta))])
 
-    return ParamMap("revolution", pc, aff, pts if proj else None, (False, True), None, uv,
-                    fixed_range=(None, (sa, ta)), surface=surface)
+    return ParamMap("revolution", pc, aff, pts, (False, True), None, uv,
+                    fixed_range=(None, (sa, ta)), surface=surface, pcurve_pre=pre,
+                    uv_parts=lambda r0, r1: ((0, None), (1, _theta_map((sa, ta)))))
 
 
 def fixed_map(surface: NurbsSurface, pcurve_affine: tuple[np.ndarray, np.ndarray], kind: str) -> ParamMap:
@@ -351,10 +678,11 @@ def fixed_map(surface: NurbsSurface, pcurve_affine: tuple[np.ndarray, np.ndarray
 @dataclass
 class MappedLoops:
     """Result of `map_loops`: the surface (built or fixed) and per loop the (u, v) pieces,
-    each tagged with the index of the edge it came from and whether it is a polyline."""
+    each tagged with the index of the edge it came from and whether it is mapped (a
+    `MappedCurve` / `InvertedCurve`, not a NurbsCurve)."""
 
     surface: NurbsSurface
-    loops: list[list[tuple[int, NurbsCurve, bool]]]
+    loops: list[list[tuple[int, "NurbsCurve | _TrimCurve", bool]]]
     sources: list[list[str]]  # per loop, per edge: "pcurve" or "model"
 
 
@@ -374,7 +702,8 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
         its, src = [], []
         for j, (pc, mc) in enumerate(loop):
             if pc is not None and (use_pcurves or mc is None or pm.points_fn is None):
-                chain, fn, exact, s = pc, pm.pcurve_fn, pm.pcurve_affine is not None, "pcurve"
+                chain, fn, s = pc, pm.pcurve_fn, "pcurve"
+                exact = pm.pcurve_affine is not None and pm.pcurve_pre == (None, None)
             elif mc is not None and pm.points_fn is not None:
                 chain, fn, exact, s = mc, pm.points_fn, pm.kind == "plane", "model"
             else:
@@ -447,37 +776,21 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
         ranges[k] = (a, b)
     r0, r1 = ranges
     surface = pm.build(r0, r1) if pm.build is not None else pm.surface
-    u0, u1, v0, v1 = surface.domain
-    tol = POLY_REL_TOL * float(np.hypot(u1 - u0, v1 - v0))
-    out: list[list[tuple[int, NurbsCurve, bool]]] = []
+    post = pm.uv_parts(r0, r1)
+    out: list[list[tuple[int, NurbsCurve | _TrimCurve, bool]]] = []
     for its, ls in zip(items, shifts):
-        pieces = []
+        pieces: list[tuple[int, NurbsCurve | _TrimCurve, bool]] = []
         for (j, c, fn, exact), sh in zip(its, ls):
             if exact:
                 nat = _exact_natural(c, fn)
                 if np.any(sh):
                     nat = NurbsCurve(nat.degree, nat.knots, nat.control_points + sh, nat.weights, nat.domain)
                 pieces.append((j, nat, False))
-                continue
-            to_uv = (lambda s: (lambda n: pm.uv_fn(n + s, r0, r1)))(sh)
-            _, nat = sample_chain(fn, c, ang, to_uv, tol)
-            uv = to_uv(nat)
-            m = len(uv)
-            knots = np.concatenate([[0.0], np.arange(m, dtype=float), [m - 1.0]])
-            pieces.append((j, NurbsCurve(1, knots, uv), True))
+            elif fn is pm.pcurve_fn:
+                m, b = pm.pcurve_affine
+                pieces.append((j, MappedCurve(c, m, b + sh, pm.pcurve_pre, post), True))
+            else:
+                t, nat = sample_chain(fn, c, ang, None, 0.0)
+                pieces.append((j, InvertedCurve(c, fn, sh, post, ang, t, nat + sh, surface), True))
         out.append(pieces)
     return MappedLoops(surface, out, sources)
-
-
-def polyline_distance(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
-    """Distance of each of (N, 3) points to the polyline (M, 3). (N,)"""
-    a, b = poly[:-1], poly[1:]
-    ab = b - a
-    ll = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300)
-    out = np.empty(len(points))
-    for s in range(0, len(points), 256):
-        p = points[s : s + 256, None, :]
-        t = np.clip(np.einsum("nmj,mj->nm", p - a[None], ab) / ll, 0.0, 1.0)
-        d = np.linalg.norm(p - (a[None] + t[..., None] * ab[None]), axis=2)
-        out[s : s + 256] = d.min(axis=1)
-    return out

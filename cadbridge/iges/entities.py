@@ -13,9 +13,10 @@ from contextlib import contextmanager
 import numpy as np
 
 from cadbridge.iges.directory import DirectoryEntry
-from cadbridge.iges.analytic import (POLY_REL_TOL, Frame, MappedLoops, ParamMap, cylinder_map, fixed_map,
-                                     map_loops, plane_map, polyline_distance, revolution_map, sphere_map,
+from cadbridge.iges.analytic import (ArcMap, Frame, MappedLoops, ParamMap, cylinder_map, fixed_map,
+                                     map_loops, plane_map, revolution_map, sphere_map,
                                      torus_map)
+from cadbridge.iges.trimcheck import loop_deltas
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record
 from cadbridge.iges.parameters import Params, prepare_params, read_params
@@ -26,6 +27,8 @@ from cadbridge.nurbs.surface import NurbsSurface
 __all__ = ["Builder", "Unsupported", "SURFACE_TYPES", "ANALYTIC_TYPES", "FACE_TYPES", "INTERPRETED_TYPES"]
 
 SURFACE_TYPES = (128, 108, 118, 120, 122)
+AGREE_REL = 1e-6  # PREF = model space: the 2D curves are used if delta <= AGREE_REL x size
+DISAGREE_REL = 1e-3  # beyond DISAGREE_REL x size the 2D and 3D trims are called inconsistent
 ANALYTIC_TYPES = (190, 192, 194, 196, 198)  # IGES 5.3 unbounded analytic surfaces (faces only under 510/144/143)
 FACE_TYPES = SURFACE_TYPES + (143, 144)
 CURVE_TYPES = (100, 102, 104, 106, 110, 126)
@@ -132,6 +135,9 @@ class Builder:
         self._active: list[int] = []  # entities under construction (cycle guard, error location)
         self._keys: list[tuple[str, int]] = []
         self._failed_at: tuple | None = None  # (DE, line, type) where an exception first passed
+        self.pref: dict[int, str | None] = {}  # 142 / 141 DE -> preferred representation (`mapped_trims`)
+        self._delta: dict[int, float] = {}  # face DE -> trim delta before placement (mapped faces)
+        self.delta_pending: list[Face] = []  # 128 faces whose delta `finish_deltas` computes in one batch
         prepare_params(entries, precs, pdelim, rdelim)  # compiled scan of the plain records (fast path)
 
     # ------------------------------------------------------------------ infrastructure
@@ -622,7 +628,9 @@ class Builder:
         sptr = p.pointer(2, "SPTR")
         bptr = p.pointer(3, "BPTR")
         cptr = p.pointer(4, "CPTR")
-        p.int(5, "PREF", 0)
+        pref = p.int(5, "PREF", 0)
+        # 142 PREF (IGES 5.3, 4.32): 1 = S o B (parameter space) preferred, 2 = C (model space), 3 = equal
+        self.pref[de] = {1: "pcurve", 2: "model", 3: "equal"}.get(pref)
         self._own_end[de] = 6
         if sptr:
             self.entry(sptr, p, 2, "SPTR")
@@ -658,6 +666,8 @@ class Builder:
         reversed). Parameter-space curves get only their own 124 (see `cos_raw`)."""
         p = self.params(de)
         typ = p.int(1, "TYPE")
+        # 141 PREF (IGES 5.3, 4.31) codes differently from 142: 1 = model space, 2 = parameter space
+        self.pref[de] = {1: "model", 2: "pcurve", 3: "equal"}.get(p.int(2, "PREF", 0))
         n = p.int(4, "N")
         if n < 0:
             raise p.error(f"negative number of curves {n}", 4, "N")
@@ -719,6 +729,13 @@ class Builder:
             return None
         if face is None:
             return None
+        if de in self._delta:
+            face.trim_delta = self._delta[de]
+            if not _is_identity(placement):  # 124 matrices are rotations; a 408 scales by S
+                face.trim_delta *= abs(float(np.linalg.det(placement[0]))) ** (1.0 / 3.0)
+        elif face.trims is not None and any(lp is not None and lp.model_curves for lp in [face.trims.outer]
+                                            + list(face.trims.inner)):
+            self.delta_pending.append(face)
         if not _is_identity(placement):
             face.surface = face.surface.transformed(*placement)
             if face.trims is not None:
@@ -765,10 +782,14 @@ class Builder:
                     inner.append(loop)
                 if ok and (outer is not None or inner):
                     trims = Trim(outer, inner)
+                prefs = [self.pref.get(q) for q in ([pto] if n1 == 1 else []) + ptis]
+                if trims is not None and "model" in prefs:
+                    surface, trims = self._trimmed_128(surface, trims, sde, de, n1, pto, ptis, prefs)
             else:
                 raw_outer = [self.cos_raw(pto)] if n1 == 1 else None
                 raw_inner = [[self.cos_raw(q)] for q in ptis]
-                surface, trims = self.mapped_trims(sde, raw_outer, raw_inner, de)
+                prefs = [self.pref.get(q) for q in ([pto] if n1 == 1 else []) + ptis]
+                surface, trims = self.mapped_trims(sde, raw_outer, raw_inner, de, prefs)
             xf = self.transform(de)
             surface = apply_surface(surface, xf)
             if trims is not None and not _is_identity(xf):
@@ -833,9 +854,10 @@ class Builder:
         for x in loop_des:
             with self.visiting(x):
                 raws.append(load_raw(x))
+        prefs = [self.pref.get(x) for x in loop_des]
         if first_is_outer:
-            return self.mapped_trims(sde, raws[0] if raws else None, raws[1:], de)
-        return self.mapped_trims(sde, None, raws, de)
+            return self.mapped_trims(sde, raws[0] if raws else None, raws[1:], de, prefs)
+        return self.mapped_trims(sde, None, raws, de, prefs)
 
     # ------------------------------------------------------------------ trims over non-128 surfaces
     def point116(self, de: int, src: Params, k: int, name: str) -> np.ndarray:
@@ -951,30 +973,55 @@ class Builder:
             gde = p.pointer(2, "C", allow_zero=False)
             ge = self.entries[gde]
             gen = self.curve(gde)
-            gen_fn, gen_aff = (lambda s_: s_), (1.0, 0.0)
+            gen_arc, gen_aff = None, (1.0, 0.0)
             if ge.entity_type == 100:
                 # IGES 100 is parametrised by the angle (T from the start angle to the end angle);
-                # ours equals the angle from the start only at knots (construct.arc_parameter)
+                # ours equals the angle from the start only at knots: the exact ArcMap
                 v = self.params(gde).reals(1, 7, "ZT..Y3")
                 a0 = float(np.arctan2(v[4] - v[2], v[3] - v[1]))
-                sweep = gen.domain[1] - gen.domain[0]
-                c = _construct()
-                gen_fn = lambda s_: c.arc_parameter(np.clip(np.asarray(s_) - a0, 0.0, sweep), sweep)  # noqa: E731
+                gen_arc = ArcMap(a0, gen.domain[1] - gen.domain[0], 0.0)
                 gen_aff = None
-            return revolution_map(surface, sa, ta, gen_fn, gen_aff)
+            lp = self.params(p.pointer(1, "L", allow_zero=False))
+            ends = lp.reals(1, 6, "X1..Z2")
+            a, b = ends[:3], ends[3:]
+            lxf = self.transform(lp.de)
+            if not _is_identity(lxf):
+                a, b = lxf[0] @ a + lxf[1], lxf[0] @ b + lxf[1]
+            gen_m = gen
+            if not _is_identity(xf):  # the 120's own 124 places axis and generatrix like the surface
+                a, b = xf[0] @ a + xf[1], xf[0] @ (b - a) + xf[0] @ a + xf[1]
+                gen_m = apply_curve(gen, xf)
+            return revolution_map(surface, sa, ta, gen_aff, gen_arc, (a, b - a), gen_m if gen_m.dim == 3 else None)
         if t == 122:
             a, b = surface.domain[0], surface.domain[1]
             return fixed_map(surface, (np.array([[b - a, 0.0], [0.0, 1.0]]), np.array([a, 0.0])), "tabulated")
         if t == 118:
             return fixed_map(surface, (np.eye(2), np.zeros(2)), "ruled")
+        if t == 128:  # only for loops built from model-space curves (PREF = model, see `trimmed_128`)
+            return fixed_map(surface, (np.eye(2), np.zeros(2)), "bspline")
         raise Unsupported(f"trim curves over surface entity {t} are not supported", de, t, e.line)
 
-    def mapped_trims(self, sde: int, outer, inner: list, de: int) -> tuple[NurbsSurface, Trim | None]:
+    def mapped_trims(self, sde: int, outer, inner: list, de: int,
+                     prefs: list | None = None) -> tuple[NurbsSurface, Trim | None]:
         """Surface and trims of a face over base surface ``sde`` (not a 128) from raw loops
         (lists of (parameter-space pieces, model-space pieces) per edge; ``outer`` None: no
-        outer loop). Parameter-space curves are used where present and checked against the
-        model-space curves; where they disagree (or are missing) the loop is derived from the
-        model-space curves (see `cadbridge.iges.analytic`)."""
+        outer loop); ``prefs`` per loop the 142/141 preferred representation ("pcurve",
+        "model", "equal" or None).
+
+        The file's trim tolerance delta (`trimcheck.loop_deltas`: max distance of S(c2d) to
+        the model-space curves) is measured on the parameter-space route and kept for the
+        face. Which representation trims the face (IGES 5.3, 4.31-4.32):
+          - only one representation on an edge: that one;
+          - "pcurve" preferred: the parameter-space curves, unless their loops do not close
+            on the surface (then the model-space curves);
+          - "model" preferred: the parameter-space curves when they agree with the model-space
+            curves within ``AGREE_REL`` x surface size, else the model-space curves (exactly
+            inverted, `InvertedCurve`);
+          - "equal" / unspecified: the parameter-space curves unless delta exceeds
+            ``DISAGREE_REL`` x size; then over 190-198 (exact analytic inversion) the
+            model-space curves, over 118/120/122 the parameter-space curves if their loops
+            close (the spec fixes that parametrisation; OCC's faces agree).
+        Each choice against the file's preference or beyond DISAGREE_REL is noted."""
         pm = self.param_map(sde)
         loops = ([outer] if outer is not None else []) + list(inner)
         if not loops:
@@ -986,27 +1033,40 @@ class Builder:
             res = map_loops(pm, loops, outer is not None, True)
         except ValueError as exc:
             return self._untrimmed(pm, sde, de, str(exc))
-        bad = self._check_against_model(res, loops)
-        if bad is not None and pm.kind in ("revolution", "ruled", "tabulated") and all(
-                _closed(lp, res.surface) for lp in res.loops):
-            # 118/120/122: the spec fixes the pcurve parametrisation while the model-space
-            # route is a numerical projection (ambiguous at poles of a revolution): a closed
-            # chain of parameter-space curves is kept (SolidWorks: OCC's faces agree with it).
-            # 190-198: the model-space inversion is analytic and exact, so it wins.
-            self.note(f"parameter-space curves over the {pm.kind} surface disagree with the model-space curves "
-                      f"({bad:.3g} x size): the closed parameter-space loops are used", de)
-            bad = None
-        if bad is not None:
+        delta = self._mapped_delta(res, loops)
+        box = res.surface.bbox()
+        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+        prefs = list(prefs) if prefs is not None else [None] * len(loops)
+        pref = "model" if "model" in prefs else ("pcurve" if "pcurve" in prefs else "equal")
+        closed = all(_closed(lp, res.surface) for lp in res.loops)
+        has_both = any(pc is not None and mc is not None for raw in loops for pc, mc in raw)
+        use_model = False
+        if has_both and delta is not None:
+            if pref == "pcurve":
+                use_model = not closed
+                why = "the parameter-space loops do not close on the surface"
+            elif pref == "model":
+                use_model = delta > AGREE_REL * size
+                why = "the model-space curves are preferred"
+            else:
+                use_model = delta > DISAGREE_REL * size and not (
+                    pm.kind in ("revolution", "ruled", "tabulated") and closed)
+                why = "the model-space inversion is exact"
+            if delta > DISAGREE_REL * size and not use_model:
+                self.note(f"parameter-space curves over the {pm.kind} surface disagree with the model-space curves "
+                          f"(delta {delta:.3g}, {delta / size:.3g} x size): the parameter-space loops are used "
+                          f"(preferred: {pref})", de)
+        if use_model:
             try:
                 res2 = map_loops(pm, loops, outer is not None, False)
             except ValueError as exc:
                 return self._untrimmed(pm, sde, de, str(exc))
             self.note(f"parameter-space curves over the {pm.kind} surface disagree with the model-space curves "
-                      f"({bad:.3g} x size): trim derived from the model-space curves", de)
+                      f"(delta {delta:.3g}, {delta / size:.3g} x size): trim derived from the model-space curves "
+                      f"({why})", de)
             res = res2
-        if any(poly for lp in res.loops for _, _, poly in lp):
-            self.note(f"trim over the {self.entries[sde].entity_type} ({pm.kind}) surface approximated as a "
-                      f"polyline in (u, v) (chord error <= {POLY_REL_TOL:g} x domain size)", de)
+        if delta is not None:
+            self._delta[de] = delta
         tl = []
         for raw, lp in zip(loops, res.loops):
             mc = [c for _, m in raw for c in m] if all(m is not None for _, m in raw) else None
@@ -1014,29 +1074,53 @@ class Builder:
         trims = Trim(tl[0], tl[1:]) if outer is not None else Trim(None, tl)
         return res.surface, trims
 
+    def _trimmed_128(self, surface, trims, sde, de, n1, pto, ptis, prefs):
+        """144 over a 128 whose 142s prefer the model-space curve: the parameter-space loops
+        stay when they agree within AGREE_REL x size, else `mapped_trims` inverts the model
+        curves onto the 128 (`InvertedCurve`)."""
+        lps = [lp for lp in [trims.outer] + list(trims.inner) if lp is not None and lp.model_curves]
+        if not lps:
+            return surface, trims
+        d = float(loop_deltas([(surface, [(lp.curves, lp.model_curves) for lp in lps])])[0])
+        box = surface.bbox()
+        if np.isnan(d) or d <= AGREE_REL * float(np.linalg.norm(box[1] - box[0])):
+            return surface, trims
+        raw_outer = [self.cos_raw(pto)] if n1 == 1 else None
+        return self.mapped_trims(sde, raw_outer, [[self.cos_raw(q)] for q in ptis], de, prefs)
+
     def _untrimmed(self, pm: ParamMap, sde: int, de: int, why: str):
         if pm.surface is not None:
             self.note(f"trim loops unusable ({why}): face left untrimmed", de)
             return pm.surface, None
         raise Unsupported(f"{pm.kind} surface needs its trim loops for its extent: {why}", de, None, None)
 
-    def _check_against_model(self, res: MappedLoops, loops: list) -> float | None:
-        """Largest distance (relative to the surface size) from points of the parameter-space
-        trims (through the surface) to the model-space curves of the same edges, if above
-        1e-3; else None."""
-        box = res.surface.bbox()
-        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
-        worst = 0.0
+    @staticmethod
+    def _mapped_delta(res: MappedLoops, loops: list) -> float | None:
+        """Trim delta of the parameter-space route ``res``: per loop, the pieces of edges with
+        both representations against those edges' model-space curves (None if no edge has both)."""
+        pairs = []
         for raw, lp, src in zip(loops, res.loops, res.sources):
-            for j, (pc, mc) in enumerate(raw):
-                if src[j] != "pcurve" or mc is None:
-                    continue
-                uv = np.vstack([c.evaluate(c.sample_parameters(4)) for i, c, _ in lp if i == j])
-                pts = res.surface.evaluate(np.clip(uv[:, 0], *res.surface.domain[:2]),
-                                           np.clip(uv[:, 1], *res.surface.domain[2:]))
-                poly = np.vstack([c.evaluate(c.sample_parameters(64)) for c in mc])
-                worst = max(worst, float(polyline_distance(pts, poly).max()) / size)
-        return worst if worst > 1e-3 else None
+            ok = [j for j, (pc, mc) in enumerate(raw) if src[j] == "pcurve" and mc is not None]
+            if ok:
+                pairs.append(([c for i, c, _ in lp if i in ok], [c for j in ok for c in raw[j][1]]))
+        if not pairs:
+            return None
+        d = float(loop_deltas([(res.surface, pairs)])[0])
+        return None if np.isnan(d) else d
+
+    def finish_deltas(self) -> None:
+        """Trim delta of every pending (128) face in one batch (`trimcheck.loop_deltas`)."""
+        faces = self.delta_pending
+        if not faces:
+            return
+        items = []
+        for f in faces:
+            lps = [lp for lp in [f.trims.outer] + list(f.trims.inner) if lp is not None and lp.model_curves]
+            items.append((f.surface, [(lp.curves, lp.model_curves) for lp in lps]))
+        for f, d in zip(faces, loop_deltas(items)):
+            if not np.isnan(d):
+                f.trim_delta = float(d)
+        self.delta_pending = []
 
     def brep_loop(self, de: int) -> TrimLoop | None:
         """508 loop as parameter-space curves (None, with a note, if an edge has none)."""

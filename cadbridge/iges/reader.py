@@ -57,6 +57,7 @@ def _read(text: str, filename: str, holder: list) -> Model:
     )
     holder.append(b)
     model.faces = _faces(b)
+    b.finish_deltas()
     _raw(b, model)
     return model
 

@@ -1,0 +1,119 @@
+"""IGES read benchmark (a script, not a test): ``cadbridge.read_iges`` against OpenCASCADE's
+``IGESControl_Reader.ReadFile`` + ``TransferRoots`` + ``OneShape`` on every file of
+``../shared/iges_real`` (and the largest ``iges_samples/*.igs``), best of ``--repeat`` for each,
+measured in the same run and reported as ratios (OCC time / cadbridge time; >= 1 means
+cadbridge reads at least as fast).
+
+    python benchmarks/bench_read.py [--repeat 3] [--profile FILE_SUBSTRING]
+
+cadbridge is warmed up once per file before timing (numba kernels compiled and cached, imports
+done), so compile time does not count; OCC is warmed up the same way. Faces, trimmed faces and
+the largest per-face trim delta (the file's own 2D/3D trim disagreement, ``Face.trim_delta``)
+are printed alongside. The table is also written to ``benchmarks/results/read.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import cProfile
+import os
+import pstats
+import sys
+import time
+from pathlib import Path
+
+from cadbridge.iges import read_iges
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "iges_real"
+if not REAL.is_dir():
+    REAL = Path("/work/shared/iges_real")
+SAMPLES = ROOT / "iges_samples"
+
+
+@contextlib.contextmanager
+def quiet_fd():
+    """Silence C-level stdout/stderr (OCCT's reader prints its own messages)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 1)
+        os.dup2(null.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+
+
+def best_of(fn, repeat: int) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def occ_read(path: Path):
+    from OCP.IGESControl import IGESControl_Reader
+
+    with quiet_fd():
+        r = IGESControl_Reader()
+        r.ReadFile(str(path))
+        r.TransferRoots()
+        return r.OneShape()
+
+
+def files() -> list[Path]:
+    out = sorted(REAL.glob("*.ig*")) if REAL.is_dir() else []
+    samples = sorted(SAMPLES.glob("*.igs"), key=lambda p: p.stat().st_size)
+    if samples:
+        out.append(samples[-1])
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--profile", default=None, help="cProfile cadbridge's read of the file matching this")
+    args = ap.parse_args()
+    rows = []
+    for path in files():
+        m = read_iges(path)  # warm-up: imports, numba compile / cache load
+        occ_read(path)
+        if args.profile and args.profile in path.name:
+            pr = cProfile.Profile()
+            pr.enable()
+            read_iges(path)
+            pr.disable()
+            pstats.Stats(pr).sort_stats("cumulative").print_stats(30)
+        t_cb = best_of(lambda: read_iges(path), args.repeat)
+        t_occ = best_of(lambda: occ_read(path), args.repeat)
+        deltas = [f.trim_delta for f in m.faces if getattr(f, "trim_delta", None) is not None]
+        rows.append(dict(name=path.name, kb=path.stat().st_size / 1024, faces=len(m.faces),
+                         trimmed=sum(f.trims is not None for f in m.faces), cb=t_cb, occ=t_occ,
+                         delta=max(deltas) if deltas else None))
+        r = rows[-1]
+        print(f"{r['name']:45s} {r['faces']:4d} faces  cadbridge {t_cb * 1e3:8.1f} ms  "
+              f"OCC {t_occ * 1e3:8.1f} ms  ratio {t_occ / t_cb:5.2f}", flush=True)
+    lines = ["| file | KB | faces | trimmed | max trim delta | cadbridge ms | OCC ReadFile+TransferRoots ms | ratio |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        d = "" if r["delta"] is None else f"{r['delta']:.2e}"
+        lines.append(f"| {r['name']} | {r['kb']:.0f} | {r['faces']} | {r['trimmed']} | {d} | {r['cb'] * 1e3:.1f} | "
+                     f"{r['occ'] * 1e3:.1f} | {r['occ'] / r['cb']:.2f} |")
+    text = "\n".join(lines)
+    print("\n" + text)
+    out = ROOT / "benchmarks" / "results"
+    out.mkdir(exist_ok=True)
+    (out / "read.md").write_text(f"Best of {args.repeat}, one run (`python benchmarks/bench_read.py`).\n\n"
+                                 + text + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,229 @@
+"""The file's trim tolerance ("delta"): how far a face's own 2D and 3D trim curves disagree.
+
+For every trim loop that carries both representations (a 142's BPTR and CPTR, or 141/508
+edges with parameter-space and model-space curves), delta is the largest distance from
+S(c2d(t)) -- the parameter-space curve followed on the face's surface -- to the loop's
+model-space curves, over dense samples of c2d (`SAMPLES_PER_SPAN` per knot span):
+
+1. all model-space pieces of the whole model are sampled in one compiled call
+   (`eval_packed`), with first and second derivatives;
+2. one KD-tree over those samples, each lifted by a fourth coordinate ``loop id x L`` (L far
+   larger than the model), so the nearest sample of a query point always belongs to the
+   same loop (no all-pairs distances, one tree for the whole file);
+3. from the nearest sample, Newton on f(t) = (C(t) - P) . C'(t) on that piece (exact curve,
+   compiled, `NEWTON_STEPS`), t clamped to the piece's domain.
+
+The result is per face (model units) and is what `Face.trim_delta` holds.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cadbridge.nurbs.basis import ders_basis_one, find_span_one
+from cadbridge.nurbs.curve import NurbsCurve
+
+__all__ = ["PackedCurves", "eval_packed", "loop_deltas", "SAMPLES_PER_SPAN"]
+
+SAMPLES_PER_SPAN = 16  # samples of c2d per knot span (and of the model curves)
+NEWTON_STEPS = 4
+
+
+class PackedCurves:
+    """Many NURBS curves (2D or 3D; 2D padded with z = 0) in flat arrays for one compiled call.
+
+    degree (C,), koff (C+1,) offsets into knots (K,), coff (C+1,) offsets into pw (M, 4)
+    homogeneous control points (w x, w y, w z, w), dom (C, 2) parameter domains.
+    """
+
+    def __init__(self, curves: list[NurbsCurve]) -> None:
+        c = len(curves)
+        self.degree = np.array([k.degree for k in curves], dtype=np.int64)
+        self.koff = np.zeros(c + 1, dtype=np.int64)
+        self.coff = np.zeros(c + 1, dtype=np.int64)
+        self.koff[1:] = np.cumsum([len(k.knots) for k in curves])
+        self.coff[1:] = np.cumsum([len(k.control_points) for k in curves])
+        self.knots = np.concatenate([k.knots for k in curves]) if c else np.zeros(0)
+        pw = np.zeros((int(self.coff[-1]), 4))
+        for k, s in zip(curves, self.coff[:-1]):
+            n, d = k.control_points.shape
+            w = k.weights
+            pw[s : s + n, :d] = k.control_points * w[:, None]
+            pw[s : s + n, 3] = w
+        self.pw = pw
+        self.dom = np.array([k.domain for k in curves], dtype=float).reshape(c, 2)
+
+    def __len__(self) -> int:
+        return len(self.degree)
+
+    def sample(self, per_span: int) -> tuple[np.ndarray, np.ndarray]:
+        """(curve index (M,), t (M,)): ``per_span`` intervals per non-empty knot span of each
+        curve's domain, ends included (as `NurbsCurve.sample_parameters`)."""
+        return _sample_packed(self.degree, self.koff, self.knots, self.dom, per_span)
+
+    def evaluate(self, ci: np.ndarray, t: np.ndarray, order: int) -> np.ndarray:
+        """Derivatives up to ``order`` of curve ci[k] at t[k]: (N, order+1, 3)."""
+        return eval_packed(self.degree, self.koff, self.knots, self.coff, self.pw,
+                           np.ascontiguousarray(ci, dtype=np.int64), np.ascontiguousarray(t, dtype=float), order)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _sample_packed(degree, koff, knots, dom, per_span):  # pragma: no cover - compiled
+    nc = len(degree)
+    count = 0
+    for c in range(nc):
+        t0, t1 = dom[c, 0], dom[c, 1]
+        prev = t0
+        for k in range(koff[c], koff[c + 1]):
+            x = knots[k]
+            if x > prev and x < t1:
+                count += per_span
+                prev = x
+        count += per_span + 1
+    ci = np.empty(count, dtype=np.int64)
+    tt = np.empty(count)
+    m = 0
+    for c in range(nc):
+        t0, t1 = dom[c, 0], dom[c, 1]
+        a = t0
+        for k in range(koff[c], koff[c + 1] + 1):
+            last = k == koff[c + 1]
+            x = t1 if last else knots[k]
+            if last or (x > a and x < t1):
+                for j in range(per_span):
+                    ci[m] = c
+                    tt[m] = a + (x - a) * j / per_span
+                    m += 1
+                a = x
+        ci[m] = c
+        tt[m] = t1
+        m += 1
+    return ci[:m], tt[:m]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def eval_packed(degree, koff, knots, coff, pw, ci, t, order):  # pragma: no cover - compiled
+    """C, C', ... (up to ``order``) of curve ci[k] at t[k] (P&T A3.2 + A4.2), (N, order+1, 3)."""
+    n = len(t)
+    out = np.zeros((n, order + 1, 3))
+    pmax = 1
+    for c in range(len(degree)):
+        pmax = max(pmax, degree[c])
+    ndu = np.empty((pmax + 1, pmax + 1))
+    left = np.empty(pmax + 1)
+    right = np.empty(pmax + 1)
+    a = np.empty((2, pmax + 1))
+    nd = np.empty((order + 1, pmax + 1))
+    aw = np.empty((order + 1, 4))
+    binom = np.ones((order + 1, order + 1))
+    for k in range(order + 1):
+        for i in range(1, k):
+            binom[k, i] = binom[k - 1, i - 1] + binom[k - 1, i]
+    for q in range(n):
+        c = ci[q]
+        p = degree[c]
+        kn = knots[koff[c] : koff[c + 1]]
+        nctrl = coff[c + 1] - coff[c]
+        x = min(max(t[q], kn[p]), kn[nctrl])
+        span = find_span_one(kn, p, nctrl, x)
+        ders_basis_one(span, x, p, kn, order, ndu[: p + 1, : p + 1], left[: p + 1], right[: p + 1],
+                       a[:, : p + 1], nd[:, : p + 1])
+        for k in range(order + 1):
+            for d in range(4):
+                s = 0.0
+                for j in range(p + 1):
+                    s += nd[k, j] * pw[coff[c] + span - p + j, d]
+                aw[k, d] = s
+        for k in range(order + 1):  # A4.2: rational derivatives
+            for d in range(3):
+                v = aw[k, d]
+                for i in range(1, k + 1):
+                    v -= binom[k, i] * aw[i, 3] * out[q, k - i, d]
+                out[q, k, d] = v / aw[0, 3]
+    return out
+
+
+def loop_deltas(items: list[tuple]) -> np.ndarray:
+    """Trim delta per item: ``items`` is a list of (surface, [(uv pieces, model pieces), ...])
+    -- per face its NURBS surface and, per loop, the parameter-space pieces (objects with the
+    NurbsCurve interface, in the surface's (u, v)) and the model-space pieces (3D
+    `NurbsCurve`). Returns (len(items),): the largest distance from S(uv(t)) to the loop's
+    model curves, NaN for an item without loops."""
+    out = np.full(len(items), np.nan)
+    model: list[NurbsCurve] = []
+    model_loop: list[int] = []
+    uvc: list[NurbsCurve] = []  # parameter-space NURBS pieces of all items: one compiled call
+    uvc_loop: list[int] = []
+    other: list[tuple[int, int, object]] = []  # (item, loop id, mapped piece)
+    surfaces = []
+    lid = 0
+    for i, (surface, loops) in enumerate(items):
+        loops = [lp for lp in loops if lp[0] and lp[1]]
+        if not loops:
+            continue
+        surfaces.append((i, surface))
+        for k, (pcs, mcs) in enumerate(loops):
+            for c in pcs:
+                if isinstance(c, NurbsCurve):
+                    uvc.append(c)
+                    uvc_loop.append(lid + k)
+                else:
+                    other.append((i, lid + k, c))
+            model.extend(mcs)
+            model_loop.extend([lid + k] * len(mcs))
+        lid += len(loops)
+    if not surfaces or not model:
+        return out
+    item_of_loop = np.empty(lid, dtype=np.int64)
+    lid = 0
+    for i, surface in surfaces:
+        n = sum(1 for lp in items[i][1] if lp[0] and lp[1])
+        item_of_loop[lid : lid + n] = i
+        lid += n
+    uv_rows, loop_rows = [], []
+    if uvc:
+        pu = PackedCurves(uvc)
+        ci, tt = pu.sample(SAMPLES_PER_SPAN)
+        uv_rows.append(pu.evaluate(ci, tt, 0)[:, 0, :2])
+        loop_rows.append(np.asarray(uvc_loop, dtype=np.int64)[ci])
+    for i, l, c in other:
+        uv = c.evaluate(getattr(c, "base", c).sample_parameters(SAMPLES_PER_SPAN))
+        uv_rows.append(uv)
+        loop_rows.append(np.full(len(uv), l, dtype=np.int64))
+    uv = np.concatenate(uv_rows)
+    qloop = np.concatenate(loop_rows)
+    qitem = item_of_loop[qloop]
+    order = np.argsort(qitem, kind="stable")
+    uv, qloop, qitem = uv[order], qloop[order], qitem[order]
+    pts = np.empty((len(uv), 3))
+    for i, surface in surfaces:  # one surface evaluation per face
+        a, b = np.searchsorted(qitem, [i, i + 1])
+        u0, u1, v0, v1 = surface.domain
+        pts[a:b] = surface.evaluate(np.clip(uv[a:b, 0], u0, u1), np.clip(uv[a:b, 1], v0, v1))
+    pm = PackedCurves(model)
+    ci, tt = pm.sample(SAMPLES_PER_SPAN)
+    cs = pm.evaluate(ci, tt, 0)[:, 0]
+    lift = 1e3 * (float(np.ptp(np.concatenate([cs, pts]), axis=0).max()) + 1.0)
+    sloop = np.asarray(model_loop)[ci]
+    tree = cKDTree(np.column_stack([cs, sloop * lift]))
+    _, k = tree.query(np.column_stack([pts, qloop * lift]))
+    c = ci[k]
+    t = tt[k].copy()
+    lo, hi = pm.dom[c, 0], pm.dom[c, 1]
+    for _ in range(NEWTON_STEPS):
+        d = pm.evaluate(c, t, 2)
+        r = d[:, 0] - pts
+        f = np.einsum("ij,ij->i", r, d[:, 1])
+        g1 = np.einsum("ij,ij->i", d[:, 1], d[:, 1])
+        fp = g1 + np.einsum("ij,ij->i", r, d[:, 2])
+        fp = np.where(fp > 0, fp, g1 + 1e-300)
+        t = np.clip(t - f / fp, lo, hi)
+    dist = np.linalg.norm(pm.evaluate(c, t, 0)[:, 0] - pts, axis=1)
+    dist = np.minimum(dist, np.linalg.norm(cs[k] - pts, axis=1))  # Newton never worse than the sample
+    res = np.full(len(items), -np.inf)
+    np.maximum.at(res, qitem, dist)
+    have = np.isfinite(res)
+    out[have] = res[have]
+    return out
