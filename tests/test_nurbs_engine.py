@@ -221,9 +221,9 @@ def test_sphere_pole_normal_is_axis_and_flagged():
 @pytest.mark.parametrize("rational", [True, False])
 @pytest.mark.parametrize("p,q", [(1, 1), (2, 2), (3, 3), (5, 5), (1, 5), (4, 2)])
 def test_first_order_kernel_bit_identical_to_generic_and_numpy(p, q, rational):
-    """Reference: the generic order-d numba kernel (_ders_serial with d = 1) and the numpy path
-    (_derivatives_numpy), which use the same sums in the same order: the specialised
-    first-order kernel must reproduce both exactly, at random (u, v), at the domain ends and on
+    """Reference: the generic order-d numba kernel (_ders_range with d = 0 and 1) and the numpy
+    path (_derivatives_numpy), which use the same sums in the same order: the specialised
+    order-0/1 kernel must reproduce both exactly, at random (u, v), at the domain ends and on
     interior knots (multiple knots included), serial and parallel."""
     import cadbridge.nurbs.surface as surf
 
@@ -243,14 +243,16 @@ def test_first_order_kernel_bit_identical_to_generic_and_numpy(p, q, rational):
     v = rng.uniform(0, 1, n)
     u[:6] = [0.0, 1.0, ku[p + 1], ku[nu - 1], 1.0, 0.0]
     v[:6] = [1.0, 0.0, kv[q + 1], kv[nv - 1], 0.0, 0.5]
-    got = s.derivatives(u, v, order=1)  # parallel specialised kernel
-    small = s.derivatives(u[:500], v[:500], order=1)  # serial specialised kernel
-    generic = np.empty_like(got)
-    surf._ders_serial(s._pw, s.knots_u, s.knots_v, p, q, 1, s.rational, u, v, generic)
-    ref = s._derivatives_numpy(u, v, order=1)
-    assert np.array_equal(got, generic)
-    assert np.array_equal(small, generic[:500])
-    assert np.array_equal(got, ref)
+    for d in (0, 1):
+        got = s.derivatives(u, v, order=d)  # parallel specialised kernel
+        small = s.derivatives(u[:500], v[:500], order=d)  # serial specialised kernel
+        generic = np.empty_like(got)
+        surf._ders_range(s._pw, s.knots_u, s.knots_v, p, q, d, s.rational, u, v, generic, 0, n, surf._binomials(d))
+        ref = s._derivatives_numpy(u, v, order=d)
+        assert np.array_equal(got, generic)
+        assert np.array_equal(small, generic[:500])
+        assert np.array_equal(got, ref)
+    assert np.array_equal(s.evaluate(u, v), got[:, 0, 0])
 
 
 @numba.njit

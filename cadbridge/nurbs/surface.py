@@ -17,15 +17,9 @@ _BLOCK = 1024  # points per task of the parallel kernel
 _PARALLEL_MIN = 16384  # fewer points: the serial kernel (thread start-up costs more than it saves)
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _binomials(d):  # pragma: no cover - compiled
-    """Pascal's triangle up to row d, (d+1, d+1) floats."""
-    binom = np.zeros((d + 1, d + 1))
-    for i in range(d + 1):
-        binom[i, 0] = 1.0
-        for j in range(1, i + 1):
-            binom[i, j] = binom[i - 1, j - 1] + (binom[i - 1, j] if j < i else 0.0)
-    return binom
+def _binomials(d: int) -> np.ndarray:
+    """Pascal's triangle up to row d, (d+1, d+1) floats (zero above the diagonal)."""
+    return np.array([[float(comb(i, j)) for j in range(d + 1)] for i in range(d + 1)])
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -94,8 +88,9 @@ def _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, start, stop, binom):  
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _d1_range(pw, ku, kv, p, q, rational, u, v, out, start, stop):  # pragma: no cover - compiled
-    """`_ders_range` for d = 1 (S, Su, Sv, Suv into out (N, 2, 2, 3)), specialised: basis values
+def _d01_range(pw, ku, kv, p, q, d, rational, u, v, out, start, stop):  # pragma: no cover - compiled
+    """`_ders_range` for d = 0 (S into out (N, 1, 1, 3)) or d = 1 (S, Su, Sv, Suv into out
+    (N, 2, 2, 3)), specialised (one compiled kernel serves `evaluate` and first derivatives): basis values
     and first derivatives by `ders1_basis_one` into (2, p+1) / (2, q+1), the 16 homogeneous sums in scalars, the
     quotient rule written out. The same operations in the same order as the generic kernel
     (binomials of order 1 are 1.0, an exact factor), so the results are bit-identical."""
@@ -157,6 +152,16 @@ def _d1_range(pw, ku, kv, p, q, rational, u, v, out, start, stop):  # pragma: no
             a11z += w * t1z
             a11w += w * t1w
         o = out[t]
+        if d == 0:
+            if rational:
+                o[0, 0, 0] = a00x / a00w
+                o[0, 0, 1] = a00y / a00w
+                o[0, 0, 2] = a00z / a00w
+            else:
+                o[0, 0, 0] = a00x
+                o[0, 0, 1] = a00y
+                o[0, 0, 2] = a00z
+            continue
         if not rational:
             o[0, 0, 0] = a00x
             o[0, 0, 1] = a00y
@@ -196,29 +201,18 @@ def _d1_range(pw, ku, kv, p, q, rational, u, v, out, start, stop):  # pragma: no
         o[1, 1, 2] = (((a11z - a01w * suz) - a10w * svz) - a11w * sz) / a00w
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _ders_serial(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cover - compiled
-    _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, 0, u.shape[0], _binomials(d))
-
-
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def _ders_parallel(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cover - compiled
+def _ders_parallel(pw, ku, kv, p, q, d, rational, u, v, out, binom):  # pragma: no cover - compiled
     n = u.shape[0]
-    binom = _binomials(d)
     for blk in numba.prange((n + _BLOCK - 1) // _BLOCK):
         _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK), binom)
 
 
-@numba.njit(cache=True, error_model="numpy")
-def _d1_serial(pw, ku, kv, p, q, rational, u, v, out):  # pragma: no cover - compiled
-    _d1_range(pw, ku, kv, p, q, rational, u, v, out, 0, u.shape[0])
-
-
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def _d1_parallel(pw, ku, kv, p, q, rational, u, v, out):  # pragma: no cover - compiled
+def _d01_parallel(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cover - compiled
     n = u.shape[0]
     for blk in numba.prange((n + _BLOCK - 1) // _BLOCK):
-        _d1_range(pw, ku, kv, p, q, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK))
+        _d01_range(pw, ku, kv, p, q, d, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK))
 
 
 class NurbsSurface:
@@ -344,19 +338,28 @@ class NurbsSurface:
         u, v = np.broadcast_arrays(u, v)
         u = np.ascontiguousarray(u.ravel())
         v = np.ascontiguousarray(v.ravel())
+        if not u.flags.writeable:  # one compiled signature: writable C arrays (read-only ones
+            u = u.copy()  # would be a second specialisation, compiled again)
+        if not v.flags.writeable:
+            v = v.copy()
         d = int(order)
         if d < 0:
             raise ValueError(f"order must be >= 0, got {order}")
         out = np.empty((u.size, d + 1, d + 1, 3))
         if u.size:
-            par = u.size >= _PARALLEL_MIN
-            if d == 1:
-                kernel = _d1_parallel if par else _d1_serial
-                kernel(self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, self.rational, u, v, out)
+            # compiled kernels, loaded lazily: orders 0 and 1 share the specialised `_d01_range`,
+            # higher orders the generic `_ders_range`; the serial kernels are called directly and
+            # the parallel (prange) ones, slower to compile, only for many points
+            args = (self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, d, self.rational, u, v, out)
+            if d <= 1:
+                if u.size >= _PARALLEL_MIN:
+                    _d01_parallel(*args)
+                else:
+                    _d01_range(*args, 0, u.size)
+            elif u.size >= _PARALLEL_MIN:
+                _ders_parallel(*args, _binomials(d))
             else:
-                kernel = _ders_parallel if par else _ders_serial
-                kernel(self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, d, self.rational,
-                       u, v, out)
+                _ders_range(*args, 0, u.size, _binomials(d))
         return out
 
     def _derivatives_numpy(self, u, v, order: int = 2, side_u=None, side_v=None) -> np.ndarray:

@@ -1,0 +1,63 @@
+"""Tell the user, once, when numba compiles cadbridge's kernels (a cold cache: the first run
+after an install or an upgrade).
+
+The kernels are ``@numba.njit(cache=True)``: compiled on first use, then loaded from the
+cache (``__pycache__`` next to the sources, or ``NUMBA_CACHE_DIR``). A compile happens only
+on a cache miss, which numba announces with its ``numba:compile`` event; the listener here
+writes one line on the first such event for a function of cadbridge and stays silent after
+(and on every warm run, where no compile event is raised at all).
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import TextIO
+
+__all__ = ["COMPILE_SECONDS", "announce_compilation"]
+
+# cold minus warm wall time of `cadbridge ushape` on an idle 2-core machine (see
+# benchmarks/results/kernel.md for the measurement); other commands compile a subset
+COMPILE_SECONDS = 10
+
+_listener = None
+
+
+def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_SECONDS) -> None:
+    """Write "compiling numerical kernels (first run only, about N s)" to ``stream`` (stderr
+    by default) when numba starts compiling a cadbridge function, at most once per process.
+    Safe to call more than once (one listener) and without numba (a no-op)."""
+    global _listener
+    if _listener is not None:
+        _listener.stream = stream
+        return
+    try:
+        from numba.core import event
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return
+
+    class _Once(event.Listener):
+        def __init__(self) -> None:
+            self.stream = stream
+            self.said = False
+
+        def on_start(self, ev) -> None:
+            if self.said:
+                return
+            disp = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
+            module = getattr(getattr(disp, "py_func", None), "__module__", "") or ""
+            if not module.startswith("cadbridge."):
+                return  # numba's own helpers compile inside ours; the first of ours decides
+            self.said = True
+            out = self.stream or sys.stderr
+            # on a terminal the progress line is rewritten with "\r": start a fresh line
+            line = f"cadbridge: compiling numerical kernels (first run only, about {seconds:.0f} s)"
+            if getattr(out, "isatty", lambda: False)():
+                line = "\r" + line.ljust(110)
+            out.write(line + "\n")
+            out.flush()
+
+        def on_end(self, ev) -> None:
+            pass
+
+    _listener = _Once()
+    event.register("numba:compile", _listener)

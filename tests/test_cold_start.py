@@ -1,0 +1,71 @@
+"""The cold-start notice: one stderr line when numba has to compile cadbridge's kernels.
+
+References: an empty NUMBA_CACHE_DIR is a cold cache by construction (numba then compiles
+every kernel it runs), and the same directory on the next run is a warm one (numba loads
+the kernels it saved and raises no compile event).
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MESSAGE = "compiling numerical kernels (first run only, about"
+
+
+def _inspect(cache: Path) -> subprocess.CompletedProcess:
+    sample = min((ROOT / "iges_samples").glob("*.igs"), key=lambda p: p.stat().st_size)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    return subprocess.run([sys.executable, "-m", "cadbridge.cli", "inspect", str(sample)], env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_cli_says_once_when_the_cache_is_cold_and_nothing_when_warm(tmp_path):
+    """`cadbridge inspect` (it runs the compiled IGES scanner) with an empty cache directory
+    prints the notice exactly once on stderr, nothing on stdout; the second run on the now
+    filled cache prints no notice."""
+    cold = _inspect(tmp_path)
+    assert cold.returncode == 0, cold.stderr
+    assert cold.stderr.count(MESSAGE) == 1, cold.stderr
+    assert MESSAGE not in cold.stdout
+    assert any(tmp_path.rglob("*.nbi"))  # numba did save the compiled kernels there
+    warm = _inspect(tmp_path)
+    assert warm.returncode == 0, warm.stderr
+    assert MESSAGE not in warm.stderr
+    assert warm.stdout == cold.stdout
+
+
+def test_notice_only_for_cadbridge_functions_and_only_once():
+    """In-process: a freshly compiled function of a module named ``cadbridge.*`` triggers the
+    line once, a second one does not, and a compile outside cadbridge never does (the
+    listener is looked up from numba's own compile event, a cache miss by definition for a
+    function defined here)."""
+    numba = pytest.importorskip("numba")
+    from cadbridge import _jit
+
+    saved = _jit._listener
+    stream = io.StringIO()
+    try:
+        if saved is not None:
+            saved.said = False
+        _jit.announce_compilation(stream, seconds=7)
+
+        def make(module: str):
+            ns = {"__name__": module}
+            exec("def f(x):\n    return x + 1\n", ns)  # noqa: S102 - a fresh function in that module
+            return numba.njit(ns["f"])
+
+        make("not_cadbridge_probe")(1)
+        assert stream.getvalue() == ""
+        make("cadbridge._probe")(1)
+        make("cadbridge._probe2")(1.0)
+        assert stream.getvalue() == "cadbridge: compiling numerical kernels (first run only, about 7 s)\n"
+    finally:
+        if saved is not None:
+            saved.said = True
