@@ -245,7 +245,7 @@ def cmd_nagata(args: argparse.Namespace) -> int:
         result = nagata_from_mesh(
             args.mesh, cad=args.cad, output=args.output, method=args.method, name=args.name,
             report=not args.no_report, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far,
-            grid=args.grid, progress=progress, orient=args.orient, allow_worse=args.allow_worse,
+            grid=args.grid, progress=progress, orient=args.orient,
         )
     _say(result.summary())
     return EXIT_OK
@@ -259,7 +259,6 @@ def cmd_convert(args: argparse.Namespace) -> int:
             args.cad, args.output, element=args.element, size=args.size, structured=args.structured,
             radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
             method=args.method, grid=args.grid, flip=args.flip, tolerance=args.tolerance, progress=progress,
-            allow_worse=args.allow_worse,
         )
     _say(result.summary())
     return EXIT_OK
@@ -350,8 +349,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--name", help="tool name (default from the CAD names or the mesh file name)")
     p.add_argument("--grid", type=int, default=10, help="grid divisions per patch for errors and viewing")
-    p.add_argument("--allow-worse", action="store_true",
-                   help="write a tool even if its Nagata surface is worse than its flat mesh (for inspection)")
     p.add_argument("--no-report", action="store_true", help="only the tool file")
     _add_normal_options(p)
     p.set_defaults(func=cmd_nagata)
@@ -361,8 +358,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("cad", help="IGES file")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--grid", type=int, default=10, help="grid divisions per patch for errors and viewing")
-    p.add_argument("--allow-worse", action="store_true",
-                   help="write a tool even if its Nagata surface is worse than its flat mesh (for inspection)")
     _add_mesh_options(p)
     _add_normal_options(p)
     p.set_defaults(func=cmd_convert)
@@ -385,7 +380,6 @@ def _known_errors() -> tuple[type[BaseException], ...]:
         ("cadbridge.normals.cad", "ProjectionError"),
         ("cadbridge.io.toolfile", "ToolFileError"),
         ("cadbridge.occ.reference", "OccReadError"),
-        ("cadbridge.pipeline", "ToolQualityError"),
     ):
         try:
             module = __import__(mod, fromlist=[name])
@@ -408,10 +402,9 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except _known_errors() as exc:
         from cadbridge.normals.cad import ProjectionError
-        from cadbridge.pipeline import ToolQualityError
 
         print(f"cadbridge {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_CHECK_FAILED if isinstance(exc, (ProjectionError, ToolQualityError)) else EXIT_BAD_INPUT
+        return EXIT_CHECK_FAILED if isinstance(exc, ProjectionError) else EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":
