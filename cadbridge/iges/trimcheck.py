@@ -10,8 +10,9 @@ model-space curves, over dense samples of c2d (`SAMPLES_PER_SPAN` per knot span)
 2. one KD-tree over those samples, each lifted by a fourth coordinate ``loop id x L`` (L far
    larger than the model), so the nearest sample of a query point always belongs to the
    same loop (no all-pairs distances, one tree for the whole file);
-3. from the nearest sample, Newton on f(t) = (C(t) - P) . C'(t) on that piece (exact curve,
-   compiled, `NEWTON_STEPS`), t clamped to the piece's domain.
+3. from each of the `NEAREST` nearest samples, Newton on f(t) = (C(t) - P) . C'(t) on its
+   piece (exact curve, compiled, `NEWTON_STEPS`), t clamped to the piece's domain; the
+   nearest foot wins (at a junction of two pieces the true foot may lie on the other one).
 
 The result is per face (model units) and is what `Face.trim_delta` holds.
 """
@@ -27,8 +28,11 @@ from cadbridge.nurbs.curve import NurbsCurve
 
 __all__ = ["PackedCurves", "eval_packed", "loop_deltas", "SAMPLES_PER_SPAN"]
 
-SAMPLES_PER_SPAN = 16  # samples of c2d per knot span (and of the model curves)
+SAMPLES_PER_SPAN = 16  # samples of c2d per knot span
+TREE_PER_SPAN = 64  # samples per knot span of the model curves in the KD-tree (Newton starts; 16 let
+# Newton settle in a wrong local minimum on the long degree-6 pieces of the ANSA file)
 NEWTON_STEPS = 4
+NEAREST = 3  # Newton starts per query point (nearest tree samples)
 
 
 class PackedCurves:
@@ -203,25 +207,30 @@ def loop_deltas(items: list[tuple]) -> np.ndarray:
         u0, u1, v0, v1 = surface.domain
         pts[a:b] = surface.evaluate(np.clip(uv[a:b, 0], u0, u1), np.clip(uv[a:b, 1], v0, v1))
     pm = PackedCurves(model)
-    ci, tt = pm.sample(SAMPLES_PER_SPAN)
+    ci, tt = pm.sample(TREE_PER_SPAN)
     cs = pm.evaluate(ci, tt, 0)[:, 0]
     lift = 1e3 * (float(np.ptp(np.concatenate([cs, pts]), axis=0).max()) + 1.0)
     sloop = np.asarray(model_loop)[ci]
     tree = cKDTree(np.column_stack([cs, sloop * lift]))
-    _, k = tree.query(np.column_stack([pts, qloop * lift]))
+    # the 3 nearest samples (often on two pieces at a junction): Newton from each, the nearest foot wins
+    _, kk = tree.query(np.column_stack([pts, qloop * lift]), k=min(NEAREST, len(cs)))
+    kk = np.asarray(kk).reshape(len(pts), -1)
+    k = kk.ravel()
+    p3 = np.repeat(pts, kk.shape[1], axis=0)
     c = ci[k]
     t = tt[k].copy()
     lo, hi = pm.dom[c, 0], pm.dom[c, 1]
     for _ in range(NEWTON_STEPS):
         d = pm.evaluate(c, t, 2)
-        r = d[:, 0] - pts
+        r = d[:, 0] - p3
         f = np.einsum("ij,ij->i", r, d[:, 1])
         g1 = np.einsum("ij,ij->i", d[:, 1], d[:, 1])
         fp = g1 + np.einsum("ij,ij->i", r, d[:, 2])
         fp = np.where(fp > 0, fp, g1 + 1e-300)
         t = np.clip(t - f / fp, lo, hi)
-    dist = np.linalg.norm(pm.evaluate(c, t, 0)[:, 0] - pts, axis=1)
-    dist = np.minimum(dist, np.linalg.norm(cs[k] - pts, axis=1))  # Newton never worse than the sample
+    dist = np.linalg.norm(pm.evaluate(c, t, 0)[:, 0] - p3, axis=1)
+    dist = np.minimum(dist, np.linalg.norm(cs[k] - p3, axis=1))  # Newton never worse than the sample
+    dist = dist.reshape(kk.shape).min(axis=1)
     res = np.full(len(items), -np.inf)
     np.maximum.at(res, qitem, dist)
     have = np.isfinite(res)

