@@ -3,6 +3,10 @@ OpenCASCADE (OCP) and pure-Python peers, measured in the same run and reported a
 
     /work/venv/bin/python benchmarks/bench_kernel.py [--n 200000] [--n-peer 20000] [--repeat 3]
 
+0. Unseen rational surfaces of degree 1, 2, 3 and 5 (fresh random nets, weights and knot
+   vectors for every repeat, construction timed): S + Su + Sv at random (u, v), cadbridge
+   single-threaded and with all numba threads against a Python loop over OCP
+   ``Geom_BSplineSurface.D1`` on the same points (`bench_unseen`).
 1. Surface points + first derivatives (u, v random, the same for every library):
    cadbridge ``NurbsSurface.derivatives(u, v, order=1)`` on arrays, a Python loop over OCP
    ``Geom_BSplineSurface.D1`` (surface built from our poles/weights/knots) and geomdl
@@ -224,6 +228,77 @@ def bench_surface(name: str, s: NurbsSurface, n: int, n_peer: int, repeat: int, 
     return rows
 
 
+# ---------------------------------------------------------------------------- unseen surfaces
+def unseen_surface(rng, p: int, n_ctrl: int = 10) -> NurbsSurface:
+    """A fresh rational surface of degree (p, p): n_ctrl x n_ctrl random control points in
+    [-1, 1]^3, weights in [0.5, 2], clamped knot vectors on [0, 1] with n_ctrl - p - 1 random
+    interior knots (several spans in each direction)."""
+    def knots():
+        return np.concatenate([[0.0] * (p + 1), np.sort(rng.uniform(0.02, 0.98, n_ctrl - p - 1)), [1.0] * (p + 1)])
+
+    return NurbsSurface(p, p, knots(), knots(), rng.uniform(-1, 1, (n_ctrl, n_ctrl, 3)),
+                        rng.uniform(0.5, 2.0, (n_ctrl, n_ctrl)))
+
+
+def bench_unseen(degrees, n: int, n_peer: int, n_small: int, repeat: int, rng) -> list[dict]:
+    """S + Su + Sv on surfaces never seen before, random (u, v) (not sorted, not a grid).
+
+    Each repeat draws a new surface and new points; ours is timed from the raw arrays
+    (``NurbsSurface(...)`` construction included) to the (N, 2, 2, 3) result, single thread
+    (numba.set_num_threads(1)) and, separately, with all numba threads; OCC is the Python
+    loop over ``Geom_BSplineSurface.D1`` on the first ``n_peer`` of the same points (surface
+    conversion not timed). Rates are best of ``repeat``; the ratio compares rates measured in
+    this run. ``n_small`` points per fresh surface shows the per-surface setup cost."""
+    import numba
+
+    nthreads = numba.get_num_threads()
+    rows = []
+    for p in degrees:
+        best = dict(one=np.inf, par=np.inf, small=np.inf, occ=np.inf)
+        dpos = dder = 0.0
+        unseen_surface(rng, p).derivatives(np.r_[0.5], np.r_[0.5], order=1)  # load the compiled kernel
+        for _ in range(repeat):
+            s = unseen_surface(rng, p)
+            args = (p, p, s.knots_u.copy(), s.knots_v.copy(), s.control_points.copy(), s.weights.copy())
+            u = rng.uniform(0.0, 1.0, n)
+            v = rng.uniform(0.0, 1.0, n)
+
+            def ours(m=n):
+                return NurbsSurface(*args).derivatives(u[:m], v[:m], order=1)
+
+            numba.set_num_threads(1)
+            try:
+                best["one"] = min(best["one"], best_of(ours, 1) / n)
+                best["small"] = min(best["small"], best_of(lambda: ours(n_small), 3) / n_small)
+            finally:
+                numba.set_num_threads(nthreads)
+            best["par"] = min(best["par"], best_of(ours, 1) / n)
+            gs = to_occ(s)
+            up, vp = u[:n_peer], v[:n_peer]
+            best["occ"] = min(best["occ"], best_of(lambda: occ_d1(gs, up, vp), 1) / n_peer)
+            d = ours(n_peer)
+            ref = occ_d1(gs, up, vp)
+            dpos = max(dpos, np.abs(d[:, 0, 0] - ref[:, 0]).max())
+            got = np.stack([d[:, 1, 0], d[:, 0, 1]], axis=1)
+            dder = max(dder, np.abs(got - ref[:, 1:]).max() / np.abs(ref[:, 1:]).max())
+        r = {k: 1.0 / t for k, t in best.items()}
+        label = f"unseen rational deg ({p},{p}) 10x10, random (u,v)"
+        print(f"\n{label}")
+        print(f"  cadbridge NurbsSurface(...) + derivatives(order=1), N={n:,}: {fmt_rate(r['one'])} (1 thread), "
+              f"{fmt_rate(r['par'])} ({nthreads} threads); N={n_small:,} per fresh surface: {fmt_rate(r['small'])}")
+        print(f"  OCP Geom_BSplineSurface.D1 loop, N={n_peer:,}: {fmt_rate(r['occ'])}")
+        print(f"  ratio cadbridge/OCP: {r['one'] / r['occ']:.1f} (1 thread), {r['par'] / r['occ']:.1f} "
+              f"({nthreads} threads), {r['small'] / r['occ']:.1f} (N={n_small:,}, 1 thread)")
+        print(f"  max |S| difference ours-OCP {dpos:.1e}, max relative D1 difference {dder:.1e}")
+        rows.append(dict(what=f"{label}, S+Su+Sv points/s, 1 thread", ours=fmt_rate(r["one"]), occ=fmt_rate(r["occ"]),
+                         peer="-", ratio=f"**{r['one'] / r['occ']:.1f}x OCP**"))
+        rows.append(dict(what=f"{label}, {nthreads} numba threads", ours=fmt_rate(r["par"]), occ=fmt_rate(r["occ"]),
+                         peer="-", ratio=f"{r['par'] / r['occ']:.1f}x OCP"))
+        rows.append(dict(what=f"{label}, {n_small:,} points per fresh surface, 1 thread", ours=fmt_rate(r["small"]),
+                         occ=fmt_rate(r["occ"]), peer="-", ratio=f"{r['small'] / r['occ']:.1f}x OCP"))
+    return rows
+
+
 # ---------------------------------------------------------------------------- reading
 def occ_read(path: Path):
     from OCP.IGESControl import IGESControl_Reader
@@ -273,6 +348,9 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=200_000, help="points for cadbridge")
     ap.add_argument("--n-peer", type=int, default=20_000, help="points for OCP (geomdl gets a tenth)")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--n-small", type=int, default=1000, help="points per fresh surface (setup-cost row)")
+    ap.add_argument("--degrees", type=int, nargs="+", default=[1, 2, 3, 5], help="degrees of the unseen surfaces")
+    ap.add_argument("--skip-unseen", action="store_true")
     ap.add_argument("--skip-eval", action="store_true")
     ap.add_argument("--skip-read", action="store_true")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "kernel.md",
@@ -282,6 +360,8 @@ def main() -> None:
     print(f"cadbridge {cadbridge.__version__} ({Path(cadbridge.__file__).parent}), numpy {np.__version__}, "
           f"python {sys.version.split()[0]}, load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
     rows: list[dict] = []
+    if not args.skip_unseen:
+        rows += bench_unseen(args.degrees, args.n, min(args.n_peer, args.n), args.n_small, args.repeat, rng)
     if not args.skip_eval:
         for name, s in sample_surfaces():
             rows += bench_surface(name, s, args.n, min(args.n_peer, args.n), args.repeat, rng)
