@@ -1,31 +1,43 @@
 """Global projection of points onto a whole model: which face, (u, v), foot, exact normal.
 
-1. Upper bound: one KD-tree over grid samples of all faces (samples inside the trims only);
-   the distance to the nearest sample bounds the distance to the nearest valid foot.
-2. Candidates: every face is covered by per-knot-span boxes from its control net (the
-   control points P[i-p..i, j-q..j] of span (i, j) contain that span's piece of surface:
-   strong convex hull property, weights > 0). Boxes are grouped by size (octaves of their
-   half-diagonal R) with a KD-tree of centres per group; (point, box) pairs come from dual
-   tree traversals (``sparse_distance_matrix``) with points grouped by octave of their bound,
-   then the exact point-box distance is tested against the point's bound. Cost ~ N log F.
-3. Projection: all candidate points of one face are projected together (vectorised Newton,
-   `project_to_surface`); the loop runs over faces, never over points.
-4. Choice: the nearest valid foot wins; a foot outside a face's trim loops is not valid for
-   that face but the nearest point of its trim loops is (`project_to_trims`, ON_BOUNDARY);
-   at equal distance (within ``tie_tol`` x model size) a foot inside a face beats
-   one clamped to a face edge (ON_BOUNDARY). A point whose projection FAILED on a face that
-   is nearer (at its last iterate) than the chosen foot is FAILED (``face`` names the face
-   that failed): a failure is reported, never replaced by a foot on a farther face.
+The index (`build_search_index`, cached on the model by `index_for`):
+- boxes: every face is cut into Bezier sub-patches (knot spans, each halved up to 3 times,
+  at most 256 per face); the box of a sub-patch's control net contains its piece of surface
+  (convex hull property, weights > 0). Only sub-patches meeting the trimmed region are
+  kept: a sub-patch cell that no trim curve crosses (control-point boxes of the trim curve
+  spans) lies wholly inside or outside, decided at its centre. Boxes are grouped by size
+  (octaves of their half-diagonal R) with a KD-tree of centres per group.
+- samples: the start-value grid of every surface (`surface_samples`) restricted to the
+  trimmed region (`Face.contains` only in cells crossed by a trim curve), one KD-tree.
+Build cost is linear in surface spans, samples and trim-curve spans.
+
+Projection:
+1. Bound: the nearest valid sample bounds the distance to the nearest foot; its face is
+   projected first (vectorised Newton, `project_to_surface`), and a foot inside that face's
+   trims tightens the bound to its distance.
+2. Candidates: (point, box) pairs from dual tree traversals (``sparse_distance_matrix``)
+   with points grouped by octave of their bound, then the exact point-box distance against
+   the bound; the faces of the surviving boxes are projected (one call per face, never a
+   loop over points). Cost ~ N log F.
+3. Trims: a foot outside a face's trim loops is not valid for that face, but the nearest
+   point of its trim loops is (`project_to_trims`, ON_BOUNDARY); it is computed only where
+   the untrimmed foot is nearer than the best valid foot found (a lower bound).
+4. Choice: the nearest valid foot wins; at equal distance (within ``tie_tol`` x model size)
+   a foot inside a face beats one on a face edge (ON_BOUNDARY). A point whose projection
+   FAILED on a face that is nearer (at its last iterate) than the chosen foot is FAILED
+   (``face`` names the face that failed): a failure is reported, never replaced by a foot
+   on a farther face.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cadbridge.model import Model
+from cadbridge.model import Face, Model
 from cadbridge.nurbs.project import (
     BEYOND_TOLERANCE,
     CONVERGED,
@@ -35,10 +47,11 @@ from cadbridge.nurbs.project import (
     project_to_surface,
     surface_samples,
 )
+from cadbridge.nurbs.ops import bezier_patches
 from cadbridge.nurbs.surface import NurbsSurface
 from cadbridge.trims import project_to_trims
 
-__all__ = ["Projection", "SearchIndex", "build_search_index", "project_points", "project_to_trims", "span_boxes"]  # project_to_trims: re-export
+__all__ = ["Projection", "SearchIndex", "build_search_index", "index_for", "project_points", "project_to_trims", "span_boxes"]  # project_to_trims: re-export
 
 
 @dataclass
@@ -113,13 +126,160 @@ def span_boxes(surface: NurbsSurface) -> np.ndarray:
     return np.stack([lo, hi], axis=1)
 
 
+_SUB_PATCHES = 256  # Bezier sub-patches per face at most (boxes of the index)
+_SUB_SPLITS = 8  # halvings of a knot span per direction at most (a power of 2)
+
+
+@lru_cache(maxsize=64)
+def _split_matrices(p: int, s: int) -> np.ndarray:
+    """(s, p+1, p+1): row block k maps the control points of a degree-p Bezier piece on [0, 1]
+    to those of its restriction to [k/s, (k+1)/s] (de Casteljau applied to the identity)."""
+
+    def split(x: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        left, right = [x[0]], [x[-1]]
+        for _ in range(p):
+            x = (1.0 - t) * x[:-1] + t * x[1:]
+            left.append(x[0])
+            right.append(x[-1])
+        return np.array(left), np.array(right[::-1])
+
+    out = np.empty((s, p + 1, p + 1))
+    for k in range(s):
+        a, b = k / s, (k + 1) / s
+        left, _ = split(np.eye(p + 1), b)  # the piece on [0, b]
+        out[k] = left if a == 0.0 else split(left, a / b)[1]
+    return out
+
+
+def _subpatches(surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray]:
+    """Bezier sub-patches of the surface over its domain: every knot span cut into up to
+    ``_SUB_SPLITS`` equal parts per direction (at most ``_SUB_PATCHES`` per face). Returns uv
+    boxes (K, 4) rows (u0, u1, v0, v1) and xyz boxes (K, 2, 3) [min, max] of their control
+    nets (each contains its piece of surface: convex hull property, weights > 0)."""
+    uvb, pts, w = bezier_patches(surface)
+    net = np.concatenate([pts * w[..., None], w[..., None]], axis=-1)  # (K, p+1, q+1, 4)
+    k, p1, q1 = net.shape[:3]
+    su = sv = 1
+    while su < _SUB_SPLITS and k * (2 * su) * sv <= _SUB_PATCHES:
+        su *= 2
+        if sv < _SUB_SPLITS and k * su * (2 * sv) <= _SUB_PATCHES:
+            sv *= 2
+    mu, mv = _split_matrices(p1 - 1, su), _split_matrices(q1 - 1, sv)
+    sub = np.einsum("aij,bkl,njlc->nabikc", mu, mv, net, optimize=True)  # (K, su, sv, p+1, q+1, 4)
+    fu = np.arange(su + 1) / su
+    fv = np.arange(sv + 1) / sv
+    ua = uvb[:, 0:1] + (uvb[:, 1:2] - uvb[:, 0:1]) * fu  # (K, su+1)
+    va = uvb[:, 2:3] + (uvb[:, 3:4] - uvb[:, 2:3]) * fv
+    ua[:, -1], va[:, -1] = uvb[:, 1], uvb[:, 3]  # exact shared breaks between patches
+    box = np.empty((k, su, sv, 4))
+    box[..., 0] = ua[:, :-1, None]
+    box[..., 1] = ua[:, 1:, None]
+    box[..., 2] = va[:, None, :-1]
+    box[..., 3] = va[:, None, 1:]
+    xyz = (sub[..., :3] / sub[..., 3:]).reshape(k * su * sv, -1, 3)
+    return box.reshape(-1, 4), np.stack([xyz.min(axis=1), xyz.max(axis=1)], axis=1)
+
+
+def _trim_loops(face: Face) -> list:
+    t = face.trims
+    if t is None:
+        return []
+    return ([t.outer] if t.outer is not None else []) + list(t.inner)
+
+
+def _trim_curve_boxes(face: Face) -> np.ndarray:
+    """uv boxes (T, 2, 2) [min, max] covering every trim curve of ``face``: for NURBS curves
+    the control points of each knot span (they contain its piece of curve); for exactly mapped
+    curves without a control polygon (`cadbridge.iges.analytic`), the chords of 32 samples per
+    span widened by twice their largest midpoint deviation."""
+    out = []
+    for loop in _trim_loops(face):
+        for c in loop.curves:
+            if hasattr(c, "control_points"):
+                p, kn = c.degree, c.knots
+                t0, t1 = c.domain
+                cp = c.control_points[:, :2]
+                i = np.arange(p, len(cp))
+                i = i[(kn[i + 1] > kn[i]) & (kn[i] < t1) & (kn[i + 1] > t0)]
+                if len(i) == 0:
+                    i = np.array([p])
+                seg = cp[i[:, None] - p + np.arange(p + 1)[None, :]]  # (S, p+1, 2)
+                out.append(np.stack([seg.min(axis=1), seg.max(axis=1)], axis=1))
+            else:
+                t = c.sample_parameters(32)
+                x = c.evaluate(t)[:, :2]
+                mid = c.evaluate(0.5 * (t[:-1] + t[1:]))[:, :2]
+                dev = 2.0 * float(np.max(np.linalg.norm(mid - 0.5 * (x[:-1] + x[1:]), axis=1), initial=0.0))
+                lo = np.minimum(x[:-1], x[1:]) - dev
+                hi = np.maximum(x[:-1], x[1:]) + dev
+                out.append(np.stack([lo, hi], axis=1))
+    return np.concatenate(out) if out else np.zeros((0, 2, 2))
+
+
+def _face_cells(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sub-patch boxes of ``face`` that meet its trimmed region.
+
+    Returns xyz boxes (K, 2, 3), the uv grid breaks of the sub-patches (bu (Mu+1,),
+    bv (Mv+1,)) and a cell state grid (Mu, Mv) int8: 0 outside the face, 1 inside, 2 crossed by
+    a trim curve (its control-point boxes, widened by 1e-9 of the domain, meet the cell).
+    Cells without a trim curve lie wholly on one side: their centre decides (`Face.contains`).
+    """
+    uvb, xyz = _subpatches(face.surface)
+    bu = np.unique(np.concatenate([uvb[:, 0], uvb[:, 1]]))
+    bv = np.unique(np.concatenate([uvb[:, 2], uvb[:, 3]]))
+    iu = np.searchsorted(bu, uvb[:, 0])
+    iv = np.searchsorted(bv, uvb[:, 2])
+    mu, mv = len(bu) - 1, len(bv) - 1
+    state = np.ones((mu, mv), dtype=np.int8)
+    loops = _trim_loops(face)
+    if loops:
+        u0, u1, v0, v1 = face.surface.domain
+        tb = _trim_curve_boxes(face)
+        m = 1e-9 * max(u1 - u0, v1 - v0)
+        # cells [bu[i], bu[i+1]] x [bv[j], bv[j+1]] met by each curve box: index ranges, then
+        # a 2D difference array marks them all at once
+        i0 = np.clip(np.searchsorted(bu, tb[:, 0, 0] - m, side="right") - 1, 0, mu)
+        i1 = np.clip(np.searchsorted(bu, tb[:, 1, 0] + m, side="left"), 0, mu)
+        j0 = np.clip(np.searchsorted(bv, tb[:, 0, 1] - m, side="right") - 1, 0, mv)
+        j1 = np.clip(np.searchsorted(bv, tb[:, 1, 1] + m, side="left"), 0, mv)
+        ok = (i1 > i0) & (j1 > j0)
+        diff = np.zeros((mu + 1, mv + 1), dtype=np.int64)
+        np.add.at(diff, (i0[ok], j0[ok]), 1)
+        np.add.at(diff, (i0[ok], j1[ok]), -1)
+        np.add.at(diff, (i1[ok], j0[ok]), -1)
+        np.add.at(diff, (i1[ok], j1[ok]), 1)
+        crossed = np.cumsum(np.cumsum(diff, axis=0), axis=1)[:mu, :mv] > 0
+        cu = 0.5 * (bu[:-1] + bu[1:])
+        cv = 0.5 * (bv[:-1] + bv[1:])
+        ii, jj = np.nonzero(~crossed)
+        state[:] = 2
+        state[ii, jj] = face.contains(cu[ii], cv[jj]).astype(np.int8)
+    keep = state[iu, iv] > 0
+    return xyz[keep], bu, bv, state
+
+
+def _inside_samples(face: Face, uv: np.ndarray, bu: np.ndarray, bv: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """(M,) bool: samples (M, 2) inside the face; `Face.contains` only for those in cells
+    crossed by a trim curve (the others take their cell's state)."""
+    i = np.clip(np.searchsorted(bu, uv[:, 0], side="right") - 1, 0, state.shape[0] - 1)
+    j = np.clip(np.searchsorted(bv, uv[:, 1], side="right") - 1, 0, state.shape[1] - 1)
+    st = state[i, j]
+    inside = st == 1
+    edge = np.nonzero(st == 2)[0]
+    if len(edge):
+        inside[edge] = face.contains(uv[edge, 0], uv[edge, 1])
+    return inside
+
+
 @dataclass
 class SearchIndex:
-    """Precomputed search structures of a model (reusable across calls).
+    """Precomputed search structures of a model (reusable across calls; `index_for` caches
+    one on the model).
 
-    box_lo, box_hi (B, 3), box_face (B,); groups: list of (cKDTree of centres, R max,
-    box indices) per size octave; sample_tree over valid samples of all faces, sample_face
-    (S,); size: model size (box diagonal).
+    box_lo, box_hi (B, 3), box_face (B,): boxes of the Bezier sub-patches that meet each
+    face's trimmed region; groups: list of (cKDTree of centres, R max, box indices) per size
+    octave; sample_tree over valid samples of all faces, sample_face (S,); size: model size
+    (box diagonal).
     """
 
     box_lo: np.ndarray
@@ -133,18 +293,22 @@ class SearchIndex:
 
 
 def build_search_index(model: Model) -> SearchIndex:
-    """Boxes, box-size groups and the sample KD-tree of ``model``. Raises ValueError if the
-    model has no faces."""
+    """Boxes, box-size groups and the sample KD-tree of ``model``; cost linear in the number
+    of surface spans, samples and trim-curve spans. Raises ValueError if the model has no
+    faces."""
     if not model.faces:
         raise ValueError("project_points: empty model (no faces to project onto)")
     los, his, fids, spts, sfid = [], [], [], [], []
     for k, face in enumerate(model.faces):
-        b = span_boxes(face.surface)
+        try:
+            b, bu, bv, state = _face_cells(face)
+            smp = surface_samples(face.surface)
+            inside = _inside_samples(face, smp.uv, bu, bv, state)
+        except Exception as exc:  # noqa: BLE001 - re-raised with the face named
+            raise ValueError(f"search index: face {k} (DE {face.de}): {exc}") from exc
         los.append(b[:, 0])
         his.append(b[:, 1])
         fids.append(np.full(len(b), k))
-        smp = surface_samples(face.surface)
-        inside = face.contains(smp.uv[:, 0], smp.uv[:, 1])
         spts.append(smp.points[inside])
         sfid.append(np.full(int(inside.sum()), k))
     lo, hi = np.concatenate(los), np.concatenate(his)
@@ -161,6 +325,21 @@ def build_search_index(model: Model) -> SearchIndex:
     allpts = np.concatenate(spts)
     tree = cKDTree(allpts) if len(allpts) else None
     return SearchIndex(lo, hi, face_of_box, groups, tree, np.concatenate(sfid), size, len(model.faces))
+
+
+_INDEX_KEY = "_cadbridge_search_index"
+
+
+def index_for(model: Model) -> SearchIndex:
+    """The search index of ``model``, built once and cached on the model object; rebuilt when
+    its face list changed (other length or other Face/surface objects)."""
+    key = tuple((id(f), id(f.surface), id(f.trims)) for f in model.faces)
+    hit = model.__dict__.get(_INDEX_KEY)
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    idx = build_search_index(model)
+    model.__dict__[_INDEX_KEY] = (key, idx)
+    return idx
 
 
 def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -201,7 +380,38 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray) -> 
     return key % n, key // n
 
 
-_BLOCK = 65536  # points projected together at most (larger inputs go block by block)
+def _project_pairs(model: Model, n_faces: int, pts: np.ndarray, cp: np.ndarray, cf: np.ndarray, tol: float):
+    """Project the points ``pts[cp]`` onto the surfaces of faces ``cf`` (pairs sorted by face;
+    one vectorised `project_to_surface` per face). Returns per pair u, v, foot (M, 3),
+    distance, normal (M, 3), status, inside (foot not FAILED and inside the face's trims) and
+    out (foot not FAILED but outside the trims: the face's nearest point is on its loops)."""
+    m = len(cp)
+    pu, pv, pdist = np.empty(m), np.empty(m), np.empty(m)
+    pfoot, pnorm = np.empty((m, 3)), np.empty((m, 3))
+    pstat = np.empty(m, dtype=np.int8)
+    inside = np.zeros(m, dtype=bool)
+    out = np.zeros(m, dtype=bool)
+    if m == 0:
+        return pu, pv, pfoot, pdist, pnorm, pstat, inside, out
+    starts = np.searchsorted(cf, np.arange(n_faces + 1))
+    for k in np.unique(cf):
+        a, b = starts[k], starts[k + 1]
+        face = model.faces[k]
+        r = project_to_surface(face.surface, pts[cp[a:b]], tol=tol)
+        pu[a:b], pv[a:b], pfoot[a:b], pdist[a:b] = r.u, r.v, r.foot, r.distance
+        pnorm[a:b], pstat[a:b] = r.normal, r.status
+        ok = r.status != FAILED
+        if face.trims is not None and np.any(ok):
+            oi = np.nonzero(ok)[0]
+            isin = face.contains(r.u[oi], r.v[oi])
+            ok[oi[~isin]] = False
+            if face.trims.outer is not None or face.trims.inner:
+                out[a + oi[~isin]] = True
+        inside[a:b] = ok
+    return pu, pv, pfoot, pdist, pnorm, pstat, inside, out
+
+
+_BLOCK = 262144  # points projected together at most (larger inputs go block by block)
 
 
 def project_points(
@@ -231,9 +441,9 @@ def project_points(
         bad = np.nonzero(~np.all(np.isfinite(pts), axis=1))[0]
         raise ValueError(f"points must be finite; node {int(bad[0])} (0-based) is {pts[bad[0]].tolist()}")
     if index is None:
-        index = build_search_index(model)
+        index = index_for(model)
     elif index.n_faces != len(model.faces):
-        raise ValueError("index was built for another model")
+        raise ValueError(f"index was built for another model ({index.n_faces} faces, the model has {len(model.faces)})")
     n = len(pts)
     if n > _BLOCK:
         # blocks of points keep the per-face work arrays (derivatives: 216 bytes per point
@@ -244,51 +454,49 @@ def project_points(
                             ("face", "u", "v", "foot", "distance", "normal", "status", "candidates")))
     size = index.size
 
-    # 1. upper bound from the nearest valid sample
+    # 1. upper bound from the nearest valid sample; its face is projected first
     if index.sample_tree is not None and n:
-        ub, _ = index.sample_tree.query(pts)
+        ub, si = index.sample_tree.query(pts)
         ub = ub * (1.0 + 1e-9) + 1e-9 * size
+        f0 = index.sample_face[si].astype(np.int64)
+        order = np.argsort(f0, kind="stable")
+        cp1, cf1 = order.astype(np.int64), f0[order]
     else:
         ub = np.full(n, np.inf)
+        cp1 = cf1 = np.zeros(0, dtype=np.int64)
+    r1 = _project_pairs(model, index.n_faces, pts, cp1, cf1, tol)
+    # a foot inside the nearest sample's face is a point of the model: a tighter bound
+    bound = ub.copy()
+    good = r1[6] & (r1[5] != FAILED)
+    np.minimum.at(bound, cp1[good], r1[3][good] * (1.0 + 1e-9) + 1e-9 * size)
 
-    # 2. candidate (point, face) pairs
-    cp, cf = _candidate_pairs(index, pts, ub)
+    # 2. the other candidate (point, face) pairs: sub-patch boxes within the bound
+    cp2, cf2 = _candidate_pairs(index, pts, bound)
+    if len(cp1):
+        new = cf2 != f0[cp2]
+        cp2, cf2 = cp2[new], cf2[new]
+    r2 = _project_pairs(model, index.n_faces, pts, cp2, cf2, tol)
+    cp, cf = np.concatenate([cp1, cp2]), np.concatenate([cf1, cf2])
+    pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate([x, y]) for x, y in zip(r1, r2))
     candidates = np.bincount(cp, minlength=n)
 
-    # 3. project per face
-    m = len(cp)
-    pu = np.empty(m)
-    pv = np.empty(m)
-    pfoot = np.empty((m, 3))
-    pdist = np.empty(m)
-    pnorm = np.empty((m, 3))
-    pstat = np.empty(m, dtype=np.int8)
-    valid = np.zeros(m, dtype=bool)
-    starts = np.searchsorted(cf, np.arange(index.n_faces + 1))
-    for k in range(index.n_faces):
-        a, b = starts[k], starts[k + 1]
-        if a == b:
-            continue
-        face = model.faces[k]
-        r = project_to_surface(face.surface, pts[cp[a:b]], tol=tol)
-        pu[a:b], pv[a:b], pfoot[a:b], pdist[a:b] = r.u, r.v, r.foot, r.distance
-        pnorm[a:b], pstat[a:b] = r.normal, r.status
-        ok = r.status != FAILED
-        if face.trims is not None and np.any(ok):
-            inside = face.contains(r.u[ok], r.v[ok])
-            out = np.nonzero(ok)[0][~inside]
-            ok[out] = False
-            if len(out) and (face.trims.outer is not None or face.trims.inner):
-                # the nearest point of the untrimmed surface is cut away: the nearest point
-                # of the trimmed face lies on its trim boundary
-                tu, tv, tf, td, tok = project_to_trims(face, pts[cp[a:b][out]], tol=tol)
-                sel = out[tok]
-                idx = a + sel
-                pu[idx], pv[idx], pfoot[idx], pdist[idx] = tu[tok], tv[tok], tf[tok], td[tok]
-                pnorm[idx] = face.surface.normal(tu[tok], tv[tok])
-                pstat[idx] = ON_BOUNDARY
-                ok[sel] = True
-        valid[a:b] = ok
+    # 3. feet outside a face's trims: the nearest point of that face lies on its trim loops,
+    # no nearer than the untrimmed foot; needed only where that could beat the best valid foot
+    best = np.full(n, np.inf)
+    np.minimum.at(best, cp[valid], pdist[valid])
+    need = np.nonzero(out & (pdist < best[cp]))[0]
+    if len(need):
+        need = need[np.argsort(cf[need], kind="stable")]
+        fs = cf[need]
+        cuts = np.flatnonzero(np.diff(fs)) + 1
+        for grp in np.split(need, cuts):
+            face = model.faces[int(cf[grp[0]])]
+            tu, tv, tf, td, tok = project_to_trims(face, pts[cp[grp]], tol=tol)
+            idx = grp[tok]
+            pu[idx], pv[idx], pfoot[idx], pdist[idx] = tu[tok], tv[tok], tf[tok], td[tok]
+            pnorm[idx] = face.surface.normal(tu[tok], tv[tok])
+            pstat[idx] = ON_BOUNDARY
+            valid[idx] = True
 
     # 4. nearest valid foot per point; interior beats edge at equal distance
     face = np.full(n, -1, dtype=np.int64)

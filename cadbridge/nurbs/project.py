@@ -26,9 +26,11 @@ from __future__ import annotations
 import weakref
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = [
@@ -458,6 +460,190 @@ def _edge_check(
     res.iterations[tgt] += extra.iterations[idx]
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _ders2_one(pw, ku, kv, p, q, rational, u, v, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, out
+               ):  # pragma: no cover - compiled
+    """S and its derivatives up to order 2 in u and v at one (u, v) into out (3, 3, 3): the same
+    sums in the same order as `NurbsSurface.derivatives` (its compiled kernel), scratch passed in."""
+    nu, nv = pw.shape[0], pw.shape[1]
+    su = find_span_one(ku, p, nu, u)
+    sv = find_span_one(kv, q, nv, v)
+    ders_basis_one(su, u, p, ku, 2, ndu_u, lu, ru, au, bu)
+    ders_basis_one(sv, v, q, kv, 2, ndu_v, lv, rv, av, bv)
+    aw[:] = 0.0
+    for a in range(p + 1):
+        row = pw[su - p + a]
+        for l in range(3):
+            t0 = 0.0
+            t1 = 0.0
+            t2 = 0.0
+            t3 = 0.0
+            for b in range(q + 1):
+                w = bv[l, b]
+                pt = row[sv - q + b]
+                t0 += w * pt[0]
+                t1 += w * pt[1]
+                t2 += w * pt[2]
+                t3 += w * pt[3]
+            for k in range(3):
+                w = bu[k, a]
+                aw[k, l, 0] += w * t0
+                aw[k, l, 1] += w * t1
+                aw[k, l, 2] += w * t2
+                aw[k, l, 3] += w * t3
+    if not rational:
+        for k in range(3):
+            for l in range(3):
+                for c in range(3):
+                    out[k, l, c] = aw[k, l, c]
+        return
+    # quotient rule (P&T A4.4) with binomials of row 2: (1, 1), (1, 2, 1)
+    w0 = aw[0, 0, 3]
+    for k in range(3):
+        for l in range(3):
+            for c in range(3):
+                val = aw[k, l, c]
+                for j in range(1, l + 1):
+                    bl = 2.0 if (l == 2 and j == 1) else 1.0
+                    val -= bl * aw[0, j, 3] * out[k, l - j, c]
+                for i in range(1, k + 1):
+                    bk = 2.0 if (k == 2 and i == 1) else 1.0
+                    val -= bk * aw[i, 0, 3] * out[k - i, l, c]
+                    for j in range(1, l + 1):
+                        bl = 2.0 if (l == 2 and j == 1) else 1.0
+                        val -= bk * bl * aw[i, j, 3] * out[k - i, l - j, c]
+                out[k, l, c] = val / w0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
+    if closed:
+        per = hi - lo
+        r = (x - lo) % per  # Python modulo: same as np.mod, in [0, per)
+        return lo + r
+    return min(max(x, lo), hi)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _newton_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                   max_iter):  # pragma: no cover - compiled
+    """The projected Newton iterations of `_newton` (module docstring), point by point:
+    updates u, v (N,) and iters (N,) in place. Same tests and steps as the former vectorised
+    loop: convergence first, then the lazy line search (halve the previous step when |r|^2
+    grew beyond round-off), then the full-Jacobian step (Gauss-Newton where not positive
+    definite; 1D Newton on an edge iso-curve where one variable is clamped)."""
+    tiny = 1e-300
+    pu = u1 - u0
+    pv = v1 - v0
+    ndu_u = np.empty((p + 1, p + 1))
+    ndu_v = np.empty((q + 1, q + 1))
+    lu = np.empty(p + 1)
+    ru = np.empty(p + 1)
+    lv = np.empty(q + 1)
+    rv = np.empty(q + 1)
+    au = np.empty((2, p + 1))
+    av = np.empty((2, q + 1))
+    bu = np.empty((3, p + 1))
+    bv = np.empty((3, q + 1))
+    aw = np.empty((3, 3, 4))
+    der = np.empty((3, 3, 3))
+    for t in range(pts.shape[0]):
+        px, py, pz = pts[t, 0], pts[t, 1], pts[t, 2]
+        e = noise[t]
+        uu, vv = u[t], v[t]
+        u_prev, v_prev = uu, vv
+        d2_prev = np.inf
+        du_prev = 0.0
+        dv_prev = 0.0
+        it = 0
+        for _ in range(max_iter):
+            _ders2_one(pw, ku, kv, p, q, rational, uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+            it += 1
+            rx, ry, rz = der[0, 0, 0] - px, der[0, 0, 1] - py, der[0, 0, 2] - pz
+            sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
+            svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]
+            d2 = rx * rx + ry * ry + rz * rz
+            f = sux * rx + suy * ry + suz * rz
+            g = svx * rx + svy * ry + svz * rz
+            guu = sux * sux + suy * suy + suz * suz
+            gvv = svx * svx + svy * svy + svz * svz
+            lsu = np.sqrt(guu)
+            lsv = np.sqrt(gvv)
+            lr = np.sqrt(d2)
+            act_u = (not cu) and ((uu <= u0 and f > 0) or (uu >= u1 and f < 0))
+            act_v = (not cv) and ((vv <= v0 and g > 0) or (vv >= v1 and g < 0))
+            cos_u = abs(f) / max(lsu * lr, tiny)
+            cos_v = abs(g) / max(lsv * lr, tiny)
+            conv = (lr <= eps1) or ((cos_u <= eps2 or act_u) and (cos_v <= eps2 or act_v))
+            if np.isfinite(d2_prev) and not conv:
+                if d2 > d2_prev * (1.0 + 1e-13) + 2.0 * np.sqrt(d2_prev) * e + e * e:
+                    # distance went up: back to the previous point with half the step
+                    du_prev *= 0.5
+                    dv_prev *= 0.5
+                    un = _wrap_clamp(u_prev + du_prev, u0, u1, cu)
+                    vn = _wrap_clamp(v_prev + dv_prev, v0, v1, cv)
+                    a_ = un - uu
+                    b_ = vn - vv
+                    sx = a_ * sux + b_ * svx
+                    sy = a_ * suy + b_ * svy
+                    sz = a_ * suz + b_ * svz
+                    step = np.sqrt(sx * sx + sy * sy + sz * sz)
+                    uu, vv = un, vn
+                    if step <= eps1:  # halving at noise level: the previous point is the answer
+                        uu, vv = u_prev, v_prev
+                        break
+                    continue
+            guv = sux * svx + suy * svy + suz * svz
+            a = guu + rx * der[2, 0, 0] + ry * der[2, 0, 1] + rz * der[2, 0, 2]
+            b = guv + rx * der[1, 1, 0] + ry * der[1, 1, 1] + rz * der[1, 1, 2]
+            c = gvv + rx * der[0, 2, 0] + ry * der[0, 2, 1] + rz * der[0, 2, 2]
+            det = a * c - b * b
+            pd = (a > 0) and (c > 0) and (det > 1e-12 * abs(a * c))
+            lam = 1e-12 * (guu + gvv) + tiny
+            a1 = a if a > 0 else guu + lam
+            c1 = c if c > 0 else gvv + lam
+            if not pd:
+                a = guu + lam
+                c = gvv + lam
+                b = guv
+            det = a * c - b * b
+            if act_u and act_v:
+                du = 0.0
+                dv = 0.0
+            elif act_v:
+                du = -f / a1
+                dv = 0.0
+            elif act_u:
+                du = 0.0
+                dv = -g / c1
+            else:
+                du = (-c * f + b * g) / det
+                dv = (b * f - a * g) / det
+            if not (np.isfinite(du) and np.isfinite(dv)):
+                du = 0.0
+                dv = 0.0
+            un = _wrap_clamp(uu + du, u0, u1, cu)
+            vn = _wrap_clamp(vv + dv, v0, v1, cv)
+            ddu = un - uu
+            ddv = vn - vv
+            if cu:
+                ddu = ddu - pu * np.rint(ddu / pu)
+            if cv:
+                ddv = ddv - pv * np.rint(ddv / pv)
+            sx = ddu * sux + ddv * svx
+            sy = ddu * suy + ddv * svy
+            sz = ddu * suz + ddv * svz
+            step = np.sqrt(sx * sx + sy * sy + sz * sz)
+            u_prev, v_prev, d2_prev = uu, vv, d2
+            du_prev, dv_prev = ddu, ddv
+            uu, vv = un, vn
+            if conv or step <= eps1:
+                break
+        u[t] = uu
+        v[t] = vv
+        iters[t] += it
+
+
 def _newton(
     surface: NurbsSurface,
     samples: SurfaceSamples,
@@ -483,120 +669,15 @@ def _newton(
         return uu, vv
 
     u, v = wrap_clamp(u, v)
+    u = np.ascontiguousarray(u, dtype=float)
+    v = np.ascontiguousarray(v, dtype=float)
     iters = np.zeros(n, dtype=np.int32)
-    done = np.zeros(n, dtype=bool)
     # absolute round-off of r = S - P per point: a few ulps of the largest coordinate involved
     noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + size) if n else np.zeros(0)
-    # backtracking memory: previous accepted point, its squared distance and the step from it
-    u_prev, v_prev = u.copy(), v.copy()
-    d2_prev = np.full(n, np.inf)
-    du_prev = np.zeros(n)
-    dv_prev = np.zeros(n)
-
-    act = np.arange(n)
-    for _ in range(max_iter):
-        if act.size == 0:
-            break
-        ua, va = u[act], v[act]
-        der = surface.derivatives(ua, va, order=2)
-        s, su, sv = der[:, 0, 0], der[:, 1, 0], der[:, 0, 1]
-        suu, suv, svv = der[:, 2, 0], der[:, 1, 1], der[:, 0, 2]
-        r = s - pts[act]
-        d2 = _dot(r, r)
-        iters[act] += 1
-
-        # --- convergence at the current point (P&T 6.1), tested before any backtracking: a
-        # point that is already orthogonal is never sent back by round-off in |r|^2
-        f = _dot(su, r)
-        g = _dot(sv, r)
-        lsu = np.sqrt(_dot(su, su))
-        lsv = np.sqrt(_dot(sv, sv))
-        lr = np.sqrt(d2)
-        # bound constraints: minimum beyond an edge (descent direction -f points outward)
-        act_u = np.zeros(len(act), dtype=bool) if cu else ((ua <= u0) & (f > 0)) | ((ua >= u1) & (f < 0))
-        act_v = np.zeros(len(act), dtype=bool) if cv else ((va <= v0) & (g > 0)) | ((va >= v1) & (g < 0))
-        cos_u = np.abs(f) / np.maximum(lsu * lr, tiny)
-        cos_v = np.abs(g) / np.maximum(lsv * lr, tiny)
-        conv = (lr <= eps1) | (((cos_u <= eps2) | act_u) & ((cos_v <= eps2) | act_v))
-
-        # --- distance went up: go back and halve the previous step (lazy line search). The
-        # threshold allows for round-off in r = S - P (a few ulps of the coordinates):
-        # |r|^2 is only known to ~2 |r| e + e^2, which near the foot exceeds any relative test.
-        e = noise[act]
-        d2p = d2_prev[act]
-        worse = d2 > d2p * (1.0 + 1e-13) + 2.0 * np.sqrt(np.where(np.isfinite(d2p), d2p, 0.0)) * e + e * e
-        worse &= np.isfinite(d2p) & ~conv
-        if np.any(worse):
-            w = act[worse]
-            du_prev[w] *= 0.5
-            dv_prev[w] *= 0.5
-            un, vn = wrap_clamp(u_prev[w] + du_prev[w], v_prev[w] + dv_prev[w])
-            der_w = der[worse]
-            step = np.linalg.norm((un - u[w])[:, None] * der_w[:, 1, 0] + (vn - v[w])[:, None] * der_w[:, 0, 1], axis=1)
-            u[w], v[w] = un, vn
-            # halving has reached noise level: the previous point is the answer (the final
-            # classification checks that it is orthogonal, else the point is FAILED)
-            stop = step <= eps1
-            if np.any(stop):
-                ws = w[stop]
-                u[ws], v[ws] = u_prev[ws], v_prev[ws]
-                done[ws] = True
-            keep = ~worse
-            act_w = act[keep]
-            s, su, sv, suu, suv, svv, r, d2 = (x[keep] for x in (s, su, sv, suu, suv, svv, r, d2))
-            ua, va, f, g, lsu, lsv, act_u, act_v, conv = (
-                x[keep] for x in (ua, va, f, g, lsu, lsv, act_u, act_v, conv))
-        else:
-            act_w = act
-        if act_w.size == 0:
-            act = act[~done[act]]
-            continue
-
-        # --- Newton step, full Jacobian (thesis eq. 36); Gauss-Newton if not positive definite
-        guu, guv, gvv = lsu * lsu, _dot(su, sv), lsv * lsv
-        a = guu + _dot(r, suu)
-        b = guv + _dot(r, suv)
-        c = gvv + _dot(r, svv)
-        det = a * c - b * b
-        pd = (a > 0) & (c > 0) & (det > 1e-12 * np.abs(a * c))
-        lam = 1e-12 * (guu + gvv) + tiny
-        # 1D second derivatives along the iso-curves (Gauss-Newton where not positive)
-        a1 = np.where(a > 0, a, guu + lam)
-        c1 = np.where(c > 0, c, gvv + lam)
-        a = np.where(pd, a, guu + lam)
-        c = np.where(pd, c, gvv + lam)
-        b = np.where(pd, b, guv)
-        det = a * c - b * b
-        with np.errstate(divide="ignore", invalid="ignore"):
-            du = (-c * f + b * g) / det
-            dv = (b * f - a * g) / det
-            # one variable clamped at an edge: 1D Newton on the boundary iso-curve
-            du = np.where(act_v & ~act_u, -f / a1, du)
-            dv = np.where(act_v & ~act_u, 0.0, dv)
-            dv = np.where(act_u & ~act_v, -g / c1, dv)
-            du = np.where(act_u & ~act_v, 0.0, du)
-        du = np.where(act_u & act_v, 0.0, du)
-        dv = np.where(act_u & act_v, 0.0, dv)
-        bad = ~(np.isfinite(du) & np.isfinite(dv))
-        du[bad] = 0.0
-        dv[bad] = 0.0
-        un, vn = wrap_clamp(ua + du, va + dv)
-        # effective step (after clamping; wrapped steps measured the short way)
-        ddu = un - ua
-        ddv = vn - va
-        if cu:
-            ddu = ddu - pu * np.round(ddu / pu)
-        if cv:
-            ddv = ddv - pv * np.round(ddv / pv)
-        step = np.linalg.norm(ddu[:, None] * su + ddv[:, None] * sv, axis=1)
-
-        # remember this point for the line search, then move. Converged points take their
-        # last (tiny) Newton step too: it is free and polishes the foot to round-off.
-        u_prev[act_w], v_prev[act_w], d2_prev[act_w] = ua, va, d2
-        du_prev[act_w], dv_prev[act_w] = ddu, ddv
-        u[act_w], v[act_w] = un, vn
-        done[act_w[conv | (step <= eps1)]] = True
-        act = act[~done[act]]
+    if n:
+        _newton_kernel(surface._pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v,
+                       surface.rational, u0, u1, v0, v1, cu, cv, eps1, eps2,
+                       np.ascontiguousarray(pts, dtype=float), noise, u, v, iters, int(max_iter))
 
     # ---------------------------------------------------------------- final classification
     der = surface.derivatives(u, v, order=1)
