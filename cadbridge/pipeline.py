@@ -152,10 +152,10 @@ class CadProjector:
     chunk = 20000
 
     def __init__(self, model, progress=None) -> None:
-        from cadbridge.search import build_search_index
+        from cadbridge.search import index_for
 
         self.model = model
-        self.index = build_search_index(model)
+        self.index = index_for(model)  # cached on the model: shared with cad_normals
         self._untrimmed = None
         self.progress = progress or NoProgress()
         self.last_off_trims = 0
