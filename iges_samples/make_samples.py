@@ -1,24 +1,36 @@
 """Regenerate every sample IGES file in this folder (deterministic: same bytes on every run).
 
-    /work/venv/bin/python iges_samples/make_samples.py [OUT_DIR]
+    /work/venv/bin/python iges_samples/make_samples.py [--production] [OUT_DIR]
 
 Files made by OpenCASCADE go through `cadbridge.ushape.export_iges` (OCC's IGES writer in
 "faces" mode, reals at round-trip precision, fixed dates). Two files are written by hand
 here, entity by entity, because OCC cannot produce them: the thesis' appendix A surface and
 the surfaces placed by 124 transformation matrices (OCC bakes locations into the geometry).
 The entity-count table of README.md is rewritten between its markers on every run.
+``--production`` also writes the production-size draw die (issue #8, 1 102 trimmed faces,
+NURBS and analytic modes, about 25 MB each); see `production_die`.
 """
 
 from __future__ import annotations
 
 import collections
+import functools
 import math
 import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
+import cadquery as cq
+from OCP.BRep import BRep_Tool
+from OCP.BRepAlgoAPI import BRepAlgoAPI_BooleanOperation, BRepAlgoAPI_Common, BRepAlgoAPI_Cut, BRepAlgoAPI_Fuse
 from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakeWire
+from OCP.BRepCheck import BRepCheck_Analyzer
+from OCP.BRepFilletAPI import BRepFilletAPI_MakeFillet
+from OCP.BRepLib import BRepLib
+from OCP.BRepPrimAPI import BRepPrimAPI_MakePrism, BRepPrimAPI_MakeSphere, BRepPrimAPI_MakeTorus
+from OCP.BRepTools import BRepTools
 from OCP.Geom import (
     Geom_BSplineSurface,
     Geom_CylindricalSurface,
@@ -28,10 +40,16 @@ from OCP.Geom import (
     Geom_Surface,
     Geom_ToroidalSurface,
 )
+from OCP.GeomAbs import GeomAbs_C0, GeomAbs_C2
+from OCP.GeomAPI import GeomAPI_PointsToBSplineSurface
 from OCP.GeomConvert import GeomConvert
-from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Pnt
+from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Pnt, gp_Vec
 from OCP.TColgp import TColgp_Array2OfPnt
 from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal, TColStd_Array2OfReal
+from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_WIRE
+from OCP.TopExp import TopExp, TopExp_Explorer
+from OCP.TopoDS import TopoDS, TopoDS_Shape
+from OCP.TopTools import TopTools_IndexedDataMapOfShapeListOfShape, TopTools_IndexedMapOfShape, TopTools_ListOfShape
 
 from cadbridge.ushape import UShapeParams, export_iges, tool_faces
 from cadbridge.ushape.geometry import TOOL_COLORS
@@ -198,6 +216,256 @@ def plate_with_hole():
     return maker.Face()
 
 
+# ---------------------------------------------------------------------- production-size draw die
+# A sheet-metal draw die of production size, modelled with cadquery (tool solids) and OCP
+# (booleans and fillets, whose modification history names every face by its role): a
+# 1200 x 800 mm block whose top, the binder, is a crowned cylinder R 5000 (axis along y); a
+# drawn pocket (rounded rectangle 760 x 440, corner R 90, 10 deg draft, punch-entry radius
+# R 20) down to a double-curved B-spline panel floor (floor radius R 12); the blank-holder
+# land carries double draw beads along the long sides (half-round R 6 following the crown,
+# spherical ends), single straight beads along the short sides and eight pilot holes, all
+# filleted R 3; the panel floor carries 18 embossings and 18 pockets (rounded rectangles
+# 44 x 34, corner R 8, 15 deg draft, R 4 / R 3 end radii) in a checkerboard and 24 round
+# bosses R 8, all filleted R 4 to the floor. Only the working (top) side is written.
+
+class DieParams(NamedTuple):  # a NamedTuple, not a dataclass: tests load this file without sys.modules
+    """Main dimensions of the production die [mm, deg]."""
+
+    length: float = 1200.0  # block along x
+    width: float = 800.0  # block along y
+    height: float = 300.0  # block below the crown's top
+    crown_radius: float = 5000.0  # binder: cylinder about an axis parallel to y
+    pocket: tuple[float, float, float] = (760.0, 440.0, 90.0)  # at the binder: x, y, corner radius
+    pocket_draft: float = 10.0
+    punch_radius: float = 20.0  # punch-entry (die shoulder) radius
+    floor_radius: float = 12.0
+    bead_radius: float = 6.0
+    land_fillet: float = 3.0  # bead feet and pilot-hole edges
+    feature: tuple[float, float, float] = (44.0, 34.0, 8.0)  # embossing/pocket outline: x, y, corner radius
+    feature_draft: float = 15.0
+    feature_fillet: float = 4.0  # feature feet on the floor, pocket entries
+
+
+def crown_z(x: float, p: DieParams = DieParams()) -> float:
+    """Height of the binder (crown cylinder) above x."""
+    return math.sqrt(p.crown_radius ** 2 - x * x) - p.crown_radius
+
+
+def floor_z(x: float, y: float) -> float:
+    """Pocket floor: a gently double-curved panel, 90..105 mm below the crown's top."""
+    return -105.0 + 15.0 * math.cos(math.pi * x / 1200.0) * math.cos(math.pi * y / 800.0)
+
+
+def _subshapes(shape: TopoDS_Shape, kind) -> list:
+    cast = TopoDS.Face_s if kind == TopAbs_FACE else TopoDS.Edge_s
+    out, exp = [], TopExp_Explorer(shape, kind)
+    while exp.More():
+        out.append(cast(exp.Current()))
+        exp.Next()
+    return out
+
+
+class _TrackedSolid:
+    """A solid whose faces carry a role, kept through OCC's modification history."""
+
+    def __init__(self, shape: TopoDS_Shape, role: str) -> None:
+        self.shape = shape
+        self.roles: dict[str, list] = {role: _subshapes(shape, TopAbs_FACE)}
+
+    def _update(self, op, new_role: str) -> None:
+        for role, faces in self.roles.items():
+            new = []
+            for f in faces:
+                mod = op.Modified(f)
+                if mod.Size():
+                    new += [TopoDS.Face_s(s) for s in mod]
+                elif not op.IsDeleted(f):
+                    new.append(f)
+            self.roles[role] = new
+        self.shape = op.Shape()
+        known = TopTools_IndexedMapOfShape()
+        for faces in self.roles.values():
+            for f in faces:
+                known.Add(f)
+        fresh = [f for f in _subshapes(self.shape, TopAbs_FACE) if not known.Contains(f)]
+        self.roles.setdefault(new_role, []).extend(fresh)
+
+    def boolean(self, kind: str, tools: Sequence[TopoDS_Shape], role: str) -> None:
+        """Fuse or cut all tools at once; the tools' faces take ``role``."""
+        op: BRepAlgoAPI_BooleanOperation = {"fuse": BRepAlgoAPI_Fuse, "cut": BRepAlgoAPI_Cut}[kind]()
+        args, tl = TopTools_ListOfShape(), TopTools_ListOfShape()
+        args.Append(self.shape)
+        for t in tools:
+            tl.Append(t)
+        self.roles.setdefault(role, []).extend(f for t in tools for f in _subshapes(t, TopAbs_FACE))
+        op.SetArguments(args)
+        op.SetTools(tl)
+        op.Build()
+        if not op.IsDone():
+            raise RuntimeError(f"die: {kind} of {len(tools)} {role} tools failed")
+        self._update(op, role)
+
+    def fillet(self, edges: Sequence, radius: float, role: str) -> None:
+        mk = BRepFilletAPI_MakeFillet(self.shape)
+        for e in edges:
+            mk.Add(radius, e)
+        mk.Build()
+        if not mk.IsDone():
+            raise RuntimeError(f"die: fillet R {radius} of {len(edges)} {role} edges failed")
+        self._update(mk, role)
+
+    def sharp_edges(self, role: str, inner_only: bool = True) -> list:
+        """Sharp (C0) edges bounding the faces of ``role`` (of their inner wires only, if asked)."""
+        BRepLib.EncodeRegularity_s(self.shape, 1e-3)
+        ancestors = TopTools_IndexedDataMapOfShapeListOfShape()
+        TopExp.MapShapesAndAncestors_s(self.shape, TopAbs_EDGE, TopAbs_FACE, ancestors)
+        picked = TopTools_IndexedMapOfShape()
+        for f in self.roles[role]:
+            outer = BRepTools.OuterWire_s(f)
+            exp = TopExp_Explorer(f, TopAbs_WIRE)
+            while exp.More():
+                if not (inner_only and exp.Current().IsSame(outer)):
+                    for e in _subshapes(exp.Current(), TopAbs_EDGE):
+                        faces = list(ancestors.FindFromKey(e))
+                        if len(faces) == 2 and BRep_Tool.Continuity_s(e, TopoDS.Face_s(faces[0]), TopoDS.Face_s(faces[1])) == GeomAbs_C0:
+                            picked.Add(e)
+                exp.Next()
+        return [TopoDS.Edge_s(picked.FindKey(i)) for i in range(1, picked.Size() + 1)]
+
+
+def _floor_surface() -> Geom_BSplineSurface:
+    """Bicubic B-spline through floor_z on a 13 x 9 grid (reaching past the pocket floor)."""
+    nx, ny = 13, 9
+    pts = TColgp_Array2OfPnt(1, nx, 1, ny)
+    for i in range(nx):
+        for j in range(ny):
+            x, y = -480.0 + 960.0 * i / (nx - 1), -300.0 + 600.0 * j / (ny - 1)
+            pts.SetValue(i + 1, j + 1, gp_Pnt(x, y, floor_z(x, y)))
+    return GeomAPI_PointsToBSplineSurface(pts, 3, 3, GeomAbs_C2, 1e-6).Surface()
+
+
+def _prism(x: float, y: float, z0: float, h: float, sketch: Callable[[cq.Sketch], cq.Sketch], *, taper: float = 0.0, down: bool = False, end_fillet: float = 0.0) -> TopoDS_Shape:
+    """A drafted prism from the plane z = z0 up (or down) by h, its far end filleted."""
+    plane = cq.Plane(origin=(x, y, z0), xDir=(1, 0, 0), normal=(0, 0, -1 if down else 1))
+    wp = cq.Workplane(plane).placeSketch(sketch(cq.Sketch())).extrude(h, taper=taper)
+    if end_fillet:
+        wp = wp.faces("<Z" if down else ">Z").edges().fillet(end_fillet)
+    return wp.val().wrapped
+
+
+def _rounded_rect(w: float, d: float, r: float) -> Callable[[cq.Sketch], cq.Sketch]:
+    return lambda s: s.rect(w, d).vertices().fillet(r)
+
+
+def _circle(r: float) -> Callable[[cq.Sketch], cq.Sketch]:
+    return lambda s: s.circle(r)
+
+
+def production_die(p: DieParams = DieParams()) -> tuple[TopoDS_Shape, dict[str, list]]:
+    """The die solid and its faces by role (every top-side face has exactly one role)."""
+    L, W, H, R = p.length, p.width, p.height, p.crown_radius
+    block = (cq.Workplane("XZ").moveTo(-L / 2, -H).lineTo(L / 2, -H).lineTo(L / 2, crown_z(L / 2, p))
+             .threePointArc((0.0, 0.0), (-L / 2, crown_z(-L / 2, p))).close().extrude(W / 2, both=True))
+    die = _TrackedSolid(block.val().wrapped, "block")
+    die.roles["binder"] = [f for f in die.roles["block"] if BRep_Tool.Surface_s(f).DynamicType().Name() == "Geom_CylindricalSurface"]
+    die.roles["block"] = [f for f in die.roles["block"] if not f.IsSame(die.roles["binder"][0])]
+
+    # the drawn pocket: drafted rounded rectangle from above the binder, down to the panel floor
+    pw, pd, pr = p.pocket
+    z_top = 60.0
+    grow = 2 * z_top * math.tan(math.radians(p.pocket_draft))
+    drafted = _prism(0.0, 0.0, z_top, 260.0, _rounded_rect(pw + grow, pd + grow, pr + grow / 2), taper=p.pocket_draft, down=True)
+    floor = BRepBuilderAPI_MakeFace(_floor_surface(), 1e-7).Face()
+    above_floor = BRepPrimAPI_MakePrism(floor, gp_Vec(0.0, 0.0, 400.0)).Shape()
+    pocket = BRepAlgoAPI_Common(drafted, above_floor).Shape()
+    die.boolean("cut", [pocket], "pocket wall")
+    die.roles["floor"] = [f for f in die.roles.pop("pocket wall") if BRep_Tool.Surface_s(f).DynamicType().Name() == "Geom_BSplineSurface"]
+    die.roles["pocket wall"] = [f for f in _subshapes(die.shape, TopAbs_FACE)
+                                if not any(f.IsSame(g) for k in ("block", "binder", "floor") for g in die.roles[k])]
+    die.fillet(die.sharp_edges("binder"), p.punch_radius, "punch radius")
+    die.fillet(die.sharp_edges("floor", inner_only=False), p.floor_radius, "floor radius")
+
+    # draw beads on the blank-holder land (tube axis on the binder surface) and pilot holes
+    r = p.bead_radius
+    beads = []
+    half = math.asin(420.0 / R)  # long-side beads: x in [-420, 420], following the crown (a torus R 5000)
+    for y0 in (-335.0, -300.0, 300.0, 335.0):
+        ax = gp_Ax2(gp_Pnt(0.0, y0, -R), gp_Dir(0, 1, 0), gp_Dir(-math.sin(half), 0, math.cos(half)))
+        beads.append(BRepPrimAPI_MakeTorus(ax, R, r, 2 * half).Shape())
+        beads += [BRepPrimAPI_MakeSphere(gp_Pnt(s * R * math.sin(half), y0, R * math.cos(half) - R), r).Shape() for s in (-1, 1)]
+    for x0 in (-470.0, 470.0):  # short-side beads: straight (the crown's axis is along y), y in [-200, 200]
+        z0 = crown_z(x0, p)
+        beads.append(cq.Solid.makeCylinder(r, 400.0, cq.Vector(x0, -200.0, z0), cq.Vector(0, 1, 0)).wrapped)
+        beads += [BRepPrimAPI_MakeSphere(gp_Pnt(x0, y, z0), r).Shape() for y in (-200.0, 200.0)]
+    die.boolean("fuse", beads, "bead")
+    holes = [_prism(sx * 545.0, sy * y, 20.0, 60.0, _circle(12.5), down=True) for sx in (-1, 1) for sy in (-1, 1) for y in (120.0, 350.0)]
+    die.boolean("cut", holes, "pilot hole")
+    die.fillet(die.sharp_edges("binder"), p.land_fillet, "land radius")
+
+    # the panel's features on the floor: embossings (up) and pockets (down), round bosses
+    w, d, rc = p.feature
+    a = math.tan(math.radians(p.feature_draft))
+    emboss, sink, bosses = [], [], []
+    for i in range(9):
+        for j, y in enumerate((-150.0, -50.0, 50.0, 150.0)):
+            x = -300.0 + 75.0 * i
+            zf = floor_z(x, y)
+            if (i + j) % 2 == 0:  # embossing 12 above the floor; the outline w x d at its top
+                h = 32.0
+                emboss.append(_prism(x, y, zf - 20.0, h, _rounded_rect(w + 2 * h * a, d + 2 * h * a, rc + h * a), taper=p.feature_draft, end_fillet=4.0))
+            else:  # pocket 10 below the floor; the outline w x d at its bottom
+                h = 30.0
+                sink.append(_prism(x, y, zf + 20.0, h, _rounded_rect(w + 2 * h * a, d + 2 * h * a, rc + h * a), taper=p.feature_draft, down=True, end_fillet=3.0))
+    for i in range(8):
+        for y in (-100.0, 0.0, 100.0):
+            x = -262.5 + 75.0 * i
+            bosses.append(_prism(x, y, floor_z(x, y) - 20.0, 30.0, _circle(8.0), end_fillet=3.0))
+    die.boolean("fuse", emboss, "embossing")
+    die.boolean("fuse", bosses, "boss")
+    die.boolean("cut", sink, "floor pocket")
+    die.fillet(die.sharp_edges("floor"), p.feature_fillet, "feature radius")
+    return die.shape, die.roles
+
+
+#: short codes of the face roles (the first 3 characters of each face's name)
+DIE_ROLES = {"binder": "BND", "punch radius": "PRD", "pocket wall": "PWL", "floor radius": "FRD", "floor": "FLR",
+             "bead": "BED", "pilot hole": "PIL", "land radius": "LRD", "embossing": "EMB", "boss": "BOS",
+             "floor pocket": "PKT", "feature radius": "FTR"}
+
+
+@functools.cache
+def production_die_faces(p: DieParams = DieParams()) -> dict[str, TopoDS_Shape]:
+    """{name: face} of the die's top side, in OCC's face order; a name is role code + index.
+
+    Cached: both IGES modes write the same faces (about 20 s to build)."""
+    shape, roles = production_die(p)
+    if not BRepCheck_Analyzer(shape).IsValid():
+        raise RuntimeError("die: the solid is not valid")
+    index: dict[str, TopTools_IndexedMapOfShape] = {}
+    for role, faces in roles.items():
+        m = TopTools_IndexedMapOfShape()
+        for f in faces:
+            m.Add(f)
+        index[role] = m
+    out: dict[str, TopoDS_Shape] = {}
+    for f in _subshapes(shape, TopAbs_FACE):
+        hits = [role for role, m in index.items() if m.Contains(f)]
+        if len(hits) != 1:
+            raise RuntimeError(f"die: a face has roles {hits}")
+        if hits[0] != "block":
+            out[f"{DIE_ROLES[hits[0]]}{len(out) + 1:05d}"] = f
+    return out
+
+
+def _production_die(mode: str) -> Callable[[Path], None]:
+    def make(path: Path) -> None:
+        faces = production_die_faces()
+        export_iges(faces, path, mode, description=f"cadbridge: production-size sheet-metal draw die, working side ({len(faces)} faces: "
+                    "crowned binder R5000, drawn pocket with 10 deg draft and R20 punch radius, B-spline panel floor, draw beads, "
+                    f"embossings, pockets, bosses, pilot holes, fillets R3-R20), {'NURBS' if mode == 'nurbs' else 'OCC analytic faces'} mode")
+    return make
+
+
 # ---------------------------------------------------------------------- the samples
 def _ushape_tool(tool: str) -> Callable[[Path], None]:
     def make(path: Path) -> None:
@@ -317,6 +585,13 @@ SAMPLES: dict[str, Callable[[Path], None]] = {
     "trimmed_hole.igs": make_hole,
 }
 
+#: The production-size die (issue #8): written only with ``--production`` (about 40 s, 2 x 25
+#: MB), kept apart from SAMPLES, which the test suite regenerates and runs every file of.
+PRODUCTION_SAMPLES: dict[str, Callable[[Path], None]] = {
+    "production_die_nurbs.igs": _production_die("nurbs"),
+    "production_die_analytic.igs": _production_die("analytic"),
+}
+
 
 #: Reader test cases that are not samples (OpenCASCADE, the reference of `cadbridge verify`,
 #: reads them differently from the IGES standard), written to tests/data/iges/.
@@ -326,40 +601,51 @@ TEST_DATA: dict[str, Callable[[Path], None]] = {
 TEST_DATA_DIR = HERE.parent / "tests" / "data" / "iges"
 
 
-def counts_table(folder: Path) -> str:
+def counts_table(folder: Path, names: Sequence[str] = tuple(SAMPLES)) -> str:
     """Markdown table: file, size, entity counts."""
     rows = ["| file | bytes | entities (type: count) |", "|---|---:|---|"]
-    for name in SAMPLES:
+    for name in names:
         p = folder / name
         counts = ", ".join(f"{t}: {n}" for t, n in entity_counts(p).items())
         rows.append(f"| `{name}` | {p.stat().st_size} | {counts} |")
     return "\n".join(rows)
 
 
+def _replace_between(text: str, a: str, b: str, body: str) -> str:
+    if a not in text or b not in text:
+        return text
+    head, rest = text.split(a, 1)
+    _, tail = rest.split(b, 1)
+    return f"{head}{a}\n{body}\n{b}{tail}"
+
+
 def update_readme(folder: Path) -> None:
-    """Rewrite the table between the README markers."""
+    """Rewrite the tables between the README markers (the production one if its files exist)."""
     if not README.exists():
         return
-    text = README.read_text()
-    a, b = "<!-- counts:start -->", "<!-- counts:end -->"
-    if a in text and b in text:
-        head, rest = text.split(a, 1)
-        _, tail = rest.split(b, 1)
-        README.write_text(f"{head}{a}\n{counts_table(folder)}\n{b}{tail}")
+    text = _replace_between(README.read_text(), "<!-- counts:start -->", "<!-- counts:end -->", counts_table(folder))
+    if all((folder / n).exists() for n in PRODUCTION_SAMPLES):
+        text = _replace_between(text, "<!-- production-counts:start -->", "<!-- production-counts:end -->",
+                                counts_table(folder, tuple(PRODUCTION_SAMPLES)))
+    README.write_text(text)
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    """make_samples.py [--production] [OUT_DIR]: the samples (and, asked, the production die)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    production = "--production" in argv
+    argv = [a for a in argv if a != "--production"]
     out = Path(argv[0]) if argv else HERE
     out.mkdir(parents=True, exist_ok=True)
-    for name, make in SAMPLES.items():
+    written = dict(SAMPLES, **(PRODUCTION_SAMPLES if production else {}))
+    for name, make in written.items():
         make(out / name)
     if out == HERE:
         update_readme(out)
         TEST_DATA_DIR.mkdir(parents=True, exist_ok=True)
     for name, make in TEST_DATA.items():
         make((TEST_DATA_DIR if out == HERE else out) / name)
-    for name in SAMPLES:
+    for name in written:
         print(f"{name:32s} {entity_counts(out / name)}")
     return 0
 
