@@ -120,12 +120,38 @@ def distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return polygon_distance(points, polygon)
 
 
+class _DeferredDelta:
+    """Descriptor behind `Face.trim_delta`: a plain attribute (set, read, constructor argument)
+    that the reader may instead point at a shared batch (`Face.defer_trim_delta`); the first
+    read of any face of that batch computes all of them in one pass (`iges.trimcheck`)."""
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return None  # the dataclass default
+        d = obj.__dict__
+        src = d.pop("_delta_source", None)
+        if src is not None:
+            d["_trim_delta"] = src[0].value(src[1])
+        return d.get("_trim_delta")
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__.pop("_delta_source", None)
+        obj.__dict__["_trim_delta"] = None if value is None else float(value)
+
+
 @dataclass
 class Face:
     """One face of the model: an exact NURBS surface in model coordinates (after transforms).
 
     ``de`` is the directory entry number of the entity the face came from (the 144/143/128/...
     at the top level), ``surface_de`` that of the underlying surface entity.
+
+    ``trim_delta`` is the file's trim tolerance of the face, max |S(c2d(t)) - C3d| in model
+    units (`iges.trimcheck`), None without both trim representations. The IGES reader computes
+    it at read time only for faces whose trim route depends on it (PREF = model / unspecified
+    over analytic surfaces); for all other faces it is computed on the first access of any
+    face's ``trim_delta`` -- for all faces of that read in one pass, from their surfaces and
+    trim curves as they are at that moment.
     """
 
     surface: NurbsSurface
@@ -137,7 +163,11 @@ class Face:
     entity_type: int = 128  # IGES type of the top-level entity (128, 144, 143, 108, 118, 120, 122)
     surface_de: int | None = None
     surface_type: int = 128  # IGES type of the underlying surface entity
-    trim_delta: float | None = None  # file's trim tolerance: max |S(c2d(t)) - C3d|, model units (iges.trimcheck)
+    trim_delta: float | None = _DeferredDelta()  # see the class docstring
+
+    def defer_trim_delta(self, batch, index: int) -> None:
+        """Let ``batch.value(index)`` supply ``trim_delta`` on its first access (one pass for all)."""
+        self.__dict__["_delta_source"] = (batch, index)
 
     def contains(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Whether (u, v) (arrays (N,)) lie inside the face: in the domain and inside the trims."""

@@ -126,8 +126,10 @@ def test_solidworks_trims_exact_and_delta():
     assert by[41].trim_delta == pytest.approx(10 * np.sqrt(2), rel=1e-9)
     assert by[157].trim_delta == pytest.approx(np.hypot(7.0, 115.0 - 108.0 - 0.007), rel=1e-3)
     assert all(isinstance(c, InvertedCurve) for c in by[351].trims.outer.curves)
-    msgs = [d.message for d in m.diagnostics if d.de == 41]
-    assert any("preferred: pcurve" in s for s in msgs)
+    # PREF = pcurve with closed loops: taken as the file says, delta deferred (no read-time note);
+    # DE 351's pcurve loops do not close: delta measured at read time for the route and its note
+    assert not [d.message for d in m.diagnostics if d.de == 41]
+    assert any("do not close" in d.message for d in m.diagnostics if d.de == 351)
     assert not any("polyline" in d.message for d in m.diagnostics)
     # the model-derived loop of DE 351 lies on its own model curves
     f = by[351]
@@ -187,3 +189,29 @@ def test_delta_against_occ(path):
     for f in faces[-5:] + [faces[len(faces) // 2]]:
         ref = _occ_delta(f)
         assert f.trim_delta == pytest.approx(ref, rel=1e-6, abs=1e-9 * m.size())
+
+
+@pytest.mark.skipif(not BEARING.exists(), reason=f"{REAL} not present")
+@pytest.mark.parametrize("path", [SW, ANSA], ids=["SolidWorks", "ANSA"])
+def test_deferred_delta_is_per_face_delta(path):
+    """Deltas deferred at read time (one batch for all faces, computed on the first access of
+    any) equal the delta of each face computed alone from its own loops (reference: a separate
+    `loop_deltas` call per face); before the first access nothing is computed, and setting
+    the attribute overrides the deferred value."""
+    m = read_iges(path)
+    deferred = [f for f in m.faces if "_delta_source" in f.__dict__]
+    assert deferred
+    batch = deferred[0].__dict__["_delta_source"][0]
+    assert batch._values is None
+    got = [f.trim_delta for f in deferred]
+    assert batch._values is not None and all("_delta_source" not in f.__dict__ for f in deferred)
+    for f, d in zip(deferred, got):
+        lps = [lp for lp in [f.trims.outer] + list(f.trims.inner) if lp is not None and lp.model_curves]
+        if f.surface_type == 128:
+            ref = loop_deltas([(f.surface, [(lp.curves, lp.model_curves) for lp in lps])])[0]
+            assert d == pytest.approx(ref, rel=1e-12, abs=1e-300)
+        else:
+            assert d is not None and d >= 0
+    m2 = read_iges(path)
+    m2.faces[0].trim_delta = 0.5
+    assert m2.faces[0].trim_delta == 0.5 and m2.faces[1].__dict__.get("_delta_source") is not None

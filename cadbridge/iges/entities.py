@@ -16,7 +16,7 @@ from cadbridge.iges.directory import DirectoryEntry
 from cadbridge.iges.analytic import (ArcMap, Frame, MappedLoops, ParamMap, cylinder_map, fixed_map,
                                      map_loops, plane_map, revolution_map, sphere_map,
                                      torus_map)
-from cadbridge.iges.trimcheck import loop_deltas
+from cadbridge.iges.trimcheck import DeltaBatch, loop_deltas
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record
 from cadbridge.iges.parameters import Params, prepare_params, read_params
@@ -136,8 +136,9 @@ class Builder:
         self._keys: list[tuple[str, int]] = []
         self._failed_at: tuple | None = None  # (DE, line, type) where an exception first passed
         self.pref: dict[int, str | None] = {}  # 142 / 141 DE -> preferred representation (`mapped_trims`)
-        self._delta: dict[int, float] = {}  # face DE -> trim delta before placement (mapped faces)
-        self.delta_pending: list[Face] = []  # 128 faces whose delta `finish_deltas` computes in one batch
+        self._delta: dict[int, float] = {}  # face DE -> trim delta before placement (route decided on it)
+        self._delta_lazy: dict[int, tuple] = {}  # face DE -> (surface, pairs) for a deferred delta (mapped faces)
+        self.deltas = DeltaBatch()  # every other face's delta: computed on first access of any (`Face.trim_delta`)
         prepare_params(entries, precs, pdelim, rdelim)  # compiled scan of the plain records (fast path)
 
     # ------------------------------------------------------------------ infrastructure
@@ -729,13 +730,15 @@ class Builder:
             return None
         if face is None:
             return None
+        # 124 matrices are rotations; a 408 scales by S
+        scale = 1.0 if _is_identity(placement) else abs(float(np.linalg.det(placement[0]))) ** (1.0 / 3.0)
         if de in self._delta:
-            face.trim_delta = self._delta[de]
-            if not _is_identity(placement):  # 124 matrices are rotations; a 408 scales by S
-                face.trim_delta *= abs(float(np.linalg.det(placement[0]))) ** (1.0 / 3.0)
+            face.trim_delta = self._delta[de] * scale
+        elif de in self._delta_lazy:
+            face.defer_trim_delta(self.deltas, self.deltas.add_pairs(*self._delta_lazy[de], scale))
         elif face.trims is not None and any(lp is not None and lp.model_curves for lp in [face.trims.outer]
                                             + list(face.trims.inner)):
-            self.delta_pending.append(face)
+            face.defer_trim_delta(self.deltas, self.deltas.add_face(face))  # read after the placement below
         if not _is_identity(placement):
             face.surface = face.surface.transformed(*placement)
             if face.trims is not None:
@@ -1010,7 +1013,9 @@ class Builder:
 
         The file's trim tolerance delta (`trimcheck.loop_deltas`: max distance of S(c2d) to
         the model-space curves) is measured on the parameter-space route and kept for the
-        face. Which representation trims the face (IGES 5.3, 4.31-4.32):
+        face: at read time when the route depends on it (PREF "model" / "equal" / unspecified,
+        or "pcurve" loops that do not close), else deferred to the first access of
+        `Face.trim_delta` (`trimcheck.DeltaBatch`). Which representation trims the face (IGES 5.3, 4.31-4.32):
           - only one representation on an edge: that one;
           - "pcurve" preferred: the parameter-space curves, unless their loops do not close
             on the surface (then the model-space curves);
@@ -1021,7 +1026,9 @@ class Builder:
             ``DISAGREE_REL`` x size; then over 190-198 (exact analytic inversion) the
             model-space curves, over 118/120/122 the parameter-space curves if their loops
             close (the spec fixes that parametrisation; OCC's faces agree).
-        Each choice against the file's preference or beyond DISAGREE_REL is noted."""
+        Each choice against the file's preference or beyond DISAGREE_REL is noted (closed
+        "pcurve" loops are taken as the file says, unmeasured: their delta is the face's
+        ``trim_delta``, which `cadbridge inspect` and `verify` report)."""
         pm = self.param_map(sde)
         loops = ([outer] if outer is not None else []) + list(inner)
         if not loops:
@@ -1033,13 +1040,19 @@ class Builder:
             res = map_loops(pm, loops, outer is not None, True)
         except ValueError as exc:
             return self._untrimmed(pm, sde, de, str(exc))
-        delta = self._mapped_delta(res, loops)
-        box = res.surface.bbox()
-        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
         prefs = list(prefs) if prefs is not None else [None] * len(loops)
         pref = "model" if "model" in prefs else ("pcurve" if "pcurve" in prefs else "equal")
         closed = all(_closed(lp, res.surface) for lp in res.loops)
         has_both = any(pc is not None and mc is not None for raw in loops for pc, mc in raw)
+        pairs = self._mapped_pairs(res, loops)
+        delta = None
+        if pairs is not None and (pref != "pcurve" or not closed):  # the route (or its note) needs delta now
+            d = float(loop_deltas([(res.surface, pairs)])[0])
+            delta = None if np.isnan(d) else d
+        elif pairs is not None:
+            self._delta_lazy[de] = (res.surface, pairs)
+        box = res.surface.bbox()
+        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
         use_model = False
         if has_both and delta is not None:
             if pref == "pcurve":
@@ -1095,32 +1108,16 @@ class Builder:
         raise Unsupported(f"{pm.kind} surface needs its trim loops for its extent: {why}", de, None, None)
 
     @staticmethod
-    def _mapped_delta(res: MappedLoops, loops: list) -> float | None:
-        """Trim delta of the parameter-space route ``res``: per loop, the pieces of edges with
-        both representations against those edges' model-space curves (None if no edge has both)."""
+    def _mapped_pairs(res: MappedLoops, loops: list) -> list[tuple] | None:
+        """What the trim delta of the parameter-space route ``res`` compares: per loop, the
+        pieces of edges with both representations against those edges' model-space curves
+        (None if no edge has both)."""
         pairs = []
         for raw, lp, src in zip(loops, res.loops, res.sources):
             ok = [j for j, (pc, mc) in enumerate(raw) if src[j] == "pcurve" and mc is not None]
             if ok:
                 pairs.append(([c for i, c, _ in lp if i in ok], [c for j in ok for c in raw[j][1]]))
-        if not pairs:
-            return None
-        d = float(loop_deltas([(res.surface, pairs)])[0])
-        return None if np.isnan(d) else d
-
-    def finish_deltas(self) -> None:
-        """Trim delta of every pending (128) face in one batch (`trimcheck.loop_deltas`)."""
-        faces = self.delta_pending
-        if not faces:
-            return
-        items = []
-        for f in faces:
-            lps = [lp for lp in [f.trims.outer] + list(f.trims.inner) if lp is not None and lp.model_curves]
-            items.append((f.surface, [(lp.curves, lp.model_curves) for lp in lps]))
-        for f, d in zip(faces, loop_deltas(items)):
-            if not np.isnan(d):
-                f.trim_delta = float(d)
-        self.delta_pending = []
+        return pairs or None
 
     def brep_loop(self, de: int) -> TrimLoop | None:
         """508 loop as parameter-space curves (None, with a note, if an edge has none)."""

@@ -14,7 +14,9 @@ model-space curves, over dense samples of c2d (`SAMPLES_PER_SPAN` per knot span)
    piece (exact curve, compiled, `NEWTON_STEPS`), t clamped to the piece's domain; the
    nearest foot wins (at a junction of two pieces the true foot may lie on the other one).
 
-The result is per face (model units) and is what `Face.trim_delta` holds.
+The result is per face (model units) and is what `Face.trim_delta` holds. Faces whose trim
+route does not depend on delta get it lazily: `DeltaBatch` keeps what the computation needs
+and runs `loop_deltas` once for all of them on the first access of any face's ``trim_delta``.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from scipy.spatial import cKDTree
 from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 from cadbridge.nurbs.curve import NurbsCurve
 
-__all__ = ["PackedCurves", "eval_packed", "loop_deltas", "SAMPLES_PER_SPAN"]
+__all__ = ["DeltaBatch", "PackedCurves", "eval_packed", "loop_deltas", "SAMPLES_PER_SPAN"]
 
 SAMPLES_PER_SPAN = 16  # samples of c2d per knot span
 TREE_PER_SPAN = 64  # samples per knot span of the model curves in the KD-tree (Newton starts; 16 let
@@ -236,3 +238,46 @@ def loop_deltas(items: list[tuple]) -> np.ndarray:
     have = np.isfinite(res)
     out[have] = res[have]
     return out
+
+
+class DeltaBatch:
+    """Trim deltas of many faces, computed together by one `loop_deltas` call on the first
+    `value` request (what `Face.defer_trim_delta` points at).
+
+    Entries are added with `add_face` (a face whose own surface and trim loops -- parameter-space
+    ``curves`` against ``model_curves`` -- are read when the batch computes, i.e. after any
+    placement) or `add_pairs` (a surface, (uv pieces, model pieces) per loop, and a factor the
+    result is multiplied by: a 408's scale for loops kept in the definition's coordinates)."""
+
+    def __init__(self) -> None:
+        self._entries: list[tuple] = []
+        self._values: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def add_face(self, face) -> int:
+        self._entries.append(("face", face))
+        return len(self._entries) - 1
+
+    def add_pairs(self, surface, pairs: list[tuple], scale: float = 1.0) -> int:
+        self._entries.append(("pairs", surface, pairs, float(scale)))
+        return len(self._entries) - 1
+
+    def value(self, index: int) -> float | None:
+        """Delta of entry ``index`` (model units), None when it has no loop with both curves."""
+        if self._values is None:
+            items, scale = [], np.ones(len(self._entries))
+            for k, e in enumerate(self._entries):
+                if e[0] == "face":
+                    f = e[1]
+                    lps = [] if f.trims is None else [lp for lp in [f.trims.outer] + list(f.trims.inner)
+                                                      if lp is not None and lp.model_curves]
+                    items.append((f.surface, [(lp.curves, lp.model_curves) for lp in lps]))
+                else:
+                    items.append((e[1], e[2]))
+                    scale[k] = e[3]
+            self._values = loop_deltas(items) * scale
+            self._entries = []  # the geometry is no longer needed
+        d = self._values[index]
+        return None if np.isnan(d) else float(d)
