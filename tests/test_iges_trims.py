@@ -215,3 +215,27 @@ def test_deferred_delta_is_per_face_delta(path):
     m2 = read_iges(path)
     m2.faces[0].trim_delta = 0.5
     assert m2.faces[0].trim_delta == 0.5 and m2.faces[1].__dict__.get("_delta_source") is not None
+
+
+def test_arc100_equals_construct_circular_arc():
+    """The reader's scalar IGES 100 builder gives the curve of construct.circular_arc (the
+    reference): same degree, knots, weights and control points to rounding, for random arcs,
+    quarter multiples, the full circle (start == end) and an end off the radius."""
+    from cadbridge.iges.entities import _arc100
+
+    rng = np.random.default_rng(7)
+    for k in range(400):
+        c = rng.normal(size=2) * 10
+        r = rng.uniform(0.1, 50)
+        a0 = rng.uniform(-7, 7)
+        sw = [rng.uniform(1e-6, 2 * pi), 0.0, pi / 2, pi, 3 * pi / 2, 2 * pi - 1e-9][k % 6]
+        s = c + r * np.array([np.cos(a0), np.sin(a0)])
+        e = c + r * (1.01 if k % 2 else 1.0) * np.array([np.cos(a0 + sw), np.sin(a0 + sw)])
+        z = float(rng.normal())
+        a = _arc100(None, np.array([z, *c, *s, *e]))
+        b = construct.circular_arc((c[0], c[1], z), (s[0], s[1], z), (e[0], e[1], z), normal=(0, 0, 1.0))
+        assert a.degree == b.degree and a.rational == b.rational and a.knots.shape == b.knots.shape
+        assert np.allclose(a.knots, b.knots, rtol=0, atol=1e-14)
+        assert a.domain[1] == pytest.approx(b.domain[1], abs=1e-14)
+        assert np.allclose(a.control_points, b.control_points, rtol=0, atol=1e-14 * r)
+        assert np.allclose(a.weights, b.weights, rtol=0, atol=1e-15)

@@ -139,6 +139,27 @@ class ParamMap:
     uv_parts: Callable[[tuple, tuple], tuple] = lambda r0, r1: ((0, None), (1, None))
 
 
+def _ders(curve: NurbsCurve, t, order: int) -> np.ndarray:
+    """``curve.derivatives(t, order)`` through the compiled evaluator of `trimcheck.eval_packed`
+    (same algorithms, P&T A3.2 + A4.2; t clamped to the knot range): the trim maps evaluate
+    the file's curves many times in small batches, where the numpy path is call-bound. The
+    packed form is kept on the curve (``_packed``), built on first use. (N, order+1, dim)."""
+    if not isinstance(curve, NurbsCurve):
+        return curve.derivatives(t, order)
+    pk = curve.__dict__.get("_packed")
+    if pk is None:
+        from cadbridge.iges.trimcheck import PackedCurves
+
+        pk = curve.__dict__["_packed"] = PackedCurves([curve])
+    t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+    return pk.evaluate(np.zeros(len(t), dtype=np.int64), t, order)[:, :, : curve.dim]
+
+
+def _eval(curve: NurbsCurve, t) -> np.ndarray:
+    """``curve.evaluate(t)`` through `_ders`, (N, dim)."""
+    return _ders(curve, t, 0)[:, 0]
+
+
 def _affine(m, b) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(m, dtype=float), np.asarray(b, dtype=float)
 
@@ -160,13 +181,13 @@ def sample_chain(fn: Callable[[np.ndarray], np.ndarray], curve: NurbsCurve, angu
 
     Returns (t (M,), natural (M, 2)) with angular columns continuous."""
     t = curve.sample_parameters(MIN_PER_SPAN)
-    nat = _unwrap_rows(fn(curve.evaluate(t)), angular)
+    nat = _unwrap_rows(fn(_eval(curve, t)), angular)
     if to_uv is None:
         return t, nat
     for _ in range(MAX_REFINE):
         uv = to_uv(nat)
         tm = 0.5 * (t[:-1] + t[1:])
-        nm = fn(curve.evaluate(tm))
+        nm = fn(_eval(curve, tm))
         ref = 0.5 * (nat[:-1] + nat[1:])
         for k in (0, 1):
             if angular[k]:
@@ -178,6 +199,20 @@ def sample_chain(fn: Callable[[np.ndarray], np.ndarray], curve: NurbsCurve, angu
         t = np.insert(t, bad + 1, tm[bad])
         nat = np.insert(nat, bad + 1, nm[bad], axis=0)
     return t, nat
+
+
+def _sample_many(curves: list[NurbsCurve], fn: Callable[[np.ndarray], np.ndarray],
+                 angular: tuple[bool, bool]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``sample_chain(fn, c, angular, None, 0.0)`` for each of many NurbsCurves of one
+    dimension at once: one compiled sampling and evaluation (`trimcheck.PackedCurves`, the
+    parameters of `NurbsCurve.sample_parameters`), one call of fn; angles unwrapped per curve."""
+    from cadbridge.iges.trimcheck import PackedCurves
+
+    pk = PackedCurves(curves)
+    ci, t = pk.sample(MIN_PER_SPAN)
+    nat = np.array(fn(pk.evaluate(ci, t, 0)[:, 0, : curves[0].dim]), dtype=float)
+    cuts = np.flatnonzero(np.diff(ci)) + 1
+    return [(t[a:b], _unwrap_rows(nat[a:b], angular)) for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)])]
 
 
 def _unwrap_rows(nat: np.ndarray, angular: tuple[bool, bool]) -> np.ndarray:
@@ -360,7 +395,7 @@ class MappedCurve(_TrimCurve):
         return out + super()._break_values()
 
     def _natural_ders(self, t, order: int) -> np.ndarray:
-        c = self.base.derivatives(t, order)  # (N, order+1, 2)
+        c = _ders(self.base, t, order)  # (N, order+1, 2)
         y = c @ self.m.T
         y[:, 0] += self.b
         nat = np.empty_like(y)
@@ -404,7 +439,7 @@ class InvertedCurve(_TrimCurve):
 
     def _natural(self, t) -> np.ndarray:
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        nat = np.array(self.points_fn(self.base.evaluate(t)), dtype=float) + self.shift
+        nat = np.array(self.points_fn(_eval(self.base, t)), dtype=float) + self.shift
         for k in (0, 1):
             if self.angular[k]:
                 nat[:, k] = _unwrap_to(nat[:, k], np.interp(t, self.t_ref, self.nat_ref[:, k]))
@@ -423,7 +458,7 @@ class InvertedCurve(_TrimCurve):
             return out
         u0, u1, v0, v1 = self.surface.domain
         d = self.surface.derivatives(np.clip(uv[:, 0], u0, u1), np.clip(uv[:, 1], v0, v1), order=order)
-        c = self.base.derivatives(t, order)
+        c = _ders(self.base, t, order)
         jac = np.stack([d[:, 1, 0], d[:, 0, 1]], axis=2)  # (N, 3, 2)
         jtj = np.einsum("nia,nib->nab", jac, jac)
         out[:, 1] = np.linalg.solve(jtj, np.einsum("nia,ni->na", jac, c[:, 1])[..., None])[..., 0]
@@ -600,7 +635,7 @@ def _meridian_inverse(origin: np.ndarray, axis: np.ndarray, generatrix: NurbsCur
     a = a / np.linalg.norm(a)
     o = np.asarray(origin, dtype=float)
     ts = generatrix.sample_parameters(32)
-    g = generatrix.evaluate(ts)
+    g = _eval(generatrix, ts)
     rad = (g - o) - np.outer((g - o) @ a, a)
     rr = np.linalg.norm(rad, axis=1)
     if not rr.max() > 0:
@@ -617,7 +652,7 @@ def _meridian_inverse(origin: np.ndarray, axis: np.ndarray, generatrix: NurbsCur
         q = o + np.outer(h, a) + np.outer(np.hypot(rx, ry), x)
         t = ts[tree.query(q)[1]]
         for _ in range(6):
-            d = generatrix.derivatives(t, 2)
+            d = _ders(generatrix, t, 2)
             e = d[:, 0] - q
             f = np.einsum("ij,ij->i", e, d[:, 1])
             g1 = np.einsum("ij,ij->i", d[:, 1], d[:, 1])
@@ -649,15 +684,27 @@ def revolution_map(surface: NurbsSurface, sa: float, ta: float, gen_affine: tupl
             y[:, 0] = gen_arc(y[:, 0], 0)[0]
         return y
 
+    def by_projection():
+        proj = _project(surface)
+        if proj is None:
+            return None
+
+        def fn(p):
+            uv = proj(p)
+            return np.column_stack([uv[:, 0], c.revolved_v_to_angle(uv[:, 1], sa, ta)])
+
+        return fn
+
     pts = None
     if axis is not None and generatrix is not None:
-        pts = _meridian_inverse(axis[0], axis[1], generatrix)
-    if pts is None:
-        proj = _project(surface)
-        if proj is not None:
-            def pts(p):
-                uv = proj(p)
-                return np.column_stack([uv[:, 0], c.revolved_v_to_angle(uv[:, 1], sa, ta)])
+        inv: list = []
+
+        def pts(p):  # built on first use: most faces never invert model points
+            if not inv:
+                inv.append(_meridian_inverse(axis[0], axis[1], generatrix) or by_projection())
+            return inv[0](p)
+    else:
+        pts = by_projection()
 
     def uv(nat, r0, r1):
         return np.column_stack([nat[:, 0], _theta_v(nat[:, 1], (sa, ta))])
@@ -716,18 +763,28 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
             raise ValueError("empty trim loop")
         items.append(its)
         sources.append(src)
-    # phase 1: natural coordinates, angles continuous along each loop
+    # phase 1: natural coordinates, angles continuous along each loop; the sampled pieces of
+    # all loops in one batch per (map, dimension) (`_sample_many`), kept for the InvertedCurves
+    groups: dict[tuple, list[tuple[int, int]]] = {}
+    for li, its in enumerate(items):
+        for ii, (_, c, fn, exact) in enumerate(its):
+            if not exact:
+                groups.setdefault((id(fn), c.dim), []).append((li, ii))
+    samples: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+    for keys in groups.values():
+        fn = items[keys[0][0]][keys[0][1]][2]
+        samples.update(zip(keys, _sample_many([items[li][ii][1] for li, ii in keys], fn, ang)))
     nats: list[list[np.ndarray]] = []
     shifts: list[list[np.ndarray]] = []
-    for its in items:
+    for li, its in enumerate(items):
         prev = None
         ln, ls = [], []
-        for _, c, fn, exact in its:
+        for ii, (_, c, fn, exact) in enumerate(its):
             if exact:
                 nat = _exact_natural(c, fn)
                 pts = np.vstack([nat.control_points, nat.evaluate(nat.sample_parameters(4))])
             else:
-                pts = sample_chain(fn, c, ang, None, 0.0)[1]
+                pts = samples[li, ii][1]
             sh = np.zeros(2)
             if prev is not None:
                 for k in (0, 1):
@@ -778,9 +835,9 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
     surface = pm.build(r0, r1) if pm.build is not None else pm.surface
     post = pm.uv_parts(r0, r1)
     out: list[list[tuple[int, NurbsCurve | _TrimCurve, bool]]] = []
-    for its, ls in zip(items, shifts):
+    for li, (its, ls) in enumerate(zip(items, shifts)):
         pieces: list[tuple[int, NurbsCurve | _TrimCurve, bool]] = []
-        for (j, c, fn, exact), sh in zip(its, ls):
+        for ii, ((j, c, fn, exact), sh) in enumerate(zip(its, ls)):
             if exact:
                 nat = _exact_natural(c, fn)
                 if np.any(sh):
@@ -790,7 +847,7 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
                 m, b = pm.pcurve_affine
                 pieces.append((j, MappedCurve(c, m, b + sh, pm.pcurve_pre, post), True))
             else:
-                t, nat = sample_chain(fn, c, ang, None, 0.0)
+                t, nat = samples[li, ii]
                 pieces.append((j, InvertedCurve(c, fn, sh, post, ang, t, nat + sh, surface), True))
         out.append(pieces)
     return MappedLoops(surface, out, sources)

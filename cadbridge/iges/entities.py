@@ -8,6 +8,7 @@ B-rep faces and subfigure instances into `Face` objects. Field numbers in commen
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 
 import numpy as np
@@ -48,6 +49,44 @@ _LINE_KNOTS = np.array([0.0, 0.0, 1.0, 1.0])
 _LINE_KNOTS.setflags(write=False)
 _ONES2 = np.ones(2)
 _ONES2.setflags(write=False)
+
+
+def _arc100(p: Params, v: np.ndarray) -> NurbsCurve:
+    """IGES 100 (ZT, X1, Y1 centre, X2, Y2 start, X3, Y3 end) as the rational quadratic of
+    `construct.circular_arc(centre, start, end, normal=+Z)` (same angles, knots, control
+    points and weights; counter-clockwise, start == end within 1e-12 R the full circle), built
+    from scalars: the reader makes one per 100 entity and the general function's vector
+    checks dominate there. Raises the IgesError of a zero radius."""
+    zt, cx, cy, sx, sy, ex, ey = (float(a) for a in v)
+    dx, dy = sx - cx, sy - cy
+    r = math.hypot(dx, dy)
+    if not r > 0:
+        raise p.error("start coincides with center: zero radius", 4, "X2")
+    ux, uy = dx / r, dy / r  # X of the arc's frame; Y = Z x X = (-uy, ux)
+    qx, qy = ex - cx, ey - cy
+    if math.hypot(ex - sx, ey - sy) <= 1e-12 * r:
+        theta = 2 * math.pi
+    else:
+        theta = math.atan2(qx * -uy + qy * ux, qx * ux + qy * uy) % (2 * math.pi)
+        if theta <= 1e-12:
+            theta = 2 * math.pi
+    n = max(1, math.ceil(theta / (math.pi / 2) * (1.0 - 1e-12)))  # `construct.arc_segments`
+    d = theta / n
+    h = math.cos(d / 2)
+    pts, w, knots = [], [], [0.0, 0.0, 0.0]
+    for k in range(2 * n + 1):  # at most 9 points: scalar arithmetic beats array calls
+        t = 0.5 * d * k
+        a, b = (math.cos(t), math.sin(t)) if k % 2 == 0 else (math.cos(t) / h, math.sin(t) / h)
+        pts.append((cx + r * (a * ux - b * uy), cy + r * (a * uy + b * ux), zt))
+        w.append(1.0 if k % 2 == 0 else h)
+    for k in range(1, n):
+        knots += [d * k, d * k]
+    knots += [theta] * 3
+    pts[0] = (sx, sy, zt)  # exact start
+    if theta == 2 * math.pi:
+        pts[-1] = pts[0]
+    pts, w, knots = np.array(pts), np.array(w), np.array(knots)
+    return NurbsCurve._trusted(2, knots, pts, w, (0.0, theta), True)
 
 
 def _closed(loop, surface: NurbsSurface, rel: float = 1e-6) -> bool:
@@ -276,7 +315,10 @@ class Builder:
             if len(seen) > MAX_DEPTH:
                 raise IgesError("transformation matrix chain too long", filename=self.filename, line=cur.line,
                                 de=cur.de, entity_type=cur.entity_type, field="transformation matrix")
-            total = compose(self.matrix(t), total)
+            m = self._cache.get(("m", t))
+            if m is None:  # once per 124 (its check notes once)
+                m = self._cache[("m", t)] = self.matrix(t)
+            total = compose(m, total)
             cur = self.entries[t]
         self._cache[key] = total
         return total
@@ -318,12 +360,7 @@ class Builder:
         elif t == 100:
             v = p.reals(1, 7, "ZT..Y3")
             self._own_end[de] = 8
-            zt = v[0]
-            try:
-                pieces = [_construct().circular_arc((v[1], v[2], zt), (v[3], v[4], zt), (v[5], v[6], zt),
-                                                     normal=(0.0, 0.0, 1.0))]
-            except ValueError as exc:
-                raise self._wrap(p, exc) from None
+            pieces = [_arc100(p, v)]
         elif t == 104:
             c = _construct()
             if not hasattr(c, "conic_arc"):
