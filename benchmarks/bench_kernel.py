@@ -1,7 +1,7 @@
 """Geometry-kernel benchmark (a script, not a test): NURBS evaluation and IGES reading against
 OpenCASCADE (OCP) and pure-Python peers, measured in the same run and reported as ratios.
 
-    /work/venv/bin/python benchmarks/bench_kernel.py [--n 200000] [--n-peer 20000] [--repeat 3]
+    python benchmarks/bench_kernel.py [--n 200000] [--n-peer 20000] [--repeat 3]
 
 0. Unseen rational surfaces of degree 1, 2, 3 and 5 (fresh random nets, weights and knot
    vectors for every repeat, construction timed): S + Su + Sv at random (u, v), cadbridge
@@ -357,8 +357,9 @@ def main() -> None:
                     help="markdown table written here")
     args = ap.parse_args()
     rng = np.random.default_rng(12345)
-    print(f"cadbridge {cadbridge.__version__} ({Path(cadbridge.__file__).parent}), numpy {np.__version__}, "
-          f"python {sys.version.split()[0]}, load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    env = (f"cadbridge {cadbridge.__version__} ({Path(cadbridge.__file__).parent}), numpy {np.__version__}, "
+           f"python {sys.version.split()[0]}, load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs")
+    print(env)
     rows: list[dict] = []
     if not args.skip_unseen:
         rows += bench_unseen(args.degrees, args.n, min(args.n_peer, args.n), args.n_small, args.repeat, rng)
@@ -375,8 +376,9 @@ def main() -> None:
     print("\n" + md)
     out = args.out
     out.parent.mkdir(parents=True, exist_ok=True)
-    cmd = "/work/venv/bin/python benchmarks/bench_kernel.py " + " ".join(sys.argv[1:])
-    out.write_text(f"# Geometry-kernel benchmark\n\n`{cmd.strip()}`\n\n{md}\n")
+    cmd = "python benchmarks/bench_kernel.py " + " ".join(sys.argv[1:])
+    out.write_text(f"# Geometry-kernel benchmark\n\n`{cmd.strip()}`\n\n{env}, load average at the end "
+                   f"{os.getloadavg()[0]:.2f}\n\n{md}\n")
     print(f"\nwritten to {out}")
 
 

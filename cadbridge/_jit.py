@@ -25,10 +25,11 @@ _listener = None
 def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_SECONDS) -> None:
     """Write "compiling numerical kernels (first run only, about N s)" to ``stream`` (stderr
     by default) when numba starts compiling a cadbridge function, at most once per process.
-    Safe to call more than once (one listener) and without numba (a no-op)."""
+    Safe to call more than once (one listener; the last call's stream and seconds count) and
+    without numba (a no-op)."""
     global _listener
     if _listener is not None:
-        _listener.stream = stream
+        _listener.stream, _listener.seconds = stream, seconds
         return
     try:
         from numba.core import event
@@ -38,6 +39,7 @@ def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_
     class _Once(event.Listener):
         def __init__(self) -> None:
             self.stream = stream
+            self.seconds = seconds
             self.said = False
 
         def on_start(self, ev) -> None:
@@ -50,7 +52,7 @@ def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_
             self.said = True
             out = self.stream or sys.stderr
             # on a terminal the progress line is rewritten with "\r": start a fresh line
-            line = f"cadbridge: compiling numerical kernels (first run only, about {seconds:.0f} s)"
+            line = f"cadbridge: compiling numerical kernels (first run only, about {self.seconds:.0f} s)"
             if getattr(out, "isatty", lambda: False)():
                 line = "\r" + line.ljust(110)
             out.write(line + "\n")
