@@ -239,3 +239,27 @@ def test_arc100_equals_construct_circular_arc():
         assert a.domain[1] == pytest.approx(b.domain[1], abs=1e-14)
         assert np.allclose(a.control_points, b.control_points, rtol=0, atol=1e-14 * r)
         assert np.allclose(a.weights, b.weights, rtol=0, atol=1e-15)
+
+
+@needs_real
+def test_inspect_and_verify_report_trim_delta():
+    """`cadbridge inspect` and `verify` show each face's trim delta and name the face with the
+    largest; on the SolidWorks file that is 10 sqrt 2 mm (the sphere caps' analytic value, see
+    test_solidworks_trims_exact_and_delta), on DE 41 or 351 (equal up to rounding)."""
+    pytest.importorskip("OCP")
+    from cadbridge.cli import format_inspect
+    from cadbridge.occ.verify import verify
+
+    m = read_iges(SW)
+    text = format_inspect(m)
+    line = next(s for s in text.splitlines() if s.startswith("trim delta"))
+    worst = max(range(len(m.faces)), key=lambda i: m.faces[i].trim_delta)
+    assert f"max {10 * np.sqrt(2):.3g} MM" in line and f"on face {worst} (DE {m.faces[worst].de})" in line
+    assert "9 of 9 faces" in line
+    rows = [s.split() for s in text.splitlines()[text.splitlines().index(line) + 2:][:len(m.faces)]]
+    assert [int(r[1]) for r in rows] == [f.de for f in m.faces]
+    assert [float(r[7]) for r in rows] == pytest.approx([f.trim_delta for f in m.faces], rel=1e-2)
+    rep = verify(SW, n_samples=6, isolate=False)
+    w = rep.max_delta()
+    assert w.de in (41, 351) and w.trim_delta == pytest.approx(10 * np.sqrt(2), rel=1e-9)
+    assert rep.delta_line() in rep.format() and f"(DE {w.de})" in rep.delta_line()

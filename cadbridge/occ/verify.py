@@ -13,6 +13,10 @@ Per face, at random (u, v) over the untrimmed surface domain:
               normal and OCC's face normal at the foot are measured.
 Positions are relative to the model size (bounding-box diagonal), derivatives relative to
 the largest derivative of the same order on the face, normals in radians.
+
+Each face also shows the file's own trim tolerance, `Face.trim_delta` (how far its 2D and 3D
+trim curves disagree, in mm), and the report names the face with the largest: information
+about the file, not a pass/fail criterion (OCC is not involved).
 """
 
 from __future__ import annotations
@@ -55,6 +59,7 @@ class FaceCheck:
     n_samples: int
     passed: bool
     note: str = ""
+    trim_delta: float = float("nan")  # the face's `Face.trim_delta` in mm (NaN: not both trim representations)
 
 
 @dataclass
@@ -79,24 +84,41 @@ class VerifyReport:
         """The faces that failed."""
         return [f for f in self.faces if not f.passed]
 
+    def max_delta(self) -> FaceCheck | None:
+        """The face with the largest trim delta (None if no face has one)."""
+        have = [f for f in self.faces if not np.isnan(f.trim_delta)]
+        return max(have, key=lambda f: f.trim_delta) if have else None
+
+    def delta_line(self) -> str:
+        """One line: the largest trim delta, its face, and how many faces have one."""
+        w = self.max_delta()
+        if w is None:
+            return "trim delta (file's 2D/3D trim disagreement): no face has both trim representations"
+        n = sum(not np.isnan(f.trim_delta) for f in self.faces)
+        return (f"trim delta (file's 2D/3D trim disagreement): max {w.trim_delta:.3g} mm "
+                f"({w.trim_delta / self.size:.3g} x size) on face {w.index} (DE {w.de}); {n} of {len(self.faces)} "
+                f"faces have both representations")
+
     def format(self, max_rows: int = 60) -> str:
         """A table of faces, worst position deviation first, and a verdict line."""
         head = (f"verify {self.path or '<model>'}: {len(self.faces)} faces (OCC: {self.n_occ_faces}), "
                 f"size {self.size:.6g} mm, tolerances pos {self.tol_pos:g} x size, der {self.tol_der:g} rel, "
                 f"normal {self.tol_ang:g} rad")
         rows = [head, f"{'face':>5} {'DE':>6} {'type':>8} {'name':<12} {'OCC':>7} {'mode':<10} {'pos/size':>10} "
-                      f"{'der rel':>10} {'angle':>10} {'orient':<8} result"]
+                      f"{'der rel':>10} {'angle':>10} {'delta mm':>10} {'orient':<8} result"]
         order = sorted(self.faces, key=lambda f: (f.passed, -_nz(f.pos_dev)))
         for f in order[:max_rows]:
             occ = ",".join(str(i) for i in f.occ_index[:3]) + ("…" if len(f.occ_index) > 3 else "") or "-"
             rows.append(f"{f.index:>5} {f.de:>6} {f'{f.entity_type}/{f.surface_type}':>8} {(f.name or '')[:12]:<12} "
-                        f"{occ:>7} {f.mode:<10} {_e(f.pos_dev)} {_e(f.der_dev)} {_e(f.ang_dev)} {f.orientation:<8} "
+                        f"{occ:>7} {f.mode:<10} {_e(f.pos_dev)} {_e(f.der_dev)} {_e(f.ang_dev)} {_e(f.trim_delta)} "
+                        f"{f.orientation:<8} "
                         f"{'ok' if f.passed else 'FAIL'}{'  ' + f.note if f.note else ''}")
         if len(order) > max_rows:
             rows.append(f"  ... {len(order) - max_rows} more faces")
         if self.unmatched_occ:
             rows.append(f"OCC faces with no counterpart in our model: {self.unmatched_occ[:20]}"
                         + (" ..." if len(self.unmatched_occ) > 20 else ""))
+        rows.append(self.delta_line())
         n_bad = len(self.failed())
         rows.append("OK" if self.ok else f"FAILED: {n_bad} face(s) out of tolerance, {len(self.unmatched_occ)} OCC face(s) unmatched")
         return "\n".join(rows)
@@ -252,8 +274,10 @@ def compare_models(
     rng = np.random.default_rng(seed)
     for i, (face, js) in enumerate(zip(model.faces, pairs)):
         u, v = _sample_uv(face, n_samples, rng, inside_trims)
+        delta = face.trim_delta  # the first access computes all faces' deltas in one pass
         common = dict(index=i, de=face.de, entity_type=face.entity_type, surface_type=face.surface_type,
-                      name=face.name, occ_index=list(js), n_samples=len(u))
+                      name=face.name, occ_index=list(js), n_samples=len(u),
+                      trim_delta=np.nan if delta is None else float(delta) * scale)
         if not js:
             report.faces.append(FaceCheck(**common, mode="unpaired", pos_dev=np.nan, der_dev=np.nan, ang_dev=np.nan,
                                           orientation="-", passed=False, note="no OCC face matches"))
