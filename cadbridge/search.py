@@ -34,6 +34,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -342,19 +343,49 @@ def index_for(model: Model) -> SearchIndex:
     return idx
 
 
-def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(point, face) pairs whose span boxes lie within ``bound`` (N,) of the point; unique,
-    sorted by face. Returns (point indices, face indices)."""
+@numba.njit(cache=True, error_model="numpy")
+def _pair_keys(pi, bj, pts, box_lo, box_hi, box_face, bound, exclude, n):  # pragma: no cover - compiled
+    """Keys face * n + point of the raw (point pi, box bj) pairs whose exact point-box distance
+    is within the point's bound and whose face is not the point's excluded one (-1: none)."""
+    out = np.empty(pi.shape[0], dtype=np.int64)
+    m = 0
+    for t in range(pi.shape[0]):
+        p = pi[t]
+        b = bj[t]
+        f = box_face[b]
+        if f == exclude[p]:
+            continue
+        g2 = 0.0
+        for c in range(3):
+            x = pts[p, c]
+            g = max(box_lo[b, c] - x, x - box_hi[b, c], 0.0)
+            g2 += g * g
+        if np.sqrt(g2) <= bound[p] or not np.isfinite(bound[p]):
+            out[m] = f * n + p
+            m += 1
+    return out[:m]
+
+
+def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exclude: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """(point, face) pairs whose boxes lie within ``bound`` (N,) of the point, without the
+    pairs (i, exclude[i]) (faces already projected); unique, sorted by face. Returns (point
+    indices, face indices)."""
     n = len(pts)
     finite = np.isfinite(bound)
-    pairs_p, pairs_b = [], []
+    excl = np.full(n, -1, dtype=np.int64) if exclude is None else np.asarray(exclude, dtype=np.int64)
+    face_of_box = index.box_face.astype(np.int64)
+    keys = []
     if np.any(~finite):  # no bound at all (no valid samples): every face is a candidate
         pi = np.nonzero(~finite)[0]
-        pairs_p.append(np.repeat(pi, len(index.box_face)))
-        pairs_b.append(np.tile(np.arange(len(index.box_face)), len(pi)))
+        f = np.unique(face_of_box)
+        ff, pp = np.tile(f, len(pi)), np.repeat(pi, len(f))
+        keep = ff != excl[pp]
+        keys.append(ff[keep] * n + pp[keep])
     if np.any(finite):
         fb = bound[finite]
-        lvl = np.floor(np.log2(np.maximum(fb, 1e-9 * max(index.size, 1e-300)))).astype(int)
+        # octaves of the bound; bounds below 1e-3 x size in one group (the box radii dominate there)
+        lvl = np.floor(np.log2(np.maximum(fb, 1e-3 * max(index.size, 1e-300)))).astype(int)
         fidx = np.nonzero(finite)[0]
         for o in np.unique(lvl):
             sel = fidx[lvl == o]
@@ -364,19 +395,11 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray) -> 
                 m = ptree.sparse_distance_matrix(btree, bmax + rmax, output_type="ndarray")
                 if len(m) == 0:
                     continue
-                pairs_p.append(sel[m["i"]])
-                pairs_b.append(boxes[m["j"]])
-    if not pairs_p:
+                keys.append(_pair_keys(sel[m["i"]], boxes[m["j"]], pts, index.box_lo, index.box_hi, face_of_box,
+                                       bound, excl, n))
+    if not keys:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    p = np.concatenate(pairs_p)
-    b = np.concatenate(pairs_b)
-    # exact point-box distance against the point's bound
-    x = pts[p]
-    gap = np.maximum(np.maximum(index.box_lo[b] - x, x - index.box_hi[b]), 0.0)
-    dist = np.linalg.norm(gap, axis=1)
-    keep = ~np.isfinite(bound[p]) | (dist <= bound[p])
-    p, f = p[keep], index.box_face[b[keep]]
-    key = np.unique(f.astype(np.int64) * n + p)  # sorted by face, then point
+    key = np.unique(np.concatenate(keys))  # sorted by face, then point
     return key % n, key // n
 
 
@@ -471,10 +494,7 @@ def project_points(
     np.minimum.at(bound, cp1[good], r1[3][good] * (1.0 + 1e-9) + 1e-9 * size)
 
     # 2. the other candidate (point, face) pairs: sub-patch boxes within the bound
-    cp2, cf2 = _candidate_pairs(index, pts, bound)
-    if len(cp1):
-        new = cf2 != f0[cp2]
-        cp2, cf2 = cp2[new], cf2[new]
+    cp2, cf2 = _candidate_pairs(index, pts, bound, exclude=f0 if len(cp1) else None)
     r2 = _project_pairs(model, index.n_faces, pts, cp2, cf2, tol)
     cp, cf = np.concatenate([cp1, cp2]), np.concatenate([cf1, cf2])
     pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate([x, y]) for x, y in zip(r1, r2))

@@ -325,6 +325,103 @@ _CHECK_SEEDS = 4  # extra Newton starts per point at most
 _EDGE_SEEDS = 6  # extra starts from nearby samples for feet clamped to an edge
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _global_seeds(d, dk, ik, spacing, spts, pts, fu, fv, us, vs, closed_u, closed_v, max_seeds
+                  ):  # pragma: no cover - compiled
+    """Extra Newton starts of `_global_check`, point by point: among the k nearest samples
+    (dk, ik (N, k)) within sqrt(d^2 + (2h)^2) of the point (d the distance found, h the grid
+    spacing at the nearest sample): discrete local minima of the distance over their 4 grid
+    neighbours (wrapping in closed directions), the farthest sample of a flat valley, at most
+    ``max_seeds`` of those, plus the nearest sample more than 2 grid cells from the foot
+    (fu, fv). Returns (point rows (S,), sample indices (S,)), rows ascending."""
+    n, k = dk.shape
+    mu, mv = us.shape[0], vs.shape[0]
+    rows = np.empty(n * k, dtype=np.int64)
+    cols = np.empty(n * k, dtype=np.int64)
+    m = 0
+    is_min = np.zeros(k, dtype=np.bool_)
+    cand = np.zeros(k, dtype=np.bool_)
+    for i in range(n):
+        h0 = spacing[ik[i, 0]]
+        rad = np.sqrt(d[i] * d[i] + (2.0 * h0) ** 2)
+        any_c = False
+        for c in range(k):
+            cand[c] = dk[i, c] <= rad
+            any_c = any_c or cand[c]
+        if not any_c:
+            continue
+        px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
+        for c in range(k):
+            ok = cand[c]
+            if ok:
+                s = ik[i, c]
+                ii = s // mv
+                jj = s - ii * mv
+                for t in range(4):
+                    ni = ii + (1 if t == 0 else (-1 if t == 1 else 0))
+                    nj = jj + (1 if t == 2 else (-1 if t == 3 else 0))
+                    if closed_u:
+                        ni = ni % (mu - 1)
+                    if closed_v:
+                        nj = nj % (mv - 1)
+                    if 0 <= ni < mu and 0 <= nj < mv:
+                        q = ni * mv + nj
+                        ex, ey, ez = spts[q, 0] - px, spts[q, 1] - py, spts[q, 2] - pz
+                        if not (dk[i, c] <= np.sqrt(ex * ex + ey * ey + ez * ez)):
+                            ok = False
+                            break
+            is_min[c] = ok
+        is_min[0] = False
+        # flat valley: the ball sample farthest (> 2 cells) from the first start whose
+        # distance grows slower than one cell of tangential offset
+        s0 = ik[i, 0]
+        best = -1.0
+        far = -1
+        for c in range(k):
+            if cand[c] and dk[i, c] * dk[i, c] <= dk[i, 0] * dk[i, 0] + h0 * h0:
+                s = ik[i, c]
+                ex, ey, ez = spts[s, 0] - spts[s0, 0], spts[s, 1] - spts[s0, 1], spts[s, 2] - spts[s0, 2]
+                sep = np.sqrt(ex * ex + ey * ey + ez * ez)
+                if sep > 2.0 * h0 and sep > best:
+                    best = sep
+                    far = c
+        if far >= 0:
+            is_min[far] = True
+        # the nearest ball sample more than 2 grid cells away from the foot found
+        first_away = -1
+        if np.isfinite(d[i]):
+            fi = min(max(np.searchsorted(us, fu[i]), 0), mu - 1)
+            fj = min(max(np.searchsorted(vs, fv[i]), 0), mv - 1)
+            for c in range(1, k):
+                if not cand[c]:
+                    continue
+                s = ik[i, c]
+                ii = s // mv
+                jj = s - ii * mv
+                away = abs(ii - fi) > 2 or abs(jj - fj) > 2
+                if closed_u and abs(ii - fi) >= mu - 3:
+                    away = False
+                if closed_v and abs(jj - fj) >= mv - 3:
+                    away = False
+                if away:
+                    first_away = c
+                    break
+        cnt = 0
+        for c in range(k):
+            if is_min[c]:
+                cnt += 1
+                if cnt > max_seeds:
+                    is_min[c] = False
+        if first_away >= 0:
+            is_min[first_away] = True
+        for c in range(k):
+            if is_min[c]:
+                rows[m] = i
+                cols[m] = ik[i, c]
+                m += 1
+    return rows[:m], cols[:m]
+
+
 def _global_check(
     surface: NurbsSurface, samples: SurfaceSamples, pts: np.ndarray, res: SurfaceProjection, tol: float, max_iter: int
 ) -> None:
@@ -340,54 +437,12 @@ def _global_check(
     d = np.where(np.isfinite(d), d, np.inf)
     dk, ik = samples.tree.query(pts, k=k)
     dk, ik = dk.reshape(n, k), ik.reshape(n, k)
-    # grid spacing around the first start (twice, for neighbouring cells of other sizes)
-    rad = np.sqrt(d * d + (2.0 * samples.spacing[ik[:, 0]]) ** 2)
-    cand = dk <= rad[:, None]
-    if not np.any(cand):
-        return
-    ii, jj = np.divmod(ik, mv)
-    # discrete local minimum over the 4 grid neighbours (wrapping in closed directions)
-    is_min = cand.copy()
-    for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        ni, nj = ii + di, jj + dj
-        if samples.closed_u:
-            ni = np.mod(ni, mu - 1)
-        if samples.closed_v:
-            nj = np.mod(nj, mv - 1)
-        inside = (ni >= 0) & (ni < mu) & (nj >= 0) & (nj < mv)
-        nidx = np.clip(ni, 0, mu - 1) * mv + np.clip(nj, 0, mv - 1)
-        dn = np.linalg.norm(samples.points[nidx] - pts[:, None, :], axis=2)
-        is_min &= ~inside | (dk <= dn)
-    is_min[:, 0] = False  # the nearest sample was the first start already
-    # flat valleys (point near a centre of curvature): the distance field on the grid may
-    # show no second minimum; also start from the ball sample farthest (in space, > 2 cells)
-    # from the first start whose distance barely grows from that of the first start
-    h0 = samples.spacing[ik[:, :1]]
-    flat = dk * dk <= dk[:, :1] ** 2 + h0 * h0  # grows slower than one cell of tangential offset
-    sep = np.linalg.norm(samples.points[ik] - samples.points[ik[:, :1]], axis=2)
-    gd = np.where(cand & flat & (sep > 2.0 * h0), sep, -1.0)
-    far = np.argmax(gd, axis=1)
-    far_ok = gd[np.arange(n), far] > 0.0
-    is_min[np.arange(n)[far_ok], far[far_ok]] = True
-    # the nearest ball sample more than 2 grid cells away from the foot found: a second valley
-    # of the distance whose minimum falls between samples is not a discrete local minimum
-    fi = np.clip(np.searchsorted(samples.us, res.u), 0, mu - 1)
-    fj = np.clip(np.searchsorted(samples.vs, res.v), 0, mv - 1)
-    away = (np.abs(ii - fi[:, None]) > 2) | (np.abs(jj - fj[:, None]) > 2)
-    if samples.closed_u:
-        away &= ~(np.abs(ii - fi[:, None]) >= mu - 3)
-    if samples.closed_v:
-        away &= ~(np.abs(jj - fj[:, None]) >= mv - 3)
-    away &= cand & np.isfinite(d)[:, None]
-    away[:, 0] = False
-    first_away = np.argmax(away, axis=1)
-    has_away = away[np.arange(n), first_away]
-    is_min &= np.cumsum(is_min, axis=1) <= _CHECK_SEEDS
-    is_min[np.arange(n)[has_away], first_away[has_away]] = True  # one more seed at most
-    rows, cols = np.nonzero(is_min)
+    rows, sidx = _global_seeds(d, dk, ik.astype(np.int64), samples.spacing, samples.points, pts,
+                               np.ascontiguousarray(res.u), np.ascontiguousarray(res.v), samples.us, samples.vs,
+                               samples.closed_u, samples.closed_v, _CHECK_SEEDS)
     if rows.size == 0:
         return
-    uv = samples.uv[ik[rows, cols]]
+    uv = samples.uv[sidx]
     extra = _newton(surface, samples, pts[rows], uv[:, 0].copy(), uv[:, 1].copy(), tol, max_iter)
     better = (extra.status != FAILED) & (extra.distance < d[rows])
     if not np.any(better):
@@ -525,8 +580,8 @@ def _wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _newton_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                   max_iter):  # pragma: no cover - compiled
+def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                  max_iter, start, stop):  # pragma: no cover - compiled
     """The projected Newton iterations of `_newton` (module docstring), point by point:
     updates u, v (N,) and iters (N,) in place. Same tests and steps as the former vectorised
     loop: convergence first, then the lazy line search (halve the previous step when |r|^2
@@ -547,7 +602,7 @@ def _newton_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps
     bv = np.empty((3, q + 1))
     aw = np.empty((3, 3, 4))
     der = np.empty((3, 3, 3))
-    for t in range(pts.shape[0]):
+    for t in range(start, stop):
         px, py, pz = pts[t, 0], pts[t, 1], pts[t, 2]
         e = noise[t]
         uu, vv = u[t], v[t]
@@ -644,6 +699,26 @@ def _newton_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps
         iters[t] += it
 
 
+_NEWTON_BLOCK = 1024  # points per task of the parallel Newton kernel
+_NEWTON_PARALLEL_MIN = 16384  # fewer points: serial (thread start-up costs more than it saves)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _newton_serial(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                   max_iter):  # pragma: no cover - compiled
+    _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                  max_iter, 0, pts.shape[0])
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _newton_parallel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                     max_iter):  # pragma: no cover - compiled
+    n = pts.shape[0]
+    for blk in numba.prange((n + _NEWTON_BLOCK - 1) // _NEWTON_BLOCK):
+        _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                      max_iter, blk * _NEWTON_BLOCK, min(n, (blk + 1) * _NEWTON_BLOCK))
+
+
 def _newton(
     surface: NurbsSurface,
     samples: SurfaceSamples,
@@ -675,9 +750,10 @@ def _newton(
     # absolute round-off of r = S - P per point: a few ulps of the largest coordinate involved
     noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + size) if n else np.zeros(0)
     if n:
-        _newton_kernel(surface._pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v,
-                       surface.rational, u0, u1, v0, v1, cu, cv, eps1, eps2,
-                       np.ascontiguousarray(pts, dtype=float), noise, u, v, iters, int(max_iter))
+        kernel = _newton_parallel if n >= _NEWTON_PARALLEL_MIN else _newton_serial
+        kernel(surface._pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v,
+               surface.rational, u0, u1, v0, v1, cu, cv, eps1, eps2,
+               np.ascontiguousarray(pts, dtype=float), noise, u, v, iters, int(max_iter))
 
     # ---------------------------------------------------------------- final classification
     der = surface.derivatives(u, v, order=1)
@@ -702,6 +778,14 @@ def _newton(
     ok &= np.isfinite(dist) & np.isfinite(u) & np.isfinite(v)
     status = np.where(binding, ON_BOUNDARY, CONVERGED).astype(np.int8)
     status[~ok] = FAILED
-    normal = surface.normal(u, v)
+    # unit Su x Sv from the derivatives at hand; degenerate points (poles, collapsed edges)
+    # take the limit normal of `NurbsSurface.normal` (same test, same arithmetic otherwise)
+    normal = np.cross(su, sv)
+    ln = np.linalg.norm(normal, axis=1)
+    degenerate = ~(ln > 1e-10 * np.maximum(lsu, lsv) ** 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal = normal / ln[:, None]
+    if np.any(degenerate):
+        normal[degenerate] = surface.normal(u[degenerate], v[degenerate])
     normal[status == FAILED] = np.nan
     return SurfaceProjection(u, v, foot, dist, normal, status, iters)
