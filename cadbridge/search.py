@@ -48,7 +48,7 @@ from cadbridge.nurbs.project import (
     project_to_surface,
     surface_samples,
 )
-from cadbridge.nurbs.ops import bezier_patches
+from cadbridge.nurbs.ops import bezier_patches, curve_bezier_segments
 from cadbridge.nurbs.surface import NurbsSurface
 from cadbridge.trims import project_to_trims
 
@@ -128,7 +128,8 @@ def span_boxes(surface: NurbsSurface) -> np.ndarray:
 
 
 _SUB_PATCHES = 256  # Bezier sub-patches per face at most (boxes of the index)
-_SUB_SPLITS = 8  # halvings of a knot span per direction at most (a power of 2)
+_TRIM_SPLITS = 8  # parts per Bezier piece of a trim curve (boxes of the trim-crossed cells)
+_SUB_SPLITS = 8  # parts of a knot span per direction at most (a power of 2)
 
 
 @lru_cache(maxsize=64)
@@ -190,22 +191,20 @@ def _trim_loops(face: Face) -> list:
 
 def _trim_curve_boxes(face: Face) -> np.ndarray:
     """uv boxes (T, 2, 2) [min, max] covering every trim curve of ``face``: for NURBS curves
-    the control points of each knot span (they contain its piece of curve); for exactly mapped
+    the control polygons of their Bezier pieces cut into 8 (each contains its piece of curve:
+    convex hull property); for exactly mapped
     curves without a control polygon (`cadbridge.iges.analytic`), the chords of 32 samples per
     span widened by twice their largest midpoint deviation."""
     out = []
     for loop in _trim_loops(face):
         for c in loop.curves:
             if hasattr(c, "control_points"):
-                p, kn = c.degree, c.knots
-                t0, t1 = c.domain
-                cp = c.control_points[:, :2]
-                i = np.arange(p, len(cp))
-                i = i[(kn[i + 1] > kn[i]) & (kn[i] < t1) & (kn[i + 1] > t0)]
-                if len(i) == 0:
-                    i = np.array([p])
-                seg = cp[i[:, None] - p + np.arange(p + 1)[None, :]]  # (S, p+1, 2)
-                out.append(np.stack([seg.min(axis=1), seg.max(axis=1)], axis=1))
+                # Bezier pieces of every span, each cut into 8: boxes of their control polygons
+                _, bp, bw = curve_bezier_segments(c)
+                hw = np.concatenate([bp[..., :2] * bw[..., None], bw[..., None]], axis=-1)  # (K, p+1, 3)
+                sub = np.einsum("sij,kjc->ksic", _split_matrices(c.degree, _TRIM_SPLITS), hw)
+                xy = (sub[..., :2] / sub[..., 2:]).reshape(-1, c.degree + 1, 2)
+                out.append(np.stack([xy.min(axis=1), xy.max(axis=1)], axis=1))
             else:
                 t = c.sample_parameters(32)
                 x = c.evaluate(t)[:, :2]

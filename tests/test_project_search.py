@@ -184,3 +184,50 @@ def test_index_reuse():
     idx = build_search_index(m)
     pts = np.array([[2.0, 3.0, 0.7]])
     assert project_points(pts, m, index=idx).face[0] == 0
+
+
+def test_index_cached_on_model_and_rebuilt_when_faces_change():
+    """`index_for` builds once per model (the same object comes back, and project_points uses
+    it by default); a changed face list (other length or a replaced face) gets a new index."""
+    from cadbridge.search import index_for
+
+    m = step_model()
+    idx = index_for(m)
+    assert index_for(m) is idx
+    project_points(np.array([[2.0, 3.0, 0.7]]), m)
+    assert index_for(m) is idx
+    m.faces.append(Face(surface=plane(0, 5, 0, 10, 7.0), de=7))
+    idx2 = index_for(m)
+    assert idx2 is not idx and idx2.n_faces == 4
+    assert project_points(np.array([[2.0, 3.0, 6.5]]), m).face[0] == 3  # the new face is searched
+    m.faces[3] = Face(surface=plane(0, 5, 0, 10, 8.0), de=7)
+    assert index_for(m) is not idx2
+    assert project_points(np.array([[2.0, 3.0, 6.5]]), m).distance[0] == pytest.approx(1.5, abs=1e-12)
+
+
+def test_subpatch_boxes_contain_surface_and_cover_trimmed_region():
+    """Strong convex hull on the Bezier sub-patches: every surface point inside the trims lies
+    in a kept box of its face, and cells wholly inside a hole are dropped (fewer boxes than
+    the untrimmed face). Reference: dense evaluation of the surface, `Face.contains`."""
+    from cadbridge.search import _face_cells
+
+    rng = np.random.default_rng(5)
+    s = random_surface(rng, rational=True)
+    face = Face(surface=s, de=1, trims=_hole_trim(0.5, 0.5, 0.3))
+    boxes, _, _, _ = _face_cells(face)
+    full, _, _, _ = _face_cells(Face(surface=s, de=1))
+    assert len(boxes) < len(full)
+    u, v = rng.random(20000), rng.random(20000)
+    keep = face.contains(u, v)
+    x = s.evaluate(u[keep], v[keep])
+    eps = 1e-12 * m_size(s)
+    inside = np.all((x[:, None, :] >= boxes[None, :, 0] - eps) & (x[:, None, :] <= boxes[None, :, 1] + eps), axis=2)
+    assert np.all(inside.any(axis=1))
+    y = s.evaluate(u, v)
+    assert np.all(np.all((y[:, None, :] >= full[None, :, 0] - eps) & (y[:, None, :] <= full[None, :, 1] + eps),
+                         axis=2).any(axis=1))
+
+
+def m_size(s: NurbsSurface) -> float:
+    b = s.bbox()
+    return float(np.linalg.norm(b[1] - b[0]))
