@@ -33,7 +33,8 @@ derivatives by the chain rule. A loop derived from model-space curves becomes an
 190-198, meridian-plane Newton on the generatrix for 120), derivatives by the chain rule
 through the surface Jacobian. Both offer the NurbsCurve interface the trim code uses
 (``domain``, ``degree``, ``knots``, ``evaluate``, ``derivatives``, ``sample_parameters``)
-and ``to_nurbs`` (a polyline within ``POLY_REL_TOL``) for writers that need control points.
+and ``to_nurbs`` (a cubic Hermite NurbsCurve within a stated tolerance) for writers that
+need control points.
 """
 
 from __future__ import annotations
@@ -48,9 +49,9 @@ from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["ArcMap", "Frame", "InvertedCurve", "MappedCurve", "ParamMap", "ax2_x_direction", "sample_chain",
-           "POLY_REL_TOL"]
+           "HERMITE_REL_TOL"]
 
-POLY_REL_TOL = 1e-6  # chord error of a polyline trim, relative to the (u, v) domain size
+HERMITE_REL_TOL = 1e-10  # `to_nurbs` default: cubic deviation relative to the curve's (u, v) box
 MIN_PER_SPAN = 16  # samples per knot span of the sampled curve at least
 MAX_REFINE = 14  # bisection rounds of the adaptive sampling
 TWO_PI = 2 * pi
@@ -242,13 +243,15 @@ class ArcMap:
         c = _construct()
         n = c.arc_segments(self.sweep)
         d = self.sweep / n
-        a = np.clip(np.asarray(x, dtype=float) - self.start_in, 0.0, self.sweep)
+        r = np.asarray(x, dtype=float) - self.start_in
+        a = np.clip(r, 0.0, self.sweep)
         k = np.clip(np.floor(a / d), 0, n - 1)
         tt = np.tan((a - k * d - d / 2) / 2)
         q = 1.0 / np.tan(d / 4)
         out = [self.start_out + (k + 0.5 * (1.0 + tt * q)) * d]
         if order >= 1:
-            f1 = 0.25 * d * q * (1.0 + tt * tt)
+            inside = (r >= 0.0) & (r <= self.sweep)  # f is constant where x is clipped: f' = f'' = 0
+            f1 = np.where(inside, 0.25 * d * q * (1.0 + tt * tt), 0.0)
             out.append(f1)
             if order >= 2:
                 out.append(f1 * tt)
@@ -310,23 +313,48 @@ class _TrimCurve:
         p = self.evaluate(self.sample_parameters(16))
         return np.array([p.min(axis=0), p.max(axis=0)])
 
-    def to_nurbs(self, rel_tol: float = POLY_REL_TOL) -> NurbsCurve:
-        """Degree-1 NurbsCurve through samples of this curve, bisected until the chord error
-        is below rel_tol x the size of the curve's box (for writers needing control points)."""
-        box = self.bbox()
-        tol = rel_tol * max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
-        t = self.sample_parameters(MIN_PER_SPAN)
-        for _ in range(MAX_REFINE):
-            p = self.evaluate(t)
-            tm = 0.5 * (t[:-1] + t[1:])
-            err = np.linalg.norm(self.evaluate(tm) - 0.5 * (p[:-1] + p[1:]), axis=1)
-            bad = np.flatnonzero(~(err <= tol))
+    def to_nurbs(self, rel_tol: float = HERMITE_REL_TOL, tol: float | None = None) -> NurbsCurve:
+        """This curve as a NurbsCurve for writers that need control points: no exact NURBS
+        exists (the ArcMap / inversion of a NURBS is not rational), so the piecewise cubic
+        Hermite interpolant on the same parameter t -- exact points and exact first derivatives
+        (one-sided at the ends of each interval, so corners at knots are kept), Bezier form
+        (knots of multiplicity 3, C0 at every junction, C1 wherever the curve is) -- with
+        intervals bisected until its distance from this curve at 1/4, 1/2 and 3/4 of every
+        interval is at most ``tol`` ((u, v) units; default ``rel_tol`` x the diagonal of the
+        curve's box). Where the exact curve itself jumps (an InvertedCurve through a pole of its
+        surface, where the angle is undefined) no continuous curve is within tol: the cubic
+        crosses the jump within an interval of 1e-13 x the domain length. Degree 3, domain =
+        this curve's domain."""
+        if tol is None:
+            box = self.bbox()
+            tol = rel_tol * max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+        t = self.sample_parameters(2)  # every knot (and ArcMap break) is an interval end
+        gap = 1e-13 * max(float(t[-1] - t[0]), 1e-300)  # a jump of the curve itself: bridged this narrowly
+        s = np.array([0.25, 0.5, 0.75])
+        for _ in range(60):  # 1e-13 of the domain is reached from one interval in 44 halvings
+            a, b = t[:-1], t[1:]
+            h = b - a
+            d0 = self.derivatives(a, 1)
+            d1 = self.derivatives(np.nextafter(b, -np.inf), 1)  # from the left: one-sided at a knot
+            p0, p1 = d0[:, 0], self.evaluate(b)
+            c1, c2 = p0 + d0[:, 1] * (h / 3)[:, None], p1 - d1[:, 1] * (h / 3)[:, None]
+            x = (a[:, None] + h[:, None] * s[None]).ravel()
+            u = np.tile(s, len(a))[:, None]
+            rep3 = lambda q: np.repeat(q, 3, axis=0)  # noqa: E731
+            bez = ((1 - u) ** 3 * rep3(p0) + 3 * u * (1 - u) ** 2 * rep3(c1) + 3 * u * u * (1 - u) * rep3(c2)
+                   + u ** 3 * rep3(p1))
+            err = np.linalg.norm(bez - self.evaluate(x), axis=1).reshape(-1, 3).max(axis=1)
+            bad = np.flatnonzero(~(err <= tol) & (h > gap))
             if bad.size == 0:
                 break
-            t = np.insert(t, bad + 1, tm[bad])
-        p = self.evaluate(t)
-        m = len(p)
-        return NurbsCurve(1, np.concatenate([[t[0]], t, [t[-1]]]), p)
+            t = np.insert(t, bad + 1, a[bad] + 0.5 * h[bad])
+        else:
+            raise ValueError(f"cubic approximation of the trim curve did not reach {tol:.3g}")
+        n = len(a)
+        cp = np.empty((3 * n + 1, p0.shape[1]))
+        cp[0:-1:3], cp[1::3], cp[2::3], cp[-1] = p0, c1, c2, p1[-1]
+        knots = np.concatenate([[t[0]] * 4, np.repeat(t[1:-1], 3), [t[-1]] * 4])
+        return NurbsCurve(3, knots, cp, None, (float(t[0]), float(t[-1])))
 
     @property
     def knots(self) -> np.ndarray:

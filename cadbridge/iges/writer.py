@@ -1,6 +1,15 @@
 """`write_iges`: faces (exact NURBS + trims) -> IGES 5.3 file with entities 128, 126, 102,
 142, 144, 314 (colours) and 406 form 15 (names). Reals are written with round-trip
-precision, so reading the file back reproduces every surface bit for bit."""
+precision, so reading the file back reproduces every surface and every NURBS trim curve bit
+for bit.
+
+Trim curves that are not NURBS -- the exact `MappedCurve` / `InvertedCurve` trims the reader
+builds over analytic surfaces (the ArcMap / inversion of a NURBS is not rational, so no exact
+126 exists) -- are written as their `to_nurbs` cubic: the C1 (C0 at corners) Hermite
+interpolant on the same parameter, exact points and first derivatives at its knots, within
+``TRIM_REL_TOL`` x the diagonal of the face's (u, v) domain of the exact curve (checked at 1/4,
+1/2, 3/4 of every interval). Their model-space curves, when the loop has them, are NURBS and
+written exactly."""
 
 from __future__ import annotations
 
@@ -17,7 +26,9 @@ from cadbridge.model import Face, Model, Units
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["write_iges", "iges_text", "format_real"]
+__all__ = ["write_iges", "iges_text", "format_real", "TRIM_REL_TOL"]
+
+TRIM_REL_TOL = 1e-10  # non-NURBS trim curves: cubic deviation / (u, v) domain diagonal
 
 # status numbers (blank, subordinate, entity use, hierarchy)
 ST_INDEPENDENT = "00000000"
@@ -123,7 +134,7 @@ def _add_face(f: _File, face: Face, label: str = "", subscript: int = 0) -> None
     sde = f.add(_Entity(128, _surface_params(face.surface), status=ST_DEPENDENT, color=color))
     cos = []
     for loop in loops:
-        bptr = _curve_entity(f, [_as_2d(c) for c in loop.curves], ST_PARAMETRIC)
+        bptr = _curve_entity(f, [_as_2d(c, face.surface) for c in loop.curves], ST_PARAMETRIC)
         cptr = _curve_entity(f, list(loop.model_curves), ST_DEPENDENT) if loop.model_curves else 0
         cos.append(f.add(_Entity(142, ["0", str(sde), str(bptr), str(cptr), "1"], status=ST_DEPENDENT)))
     has_outer = trims.outer is not None
@@ -134,7 +145,12 @@ def _add_face(f: _File, face: Face, label: str = "", subscript: int = 0) -> None
                   subscript=subscript))
 
 
-def _as_2d(c: NurbsCurve) -> NurbsCurve:
+def _as_2d(c, surface: NurbsSurface) -> NurbsCurve:
+    """A loop piece as a 2D NurbsCurve: NURBS as they are (z dropped), other trim curves as
+    their cubic within TRIM_REL_TOL x the (u, v) domain diagonal of ``surface``."""
+    if not isinstance(c, NurbsCurve):
+        u0, u1, v0, v1 = surface.domain
+        return c.to_nurbs(tol=TRIM_REL_TOL * float(np.hypot(u1 - u0, v1 - v0)))
     if c.dim == 2:
         return c
     return NurbsCurve(c.degree, c.knots, c.control_points[:, :2], c.weights, c.domain)
