@@ -11,7 +11,9 @@ edge and the remaining variable is solved by Newton on that iso-curve (status ON
 closed (periodic) directions wrap instead of clamping.
 
 Line search: a step that increases |r|^2 beyond its round-off (2 |r| e + e^2, e a few ulps
-of the coordinates) is halved; convergence is tested first, so a foot that is already
+of the coordinates) is halved, unless it was cut at a domain edge: then the iteration goes on
+from the previous point projected onto that edge (halving along a cut step need not descend;
+it stalled a point of the bearing benchmark off the edge, FAILED); convergence is tested first, so a foot that is already
 orthogonal is never sent back by round-off (this sent 9 of 200 000 points of the many-face
 benchmark into an endless halving loop and FAILED, or worse, stopped at a point ~1e-8 off).
 
@@ -610,6 +612,8 @@ def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2
         d2_prev = np.inf
         du_prev = 0.0
         dv_prev = 0.0
+        hit_u = False  # the last Newton step was cut at an edge in u / in v
+        hit_v = False
         it = 0
         for _ in range(max_iter):
             _ders2_one(pw, ku, kv, p, q, rational, uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
@@ -632,6 +636,17 @@ def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2
             conv = (lr <= eps1) or ((cos_u <= eps2 or act_u) and (cos_v <= eps2 or act_v))
             if np.isfinite(d2_prev) and not conv:
                 if d2 > d2_prev * (1.0 + 1e-13) + 2.0 * np.sqrt(d2_prev) * e + e * e:
+                    if (hit_u and u_prev != uu) or (hit_v and v_prev != vv):
+                        # the step was cut at an edge and went up: halving along the cut
+                        # direction need not descend (it stalled off the edge, FAILED); go to
+                        # the previous point projected onto that edge instead and go on from
+                        # there (the edge test then decides: 1D Newton along it, or back in)
+                        uu = uu if hit_u else u_prev
+                        vv = vv if hit_v else v_prev
+                        hit_u = False
+                        hit_v = False
+                        d2_prev = np.inf
+                        continue
                     # distance went up: back to the previous point with half the step
                     du_prev *= 0.5
                     dv_prev *= 0.5
@@ -679,6 +694,8 @@ def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2
                 dv = 0.0
             un = _wrap_clamp(uu + du, u0, u1, cu)
             vn = _wrap_clamp(vv + dv, v0, v1, cv)
+            hit_u = (not cu) and un != uu + du
+            hit_v = (not cv) and vn != vv + dv
             ddu = un - uu
             ddv = vn - vv
             if cu:
