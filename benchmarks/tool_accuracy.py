@@ -1,0 +1,403 @@
+"""Tool-file accuracy against OpenCASCADE (issue #13, "Every sample"): a script, not a test.
+
+For every file of iges_samples/*.igs and ../shared/iges_real/*, in tri and in quad:
+
+1. run ``cadbridge convert FILE -o TMP --element E`` as a subprocess with a timeout (exit
+   code, wall time, last stderr line on failure). If convert refuses a tool as worse than
+   its flat mesh (exit 1), the row says so and, with ``--retry-allow-worse`` (default on),
+   the file is converted again with ``--allow-worse`` to measure it anyway (such a row never
+   passes);
+2. read every written tool file with the independent reader ``tests/toolfile_reference.py``
+   (written from docs/toolfile.md alone), sample every patch on an ``--div``-division grid
+   (default 4: 15 points per triangle, 25 per quad), evaluate the Nagata point from the
+   file's COEFFICIENTS and the flat element point (triangle x00 + (x10-x00) eta +
+   (x11-x10) zeta, quad bilinear) at the same (eta, zeta);
+3. measure both against OpenCASCADE: the IGES read by ``IGESControl_Reader``
+   (``cadbridge.occ.reference.occ_read``: OCC's reader and surfaces, none of cadbridge's
+   geometry); each element goes to the OCC face nearest its flat centroid
+   (``BRepExtrema_DistShapeShape`` vertex vs the whole shape, ``SupportOnShape2``; when the
+   support is an edge or a vertex, the adjacent face whose surface is nearest the centroid),
+   and each sample's surface error is its distance to that face's untrimmed surface
+   (``GeomAPI_ProjectPointOnSurf`` on ``BRep_Tool.Surface``, location applied).
+
+Pass: max Nagata surface error <= 0.25 x max flat surface error, or both below 1e-9 x size
+(size = diagonal of the tool file's node box, the largest over the file's tools).
+
+At most ``--max-samples`` samples per (file, element type) (default 200 000): beyond that,
+every k-th element is measured (k = ceil(samples / cap)), and the row says how many
+elements were measured. OCC calls are Python loops (this is a benchmark).
+
+    python benchmarks/tool_accuracy.py [--only SUBSTRING] [--timeout 600] [--div 4]
+        [--max-samples 200000] [--elements tri quad] [--no-real] [--no-samples]
+
+Prints a Markdown table and writes it to benchmarks/results/tool_accuracy.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+import toolfile_reference as R  # noqa: E402
+
+SAMPLES = ROOT / "iges_samples"
+REAL = ROOT.parent / "shared" / "iges_real"
+RESULTS = ROOT / "benchmarks" / "results"
+UNIT_MM = {"MM": 1.0, "CM": 10.0, "M": 1000.0, "IN": 25.4, "INCH": 25.4, "FT": 304.8, "UM": 1e-3, "MICRON": 1e-3}
+
+
+@dataclass
+class Row:
+    file: str
+    element: str
+    exit_code: int | None = None
+    convert_s: float = 0.0
+    message: str = ""
+    tools: list[str] = field(default_factory=list)
+    elements: int = 0
+    measured: int = 0
+    samples: int = 0
+    nagata: float = float("nan")
+    flat: float = float("nan")
+    size: float = float("nan")
+    measure_s: float = 0.0
+    refused: bool = False
+    unassigned: int = 0
+    nagata_normal: float = float("nan")  # max |(x - foot) . n|: the normal part only
+    flat_normal: float = float("nan")
+    no_projection: int = 0  # samples OCC found no projection for
+    foot_on_border: int = 0  # Nagata samples whose foot is on the border of the surface's domain
+    worst_nagata: tuple = (0.0, False, 0.0)  # (distance, foot on border, normal part) of the worst sample
+    exit_code_first: int | None = None  # of the plain convert, when a retry with --allow-worse followed
+
+    def _ok(self, nag: float, flat: float) -> bool:
+        if self.exit_code != 0 or self.refused or self.unassigned or self.no_projection:
+            return False
+        if not (np.isfinite(nag) and np.isfinite(flat)):
+            return False
+        tol = 1e-9 * self.size
+        if nag <= tol and flat <= tol:
+            return True
+        return bool(nag <= 0.25 * flat)
+
+    @property
+    def ratio(self) -> float:
+        return self.nagata / self.flat if self.flat > 0 else float("nan")
+
+    @property
+    def ratio_normal(self) -> float:
+        return self.nagata_normal / self.flat_normal if self.flat_normal > 0 else float("nan")
+
+    @property
+    def passed(self) -> bool:
+        return self._ok(self.nagata, self.flat)
+
+    @property
+    def passed_normal(self) -> bool:
+        return self._ok(self.nagata_normal, self.flat_normal)
+
+
+def cadbridge_cmd() -> list[str]:
+    exe = Path(sys.executable).with_name("cadbridge")
+    if exe.exists():
+        return [str(exe)]
+    found = shutil.which("cadbridge")
+    if found:
+        return [found]
+    return [sys.executable, "-c", "import sys; from cadbridge.cli import main; sys.exit(main())"]
+
+
+def run_convert(cad: Path, out: Path, element: str, timeout: float, extra: list[str]) -> tuple[int | None, float, str]:
+    cmd = cadbridge_cmd() + ["convert", str(cad), "-o", str(out), "--element", element] + extra
+    t0 = time.perf_counter()
+    try:
+        p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired as exc:
+        err = (exc.stderr or b"")
+        err = err.decode(errors="replace") if isinstance(err, bytes) else err
+        last = [ln for ln in err.splitlines() if ln.strip()]
+        return None, time.perf_counter() - t0, f"timeout after {timeout:.0f} s" + (f" (last: {last[-1].strip()[:200]})" if last else "")
+    dt = time.perf_counter() - t0
+    lines = [ln for ln in (p.stderr or "").replace("\r", "\n").splitlines() if ln.strip()]
+    return p.returncode, dt, (lines[-1].strip() if lines and p.returncode != 0 else "")
+
+
+class OccReference:
+    """OCC faces of one IGES file, nearest-face lookup and point-to-surface distances."""
+
+    def __init__(self, cad: Path) -> None:
+        from OCP.TopAbs import TopAbs_FACE
+        from OCP.TopExp import TopExp
+        from OCP.TopTools import TopTools_IndexedDataMapOfShapeListOfShape, TopTools_IndexedMapOfShape
+
+        from OCP.BRep import BRep_Tool
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopLoc import TopLoc_Location
+        from OCP.TopoDS import TopoDS
+
+        from cadbridge.occ.reference import occ_read_shape
+
+        self.shape = occ_read_shape(cad)
+        fmap = TopTools_IndexedMapOfShape()
+        TopExp.MapShapes_s(self.shape, TopAbs_FACE, fmap)
+        self._face_index = fmap  # face -> 1-based index, the index used below (minus 1)
+        self.surfaces = []
+        for i in range(1, fmap.Extent() + 1):
+            face = TopoDS.Face_s(fmap.FindKey(i))
+            loc = TopLoc_Location()
+            surf = BRep_Tool.Surface_s(face, loc)
+            if not loc.IsIdentity():
+                surf = surf.Transformed(loc.Transformation())
+            self.surfaces.append(surf)
+        self._anc = {}
+        for kind_name in ("EDGE", "VERTEX"):
+            from OCP import TopAbs
+
+            m = TopTools_IndexedDataMapOfShapeListOfShape()
+            TopExp.MapShapesAndAncestors_s(self.shape, getattr(TopAbs, f"TopAbs_{kind_name}"), TopAbs_FACE, m)
+            self._anc[kind_name] = m
+        self._proj = {}
+
+    def _projector(self, k: int):
+        from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+
+        from cadbridge.occ.reference import _finite_bounds
+
+        if k not in self._proj:
+            s = self.surfaces[k]
+            p = GeomAPI_ProjectPointOnSurf()
+            p.Init(s, *_finite_bounds(s))
+            self._proj[k] = p
+        return self._proj[k]
+
+    def distance(self, k: int, x: np.ndarray, normal_part: bool = False):
+        """Distance (M,) of points x (M, 3) to the untrimmed surface of face k (inf where OCC
+        finds no projection). With ``normal_part``, also |(x - foot) . n(foot)| (M,) and
+        whether the foot is on the border of the surface's parameter domain (M,)."""
+        from OCP.GeomLProp import GeomLProp_SLProps
+        from OCP.gp import gp_Pnt
+
+        from cadbridge.occ.reference import _finite_bounds
+
+        p = self._projector(k)
+        out = np.full(len(x), np.inf)
+        npart = np.full(len(x), np.inf)
+        edge = np.zeros(len(x), dtype=bool)
+        if normal_part:
+            props = GeomLProp_SLProps(self.surfaces[k], 1, 1e-12)
+            u0, u1, v0, v1 = _finite_bounds(self.surfaces[k])
+            eu, ev = 1e-9 * max(1.0, abs(u1 - u0)), 1e-9 * max(1.0, abs(v1 - v0))
+        for i, xx in enumerate(x):
+            p.Perform(gp_Pnt(float(xx[0]), float(xx[1]), float(xx[2])))
+            if p.IsDone() and p.NbPoints() > 0:
+                out[i] = p.LowerDistance()
+                if normal_part:
+                    u, v = p.LowerDistanceParameters()
+                    props.SetParameters(u, v)
+                    f = np.array(p.NearestPoint().Coord())
+                    if props.IsNormalDefined():
+                        npart[i] = abs(float(np.dot(xx - f, props.Normal().Coord())))
+                    else:
+                        npart[i] = out[i]
+                    edge[i] = min(u - u0, u1 - u) <= eu or min(v - v0, v1 - v) <= ev
+        if normal_part:
+            return out, npart, edge
+        return out
+
+    def nearest_face(self, x: np.ndarray) -> int:
+        """Index (0-based, TopExp.MapShapes order) of the face nearest to point x; -1 if none."""
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_VERTEX
+        from OCP.gp import gp_Pnt
+
+        v = BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex()
+        d = BRepExtrema_DistShapeShape(v, self.shape)
+        if not d.IsDone() or d.NbSolution() == 0:
+            return -1
+        best, best_d = -1, np.inf
+        for s in range(1, d.NbSolution() + 1):
+            sup = d.SupportOnShape2(s)
+            t = sup.ShapeType()
+            if t == TopAbs_FACE:
+                cands = [self._face_index.FindIndex(sup) - 1]
+            elif t in (TopAbs_EDGE, TopAbs_VERTEX):
+                m = self._anc["EDGE" if t == TopAbs_EDGE else "VERTEX"]
+                idx = m.FindIndex(sup)
+                cands = []
+                if idx > 0:
+                    for f in m.FindFromIndex(idx):
+                        cands.append(self._face_index.FindIndex(f) - 1)
+            else:
+                cands = []
+            for c in cands:
+                if c < 0:
+                    continue
+                dd = float(self.distance(c, x[None])[0])
+                if dd < best_d:
+                    best, best_d = c, dd
+        return best
+
+
+def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
+    t0 = time.perf_counter()
+    files = sorted(out.glob("*.nagata"))
+    row.tools = [f.stem for f in files]
+    tfs = [R.read(f) for f in files]
+    row.elements = sum(tf.n_elements for tf in tfs)
+    if not tfs:
+        row.message = row.message or "no tool file written"
+        return
+    per = [R.sample_grid(tf, div) for tf in tfs]
+    total = sum(len(p[0]) for p in per)
+    stride = max(1, math.ceil(total / max_samples))
+    occ = OccReference(cad)
+    nag_max = flat_max = nag_n = flat_n = 0.0
+    row.size = 0.0
+    for tf, (elem, eta, zeta) in zip(tfs, per):
+        scale = UNIT_MM.get(tf.units.upper())
+        if scale is None:
+            raise SystemExit(f"{cad}: tool units {tf.units!r} unknown to this benchmark")
+        row.size = max(row.size, R.model_size(tf) * scale)
+        keep_elem = np.arange(0, tf.n_elements, stride)
+        row.measured += len(keep_elem)
+        sel = np.isin(elem, keep_elem)
+        elem, eta, zeta = elem[sel], eta[sel], zeta[sel]
+        xn = R.evaluate(tf.coefficients if tf.coefficients is not None else R.rebuild(tf), elem, eta, zeta) * scale
+        xf = R.flat(tf, elem, eta, zeta) * scale
+        row.samples += len(elem)
+        X = tf.nodes[np.maximum(tf.conn[keep_elem], 0)] * scale
+        cent = np.where((tf.nn[keep_elem] == 3)[:, None], X[:, :3].mean(axis=1), X.mean(axis=1))
+        face_of = {int(e): occ.nearest_face(c) for e, c in zip(keep_elem, cent)}
+        fa = np.array([face_of[int(e)] for e in elem])
+        row.unassigned += sum(1 for v in face_of.values() if v < 0)
+        for k in np.unique(fa):
+            if k < 0:
+                continue
+            s = fa == k
+            dn, pn, en = occ.distance(int(k), xn[s], normal_part=True)
+            df, pf, ef = occ.distance(int(k), xf[s], normal_part=True)
+            nag_max, flat_max = max(nag_max, float(dn.max())), max(flat_max, float(df.max()))
+            nag_n, flat_n = max(nag_n, float(pn.max())), max(flat_n, float(pf.max()))
+            row.no_projection += int(np.count_nonzero(~np.isfinite(dn)) + np.count_nonzero(~np.isfinite(df)))
+            row.foot_on_border += int(np.count_nonzero(en))
+            if dn.max() > row.worst_nagata[0]:
+                i = int(np.argmax(dn))
+                row.worst_nagata = (float(dn[i]), bool(en[i]), float(pn[i]))
+    row.nagata, row.flat = nag_max, flat_max
+    row.nagata_normal, row.flat_normal = nag_n, flat_n
+    row.measure_s = time.perf_counter() - t0
+
+
+def _e(x: float) -> str:
+    return f"{x:.3e}" if np.isfinite(x) else "-"
+
+
+def _r(x: float) -> str:
+    return f"{x:.3f}" if np.isfinite(x) else "-"
+
+
+def table(rows: list[Row], div: int, max_samples: int) -> str:
+    head = ("| file | element | tools | elements (measured) | samples | Nagata max dist [mm] | flat max dist [mm] | "
+            "ratio | pass | Nagata max normal part [mm] | flat max normal part [mm] | ratio (normal part) | "
+            "convert [s] | measure [s] | note |")
+    out = [head, "|" + "---|" * 15]
+    for r in rows:
+        notes = []
+        if r.refused:
+            notes.append(f"convert exit {r.exit_code_first}: {r.message}; measured with --allow-worse")
+        elif r.exit_code != 0:
+            notes.append(f"exit {r.exit_code}: {r.message}")
+        elif r.message:
+            notes.append(r.message)
+        if r.unassigned:
+            notes.append(f"{r.unassigned} elements with no OCC face")
+        if r.no_projection:
+            notes.append(f"{r.no_projection} samples without an OCC projection")
+        if r.exit_code == 0 and np.isfinite(r.nagata) and r.worst_nagata[1]:
+            notes.append("worst Nagata sample's foot on the surface's domain border")
+        meas = (f"{r.elements} ({r.measured})" if r.measured != r.elements else f"{r.elements}") if r.elements else "-"
+        out.append(
+            f"| {r.file} | {r.element} | {', '.join(r.tools) or '-'} | {meas} | {r.samples or '-'} | "
+            f"{_e(r.nagata)} | {_e(r.flat)} | {_r(r.ratio)} | {'yes' if r.passed else 'NO'} | "
+            f"{_e(r.nagata_normal)} | {_e(r.flat_normal)} | {_r(r.ratio_normal)}{'' if r.passed_normal else ' (no)'} | "
+            f"{r.convert_s:.1f} | {r.measure_s:.1f} | {'; '.join(notes).replace('|', '/')} |")
+    n_pass = sum(r.passed for r in rows)
+    n_pass_n = sum(r.passed_normal for r in rows)
+    out.append("")
+    out.append(
+        f"{n_pass} of {len(rows)} pass on the distance ({n_pass_n} on the normal part): Nagata <= 0.25 x flat, or "
+        "both <= 1e-9 x size. dist = distance (GeomAPI_ProjectPointOnSurf) to the untrimmed OCC surface of the "
+        "face nearest the element's flat centroid (BRepExtrema_DistShapeShape); normal part = |(x - foot) . n(foot)|, "
+        "which ignores how far a sample lies beyond the border of the surface's parameter domain. "
+        f"Grid {div} divisions per patch; at most {max_samples} samples per row (every k-th element beyond).")
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--only", default=None, help="only files whose name contains this")
+    ap.add_argument("--timeout", type=float, default=600.0)
+    ap.add_argument("--div", type=int, default=4)
+    ap.add_argument("--max-samples", type=int, default=200_000)
+    ap.add_argument("--elements", nargs="+", default=["tri", "quad"], choices=["tri", "quad"])
+    ap.add_argument("--no-real", action="store_true")
+    ap.add_argument("--no-samples", action="store_true")
+    ap.add_argument("--no-retry-allow-worse", action="store_true",
+                    help="do not re-run a refused conversion with --allow-worse to measure it")
+    ap.add_argument("--output", default=str(RESULTS / "tool_accuracy.md"))
+    args = ap.parse_args(argv)
+    files = []
+    if not args.no_samples:
+        files += sorted(SAMPLES.glob("*.igs"))
+    if not args.no_real and REAL.is_dir():
+        files += sorted(p for p in REAL.iterdir() if p.suffix.lower() in (".igs", ".iges"))
+    if args.only:
+        files = [f for f in files if args.only in f.name]
+    rows: list[Row] = []
+    for cad in files:
+        for el in args.elements:
+            row = Row(cad.name, el)
+            with tempfile.TemporaryDirectory(prefix="tool_acc_") as tmp:
+                out = Path(tmp) / "out"
+                row.exit_code, row.convert_s, row.message = run_convert(cad, out, el, args.timeout, [])
+                row.exit_code_first = row.exit_code
+                if row.exit_code == 1 and not args.no_retry_allow_worse:
+                    row.refused = True
+                    code, dt, msg = run_convert(cad, out, el, args.timeout, ["--allow-worse"])
+                    row.exit_code = code
+                    if code != 0:
+                        row.refused = False
+                        row.message += f" / with --allow-worse: exit {code}: {msg}"
+                if row.exit_code == 0:
+                    try:
+                        measure(row, cad, out, args.div, args.max_samples)
+                    except Exception as exc:  # a measurement failure is a finding, reported in the row
+                        row.message = f"measurement failed: {type(exc).__name__}: {exc}"
+                        row.nagata = float("nan")
+            rows.append(row)
+            print(f"{row.file:42s} {el:4s} exit {row.exit_code} {row.convert_s:7.1f} s  nagata {row.nagata:.3e} "
+                  f"flat {row.flat:.3e} ratio {row.ratio:.4f} {'pass' if row.passed else 'FAIL'} {row.message[:150]}",
+                  flush=True)
+    text = table(rows, args.div, args.max_samples)
+    print()
+    print(text)
+    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.output).write_text(text + "\n")
+    return 0 if all(r.passed for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
