@@ -387,7 +387,12 @@ def edge_coefficients(tf: ToolFile) -> Edges:
         p, q = n0[rows], n1[rows]
         np.add.at(S, gid[rows], p[:, :, None] * p[:, None, :] + q[:, :, None] * q[:, None, :])
         np.add.at(r, gid[rows], p * np.einsum("ij,ij->i", p, dr)[:, None] - q * np.einsum("ij,ij->i", q, dr)[:, None])
-        m = np.bincount(gid, minlength=M).astype(float)
+        # docs/toolfile.md writes "/ m" with m = "all collected normals ... each counted once
+        # per element" but also says "(3 x 3, trace 1)": with unit normals, trace 1 needs the
+        # division by the number of normals at both ends together, 2 per element (dividing by
+        # the element count gives trace 2). The page is ambiguous here; trace 1 is taken
+        # (c does not depend on the scale, only the eps_rank tests do).
+        m = 2.0 * np.bincount(gid, minlength=M).astype(float)
         gi = np.flatnonzero(g)
         coef[gi] = generalized_inverse(d[gi], S[gi] / m[gi, None, None], r[gi] / m[gi, None])
         kind[gi] = 2
