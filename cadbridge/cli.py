@@ -3,8 +3,10 @@
 Each subcommand is a thin layer over the library: parse arguments, call, print, and turn
 the library's errors into one clear line and an exit code:
 
-    0  success          1  checks failed (verify deviations, nodes off the CAD)
-    2  bad input (unreadable IGES/mesh, wrong arguments)
+    0  success          1  checks failed (verify deviations, nodes off the CAD, a tool worse
+                           than its flat mesh or straddling a crease)
+    2  bad input (unreadable IGES/mesh, wrong arguments, or input the library could not
+       handle: one line naming the error and where; CADBRIDGE_DEBUG=1 shows the traceback)
 """
 
 from __future__ import annotations
@@ -133,14 +135,21 @@ def format_inspect(model) -> str:
         lines.append(
             "bounding box  min ({:.6g}, {:.6g}, {:.6g})  max ({:.6g}, {:.6g}, {:.6g})".format(*b[0], *b[1])
         )
-        lines.append(f"  {'#':>4} {'DE':>6} {'type':>5} {'surf':>5} {'degree':>7} {'ctrl':>9} {'trim':>5}  name")
+        deltas = [f.trim_delta for f in model.faces]  # file's 2D/3D trim disagreement (all faces in one pass)
+        have = [i for i, d in enumerate(deltas) if d is not None]
+        if have:
+            w = max(have, key=lambda i: deltas[i])
+            lines.append(f"{'trim delta':<14}max {deltas[w]:.3g} {model.units.name} ({deltas[w] / model.size():.3g} x size) "
+                         f"on face {w} (DE {model.faces[w].de}); {len(have)} of {len(deltas)} faces have 2D and 3D trims")
+        lines.append(f"  {'#':>4} {'DE':>6} {'type':>5} {'surf':>5} {'degree':>7} {'ctrl':>9} {'trim':>5} {'delta':>9}  name")
         for i, f in enumerate(model.faces):
             s = f.surface
             nu, nv = s.shape
             trim = "-" if f.trims is None else f"{(1 if f.trims.outer is not None else 0)}+{len(f.trims.inner)}"
+            dl = "-" if deltas[i] is None else f"{deltas[i]:.2e}"
             lines.append(
                 f"  {i:>4} {f.de:>6} {f.entity_type:>5} {f.surface_type:>5} "
-                f"{f'{s.degree_u}x{s.degree_v}':>7} {f'{nu}x{nv}':>9} {trim:>5}  {f.name or ''}"
+                f"{f'{s.degree_u}x{s.degree_v}':>7} {f'{nu}x{nv}':>9} {trim:>5} {dl:>9}  {f.name or ''}"
             )
     names = sorted({f.name for f in model.faces if f.name})
     if names:
@@ -245,7 +254,7 @@ def cmd_nagata(args: argparse.Namespace) -> int:
         result = nagata_from_mesh(
             args.mesh, cad=args.cad, output=args.output, method=args.method, name=args.name,
             report=not args.no_report, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far,
-            grid=args.grid, progress=progress, orient=args.orient,
+            grid=args.grid, progress=progress, orient=args.orient, allow_worse=args.allow_worse,
         )
     _say(result.summary())
     return EXIT_OK
@@ -259,6 +268,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
             args.cad, args.output, element=args.element, size=args.size, structured=args.structured,
             radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
             method=args.method, grid=args.grid, flip=args.flip, tolerance=args.tolerance, progress=progress,
+            allow_worse=args.allow_worse,
         )
     _say(result.summary())
     return EXIT_OK
@@ -349,6 +359,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--name", help="tool name (default from the CAD names or the mesh file name)")
     p.add_argument("--grid", type=int, default=10, help="grid divisions per patch for errors and viewing")
+    p.add_argument("--allow-worse", action="store_true",
+                   help="write a tool even if its Nagata surface is worse than its flat mesh (for inspection)")
     p.add_argument("--no-report", action="store_true", help="only the tool file")
     _add_normal_options(p)
     p.set_defaults(func=cmd_nagata)
@@ -358,6 +370,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("cad", help="IGES file")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--grid", type=int, default=10, help="grid divisions per patch for errors and viewing")
+    p.add_argument("--allow-worse", action="store_true",
+                   help="write a tool even if its Nagata surface is worse than its flat mesh (for inspection)")
     _add_mesh_options(p)
     _add_normal_options(p)
     p.set_defaults(func=cmd_convert)
@@ -380,6 +394,7 @@ def _known_errors() -> tuple[type[BaseException], ...]:
         ("cadbridge.normals.cad", "ProjectionError"),
         ("cadbridge.io.toolfile", "ToolFileError"),
         ("cadbridge.occ.reference", "OccReadError"),
+        ("cadbridge.pipeline", "ToolQualityError"),
     ):
         try:
             module = __import__(mod, fromlist=[name])
@@ -402,9 +417,23 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except _known_errors() as exc:
         from cadbridge.normals.cad import ProjectionError
+        from cadbridge.pipeline import ToolQualityError
 
         print(f"cadbridge {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_CHECK_FAILED if isinstance(exc, ProjectionError) else EXIT_BAD_INPUT
+        return EXIT_CHECK_FAILED if isinstance(exc, (ProjectionError, ToolQualityError)) else EXIT_BAD_INPUT
+    except (ValueError, ArithmeticError, MemoryError, OSError, RuntimeError, LookupError, TypeError) as exc:
+        # anything the library did not anticipate: still one line (the input it could not
+        # handle); CADBRIDGE_DEBUG=1 shows the traceback for a bug report
+        import os
+        import traceback
+
+        if os.environ.get("CADBRIDGE_DEBUG"):
+            traceback.print_exc()
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        print(f"cadbridge {args.command}: error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''} "
+              f"(at {Path(where.filename).name}:{where.lineno}; CADBRIDGE_DEBUG=1 shows the traceback)",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ from cadbridge.mesh.mesh import CellBlock, Mesh
 
 __all__ = [
     "CadProjector",
+    "ToolQualityError",
+    "check_tools",
     "NoProgress",
     "RunResult",
     "ToolResult",
@@ -52,6 +54,11 @@ class NoProgress:
         pass
 
 
+class ToolQualityError(ValueError):
+    """A Nagata tool whose surface is worse than its own flat mesh (exit code 1 in the CLI):
+    the message names the worst elements and why."""
+
+
 @dataclass
 class ToolResult:
     """One tool: its mesh, normals, Nagata surface and error statistics.
@@ -66,10 +73,13 @@ class ToolResult:
     corner_normals: list[np.ndarray]  # per block (E_b, k_b, 3)
     normal_source: str
     nagata: object  # cadbridge.nagata.NagataMesh
-    grid: dict  # sample grid: points, normals, element, eta, zeta[, shape_error, normal_error]
-    stats: dict  # max/mean shape and normal errors
+    grid: dict  # sample grid: points, normals, element, eta, zeta[, surface_error, boundary_error,
+    #             flat_surface_error, normal_error] (see cadbridge.tool_errors)
+    stats: dict  # max/mean surface, boundary, flat and normal errors
     node_face: np.ndarray | None = None
     node_distance: np.ndarray | None = None
+    element_face: np.ndarray | None = None  # (E,) face of each element (global numbering)
+    diagnosis: list[str] = field(default_factory=list)  # worst elements, when worse than flat
 
 
 @dataclass
@@ -79,17 +89,23 @@ class RunResult:
     files: list[str] = field(default_factory=list)
 
     def summary(self) -> str:
+        nan = float("nan")
         lines = [f"wrote {len(self.files)} files to {self.output}"]
-        lines.append(f"  {'tool':<16}{'source':<8}{'nodes':>7}{'elems':>7}{'max |shape err|':>17}{'max normal err':>16}")
+        lines.append(f"  {'tool':<16}{'source':<8}{'nodes':>7}{'elems':>7}{'surface err':>13}{'boundary err':>14}"
+                     f"{'flat err':>11}{'normal err':>12}")
         for t in self.tools:
             s = t.stats
             lines.append(
                 f"  {t.name:<16}{t.normal_source:<8}{len(t.mesh.nodes):>7}{t.mesh.n_elements:>7}"
-                f"{s.get('max_abs_shape_error', float('nan')):>17.3e}{s.get('max_normal_error_deg', float('nan')):>15.4f}°"
+                f"{s.get('max_abs_surface_error', nan):>13.3e}{s.get('max_boundary_error', nan):>14.3e}"
+                f"{s.get('max_abs_flat_surface_error', nan):>11.3e}{s.get('max_normal_error_deg', nan):>11.4f}°"
             )
-            if s.get("points_off_trims"):
-                lines.append(f"  {'':<16}{s['points_off_trims']} sample points lie over trimmed-away parts of their "
-                             "face: measured against the untrimmed surface")
+        if any(t.stats for t in self.tools):
+            lines.append("  surface err: max |distance| of the Nagata surface to its faces' underlying surfaces; "
+                         "boundary err: max distance to the trimmed faces (includes the patches' boundary chords); "
+                         "flat err: surface err of the flat mesh at the same samples")
+        for t in self.tools:
+            lines += [f"  {t.name}: {d}" for d in t.diagnosis]
         return "\n".join(lines)
 
 
@@ -216,36 +232,115 @@ def build_tool(
     node_distance=None,
     projector: CadProjector | None = None,
     progress=None,
+    element_face: list[np.ndarray] | np.ndarray | None = None,
+    straddling: np.ndarray | None = None,
 ) -> ToolResult:
-    """Nagata patches over ``mesh`` with the given normals and their errors against the CAD."""
+    """Nagata patches over ``mesh`` with the given normals and their errors against the CAD
+    (`cadbridge.tool_errors`: surface, boundary, flat surface and normal errors).
+
+    element_face: face of each element (per block, or (E,) in block order); where None the
+    element centroids are projected. straddling: global element ids (block order) that
+    straddle a crease (`cadbridge.creases.straddling_elements`), named in the diagnosis."""
     from cadbridge.nagata import NagataMesh
 
     progress = progress or NoProgress()
+    order = sorted(range(len(mesh.cells)), key=lambda i: mesh.cells[i].type != "triangle")
+    remap = None
+    if order != list(range(len(mesh.cells))):
+        sizes = [len(c) for c in mesh.cells]
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        remap = np.concatenate([starts[i] + np.arange(sizes[i]) for i in order])  # new -> old element id
     mesh, corner_normals = _triangles_first(mesh, corner_normals)
     progress.stage(f"{name}: Nagata patches")
     nm = NagataMesh(mesh.nodes, _blocks(mesh), corner_normals)
     g = nm.sample_grid(grid)
     sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
     stats: dict = {}
+    ef = None
+    diagnosis: list[str] = []
     if model is not None:
-        from cadbridge.nagata.errors import angle_deg
+        from cadbridge.tool_errors import tool_errors
 
-        progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points)")
         projector = projector or CadProjector(model, progress)
-        foot, ncad = projector(g.points)
-        # a CAD face's Su x Sv orientation is arbitrary: compare with the side the patch faces
-        ncad = ncad * np.where(np.einsum("ij,ij->i", ncad, g.normals) < 0, -1.0, 1.0)[:, None]
-        shape = np.einsum("ij,ij->i", g.points - foot, ncad)
-        normal = angle_deg(g.normals, ncad)
-        sample["shape_error"], sample["normal_error"] = shape, normal
-        stats = {
-            "max_abs_shape_error": float(np.max(np.abs(shape))),
-            "mean_abs_shape_error": float(np.mean(np.abs(shape))),
-            "max_normal_error_deg": float(np.max(normal)),
-            "mean_normal_error_deg": float(np.mean(normal)),
-            "points_off_trims": projector.last_off_trims,
-        }
-    return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance)
+        if element_face is None:
+            cent = np.concatenate([mesh.nodes[b].mean(axis=1) for b in _blocks(mesh)])
+            ef = np.asarray(projector.project(cent).face, dtype=np.int64)
+        else:
+            ef = np.concatenate(element_face) if isinstance(element_face, list) else np.asarray(element_face)
+            ef = ef.astype(np.int64)
+            if remap is not None:
+                ef = ef[remap]
+        progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points)")
+        err = tool_errors(nm, g.elem, g.eta, g.zeta, ef, model, projector.project)
+        sample.update(surface_error=err.surface, boundary_error=err.boundary,
+                      flat_surface_error=err.flat_surface, normal_error=err.normal)
+        stats = err.stats()
+        if straddling is not None and remap is not None:
+            inv = np.empty_like(remap)
+            inv[remap] = np.arange(len(remap))
+            straddling = inv[np.asarray(straddling, dtype=np.int64)]
+        diagnosis = _diagnose(nm, err, g.elem, straddling, model.size())
+    strad = _straddling_ids(nm, straddling)
+    if len(strad):
+        more = f" (and {len(strad) - 10} more)" if len(strad) > 10 else ""
+        diagnosis.insert(0, f"mesh straddles a crease: elements {', '.join(str(int(e) + 1) for e in strad[:10])}"
+                            f"{more} (1-based, {len(strad)} in all) have corners on both sides of a crease line or "
+                            f"sharp edge, and no normal can make a patch fold inside an element; remesh with mesh "
+                            f"edges on the creases (cadbridge convert does)")
+    return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance,
+                      ef, diagnosis)
+
+
+def _straddling_ids(nm, straddling) -> np.ndarray:
+    """Sorted element ids that straddle a crease: the given ones (CAD check) and the elements
+    on an edge with several corner normals at one end only (`NagataMesh.half_crease_edges`)."""
+    ids = [np.asarray(straddling if straddling is not None else [], dtype=np.int64)]
+    if len(nm.half_crease_edges):
+        topo = nm.edges
+        ids.append(topo["inst_elem"][np.isin(topo["inst_edge"], nm.half_crease_edges)])
+    return np.unique(np.concatenate(ids))
+
+
+def _diagnose(nm, err, elem: np.ndarray, straddling, size: float) -> list[str]:
+    """Lines naming the elements (1-based, tool-file numbering) whose Nagata surface error
+    exceeds their flat element's, worst first, each with the reason: straddles a crease,
+    inadmissible edge (|c . d| >= |d|^2: the edge curve turns back), bad normal (a corner
+    normal more than 60 degrees from the element's plane normal), or else too coarse for
+    the curvature. Empty when the tool is no worse than its flat mesh."""
+    from cadbridge.tool_errors import worst_elements
+
+    s = err.stats()
+    floor = 1e-9 * size
+    if s["max_abs_surface_error"] <= max(s["max_abs_flat_surface_error"], floor):
+        return []
+    worst, nag, flat = worst_elements(err, elem, nm.n_elements, floor)
+    strad = set(_straddling_ids(nm, straddling).tolist())
+    reasons = []
+    for e, a, b in zip(worst[:5].tolist(), nag[:5], flat[:5]):  # the five worst, for the message
+        reasons.append(f"element {e + 1} ({a:.3g} vs flat {b:.3g}): {_reason(nm, e, strad)}")
+    return [f"Nagata surface error {s['max_abs_surface_error']:.3g} exceeds the flat mesh's "
+            f"{s['max_abs_flat_surface_error']:.3g} on {len(worst)} elements; worst: " + "; ".join(reasons)]
+
+
+def _reason(nm, e: int, straddling: set) -> str:
+    if e in straddling:
+        return "straddles a crease"
+    kind, loc = int(nm.element_kind[e]), int(nm.element_local[e])
+    conn = (nm.tri_elements if kind == 3 else nm.quad_elements)[loc]
+    ec = (nm.tri_edge_coefficients if kind == 3 else nm.quad_edge_coefficients)[loc]
+    corner_n = (nm.tri_corner_normals if kind == 3 else nm.quad_corner_normals)[loc]
+    from cadbridge.nagata.patch import QUAD_EDGES, TRI_EDGES
+
+    x = nm.nodes[conn]
+    for (i, j), c in zip(TRI_EDGES if kind == 3 else QUAD_EDGES, ec):
+        d = x[j] - x[i]
+        if abs(float(np.dot(c, d))) >= float(np.dot(d, d)):
+            return f"inadmissible edge {int(conn[i]) + 1}-{int(conn[j]) + 1} (the edge curve turns back)"
+    en = np.cross(x[1] - x[0], x[2] - x[0]) if kind == 3 else np.cross(x[2] - x[0], x[3] - x[1])
+    en /= max(np.linalg.norm(en), 1e-300)
+    if np.min(np.abs(corner_n @ en)) < 0.5:
+        return "bad normal (a corner normal is more than 60 degrees from the element's plane)"
+    return "element too coarse for the curvature (refine the mesh)"
 
 
 def _corner_overrides(node_normals: np.ndarray, blocks: list[np.ndarray], corners: list[np.ndarray]):
@@ -312,7 +407,8 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
     from cadbridge.io.vtu import write_mesh_vtu, write_surface_vtu
 
     g = tool.grid
-    errors = {k: g[k] for k in ("shape_error", "normal_error") if k in g}
+    names = ("surface_error", "boundary_error", "flat_surface_error", "normal_error")
+    errors = {k: g[k] for k in names if k in g}
     # point index within its patch, 1-based like the thesis' "Excel" file (grid points of a
     # patch are consecutive)
     elem = np.asarray(g["element"])
@@ -325,14 +421,13 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
     verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(4, return_params=True)
     _, vnorm = nm.evaluate(pe, peta, pzeta)
     surface_data = {"normal": vnorm, "element": pe.astype(np.int32)}
-    if projector is not None:
-        from cadbridge.nagata.errors import angle_deg
+    if projector is not None and tool.element_face is not None:
+        from cadbridge.tool_errors import tool_errors
 
-        pr = projector.project(verts)
-        ncad = pr.normal * np.where(np.einsum("ij,ij->i", pr.normal, vnorm) < 0, -1.0, 1.0)[:, None]
-        surface_data["shape_error"] = np.einsum("ij,ij->i", verts - pr.foot, ncad)
-        surface_data["normal_error"] = angle_deg(vnorm, ncad)
-        surface_data["face_id"] = pr.face.astype(np.int32)
+        err = tool_errors(nm, pe, peta, pzeta, tool.element_face, projector.model, projector.project)
+        surface_data.update(surface_error=err.surface, boundary_error=err.boundary,
+                            flat_surface_error=err.flat_surface, normal_error=err.normal,
+                            face_id=err.face.astype(np.int32))
     write_surface_vtu(folder / f"{name}_nagata.vtu", verts, tris, point_data=surface_data)
 
     mesh_data = {"normal": tool.normals}
@@ -344,11 +439,16 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
     files += [f"{name}_grid.csv", f"{name}_coefficients.txt", f"{name}_nagata.igs",
               f"{name}_nagata.vtu", f"{name}_mesh.vtu"]
     if errors:
-        plot_error_histogram(folder / f"{name}_shape_error.png", {tool.normal_source: np.abs(errors["shape_error"])},
-                             xlabel=f"|shape error| [{units.lower()}]", title=f"{name}: Nagata shape error vs CAD")
+        u = units.lower()
+        plot_error_histogram(folder / f"{name}_surface_error.png",
+                             {f"Nagata ({tool.normal_source})": np.abs(errors["surface_error"]),
+                              "flat mesh": np.abs(errors["flat_surface_error"])},
+                             xlabel=f"|surface error| [{u}]", title=f"{name}: distance to the underlying CAD surfaces")
+        plot_error_histogram(folder / f"{name}_boundary_error.png", {tool.normal_source: errors["boundary_error"]},
+                             xlabel=f"boundary error [{u}]", title=f"{name}: distance to the trimmed CAD faces")
         plot_error_histogram(folder / f"{name}_normal_error.png", {tool.normal_source: errors["normal_error"]},
                              xlabel="normal error [deg]", title=f"{name}: Nagata normal error vs CAD")
-        files += [f"{name}_shape_error.png", f"{name}_normal_error.png"]
+        files += [f"{name}_surface_error.png", f"{name}_boundary_error.png", f"{name}_normal_error.png"]
     return files
 
 
@@ -386,19 +486,19 @@ def staged_output(output: str | os.PathLike) -> Iterator[Path]:
 
 def _normals(mesh: Mesh, model, method: str, *, tolerance=None, flip=False, allow_far=False):
     """(node normals, corner normals per block, node face ids | None, node distances | None,
-    element faces per block | None)."""
+    element faces per block | None, `CadNormals` | None)."""
     blocks = _blocks(mesh)
     if method == "cad":
         from cadbridge.normals.cad import cad_normals
 
         cn = cad_normals(mesh, model, tolerance=tolerance, flip=flip, allow_far=allow_far)
-        return cn.normals, cn.corner_normals, cn.face, cn.distance, cn.element_face
+        return cn.normals, cn.corner_normals, cn.face, cn.distance, cn.element_face, cn
     from cadbridge.normals.estimators import estimate_normals
 
     n = estimate_normals(mesh.nodes, blocks, method=method)
     if flip:
         n = -n
-    return n, [n[b] for b in blocks], None, None, None
+    return n, [n[b] for b in blocks], None, None, None, None
 
 
 def _consistently_oriented(mesh: Mesh, orient: bool) -> Mesh:
@@ -426,9 +526,14 @@ def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far
     mesh = _consistently_oriented(mesh, orient)
     progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
                    f" ({len(mesh.nodes)} nodes)")
-    normals, corners, node_face, node_dist, elem_face = _normals(
+    normals, corners, node_face, node_dist, elem_face, cn = _normals(
         mesh, model, method, tolerance=tolerance, flip=flip, allow_far=allow_far
     )
+    straddle = np.zeros(mesh.n_elements, dtype=bool)
+    if cn is not None:
+        from cadbridge.creases import straddling_elements
+
+        straddle[straddling_elements(_blocks(mesh), model, cn.face, cn.u, cn.v, mesh.nodes, cn.normals)] = True
     if model is None:
         groups = {"": [np.ones(len(b), dtype=bool) for b in mesh.cells]}
     else:
@@ -445,13 +550,27 @@ def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far
         else:
             sub, used, kept = _submesh(mesh, masks, tname)
         sub_corners = [c[m] for c, m, k in zip(corners, masks, kept) if k]
+        sel = np.concatenate(masks)  # this tool's elements, in block order
         tools.append(build_tool(
             tname, sub, normals[used], sub_corners, method, model=model, grid=grid,
             node_face=None if node_face is None else node_face[used],
             node_distance=None if node_dist is None else node_dist[used],
             projector=projector, progress=progress,
+            element_face=None if elem_face is None else np.concatenate(elem_face)[sel],
+            straddling=np.flatnonzero(straddle[sel]),
         ))
     return tools
+
+
+def check_tools(tools: list[ToolResult], allow_worse: bool = False) -> None:
+    """The guard: raise `ToolQualityError` if a tool has elements that straddle a crease, or
+    its Nagata surface is worse than its flat mesh (max surface error on the same samples),
+    naming the worst elements and why; ``allow_worse`` lets such tools through (for
+    inspection: the summary still says so)."""
+    bad = [t for t in tools if t.diagnosis]
+    if bad and not allow_worse:
+        msg = " | ".join(f"{t.name}: {d}" for t in bad for d in t.diagnosis)
+        raise ToolQualityError(f"{msg} (nothing written; --allow-worse writes the tool anyway, for inspection)")
 
 
 def nagata_from_mesh(
@@ -468,10 +587,13 @@ def nagata_from_mesh(
     grid: int = 10,
     progress=None,
     orient: bool = False,
+    allow_worse: bool = False,
 ) -> RunResult:
     """`cadbridge nagata`: tool file(s) + report from a user mesh (and the CAD).
 
-    ``orient`` re-orients an inconsistently wound mesh instead of stopping with an error."""
+    ``orient`` re-orients an inconsistently wound mesh instead of stopping with an error.
+    Raises `ToolQualityError` when a tool is worse than its flat mesh (`check_tools`),
+    unless ``allow_worse``."""
     from cadbridge.mesh.io import read_mesh
 
     progress = progress or NoProgress()
@@ -489,6 +611,7 @@ def nagata_from_mesh(
     projector = CadProjector(model, progress) if model is not None else None
     tools = _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress,
                              orient)
+    check_tools(tools, allow_worse)
     units = model.units.name if model is not None else "MM"
     result = RunResult(Path(output), tools)
     with staged_output(output) as tmp:
@@ -512,8 +635,12 @@ def convert(
     flip: bool = False,
     tolerance: float | None = None,
     progress=None,
+    allow_worse: bool = False,
 ) -> RunResult:
-    """`cadbridge convert`: mesh the CAD with gmsh, exact normals, Nagata, tool files, report."""
+    """`cadbridge convert`: mesh the CAD with gmsh, exact normals, Nagata, tool files, report.
+
+    Crease lines inside faces (`cadbridge.creases.crease_lines`) become mesh edges. Raises
+    `ToolQualityError` when a tool is worse than its flat mesh, unless ``allow_worse``."""
     from cadbridge.iges import read_iges
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.io import write_mesh
@@ -521,13 +648,19 @@ def convert(
     progress = progress or NoProgress()
     progress.stage(f"reading {cad}")
     model = read_iges(cad)  # fails early, before anything is meshed or written, on a bad file
-    progress.stage(f"meshing {Path(cad).name} with gmsh")
+    from cadbridge.creases import crease_lines
+
+    creases = crease_lines(model)  # C0 knot lines where the normal jumps: mesh edges go there
+    progress.stage(f"meshing {Path(cad).name} with gmsh"
+                   + (f" ({len(creases)} crease lines inside faces become mesh edges)" if creases else ""))
     mesh = mesh_cad(cad, element=element, size=size, structured=structured,
-                    radius_divisions=radius_divisions, length_divisions=length_divisions)
+                    radius_divisions=radius_divisions, length_divisions=length_divisions,
+                    embed_curves=[c.curve for c in creases])
     mesh.name = Path(cad).stem
     projector = CadProjector(model, progress)
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
                              orient=True)
+    check_tools(tools, allow_worse)
     result = RunResult(Path(output), tools)
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")

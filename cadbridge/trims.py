@@ -501,7 +501,8 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     every curve point is within r of a sample) is <= U. On the kept pairs only: start from
     the curve's nearest sample, then Newton on f(t) = (C - P).C' with f' = C'.C' + (C - P).C''
     (C' = Su u' + Sv v', C'' = Suu u'^2 + 2 Suv u' v' + Svv v'^2 + Su u'' + Sv v''), t clamped
-    to the curve's domain; the nearest over the kept curves wins. Vectorised over points;
+    to the curve's domain (wrapped through the seam of a closed curve); the nearest over the
+    kept curves wins. Vectorised over points;
     the loop runs over the (few) trim curves of the face.
     Returns (u (N,), v (N,), foot (N, 3), distance (N,), ok (N,) bool: orthogonal foot or
     curve end). Raises ValueError if the face has no trim loops.
@@ -546,6 +547,9 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
         q = pts[cand]
         m = len(cand)
         t0, t1 = curve.domain
+        # a closed curve (a hole's circle as one piece): Newton wraps through its seam instead
+        # of stopping at the end it started from
+        closed = float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size
         _, k = cKDTree(xs).query(q)
         t = ts[np.asarray(k)]
         done = np.zeros(m, dtype=bool)
@@ -563,7 +567,8 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
             f = np.einsum("ij,ij->i", r, c1)
             fp = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
             fp = np.where(fp > 0, fp, np.einsum("ij,ij->i", c1, c1) + 1e-300)
-            tn = np.clip(t[act] - f / fp, t0, t1)
+            tn = t[act] - f / fp
+            tn = t0 + np.mod(tn - t0, t1 - t0) if closed else np.clip(tn, t0, t1)
             step = np.abs(tn - t[act]) * np.linalg.norm(c1, axis=1)
             t[act] = tn
             done[act[step <= eps1]] = True

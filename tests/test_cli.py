@@ -23,7 +23,8 @@ from cadbridge.cli import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_OK, Progress, 
 
 SAMPLES = Path(__file__).resolve().parent.parent / "iges_samples"
 SUMMARY_ROW = re.compile(
-    r"^\s+(?P<tool>\S+)\s+(?P<source>\S+)\s+(?P<nodes>\d+)\s+(?P<elems>\d+)\s+(?P<shape>\S+)\s+(?P<normal>\S+)°$"
+    r"^\s+(?P<tool>\S+)\s+(?P<source>\S+)\s+(?P<nodes>\d+)\s+(?P<elems>\d+)\s+(?P<shape>\S+)\s+(?P<boundary>\S+)"
+    r"\s+(?P<flat>\S+)\s+(?P<normal>\S+)°$"
 )
 
 
@@ -184,18 +185,21 @@ def test_nagata_writes_tool_file_and_report(die_mesh, tmp_path, capsys):
     assert [r["tool"] for r in rows] == ["die"]
     files = {p.name for p in out.iterdir()}
     assert files == {"die.nagata", "die_nagata.vtu", "die_mesh.vtu", "die_grid.csv", "die_coefficients.txt",
-                     "die_shape_error.png", "die_normal_error.png", "die_nagata.igs"}
+                     "die_surface_error.png", "die_boundary_error.png", "die_normal_error.png", "die_nagata.igs"}
     td = read_toolfile(out / "die.nagata")
     assert td.normal_source == "cad" and len(td.quads) == int(rows[0]["elems"])
     surf = meshio.read(out / "die_nagata.vtu")
-    assert {"normal", "shape_error", "normal_error", "face_id"} <= set(surf.point_data)
-    assert np.max(np.abs(surf.point_data["shape_error"])) <= float(rows[0]["shape"]) * 1.5 + 1e-12
+    assert {"normal", "surface_error", "boundary_error", "flat_surface_error", "normal_error", "face_id"} <= set(
+        surf.point_data)
+    assert np.max(np.abs(surf.point_data["surface_error"])) <= float(rows[0]["shape"]) * 1.5 + 1e-12
     mesh_vtu = meshio.read(out / "die_mesh.vtu")
     assert {"normal", "face_id", "distance"} <= set(mesh_vtu.point_data)
     np.testing.assert_array_equal(mesh_vtu.point_data["normal"], td.normals)
     assert "normal_source" in mesh_vtu.field_data
     grid = read_grid_csv(out / "die_grid.csv")
-    assert float(rows[0]["shape"]) == pytest.approx(np.max(np.abs(grid["shape_error"])), rel=1e-3)
+    assert float(rows[0]["shape"]) == pytest.approx(np.max(np.abs(grid["surface_error"])), rel=1e-3)
+    assert float(rows[0]["boundary"]) == pytest.approx(np.max(grid["boundary_error"]), rel=1e-3)
+    assert float(rows[0]["flat"]) == pytest.approx(np.max(np.abs(grid["flat_surface_error"])), rel=1e-3)
     _, quad_c = read_coefficients_listing(out / "die_coefficients.txt")
     np.testing.assert_array_equal(quad_c, td.quad_coefficients)
 
@@ -264,7 +268,8 @@ def test_convert_every_sample(sample, tmp_path, capsys):
         assert 0 <= shape < 0.01 * size  # the Nagata surface stays on the CAD
         assert 0 <= normal <= 180
         assert (out / f"{r['tool']}.nagata").is_file()
-        assert (out / f"{r['tool']}_shape_error.png").is_file()
+        assert (out / f"{r['tool']}_surface_error.png").is_file()
+        assert (out / f"{r['tool']}_boundary_error.png").is_file()
         assert (out / f"{r['tool']}_normal_error.png").is_file()
         if r["tool"] in ("bholder", "plate"):  # flat plates: Nagata is exact
             assert shape < 1e-12 * size and normal < 1e-9
@@ -349,3 +354,18 @@ def test_nagata_inconsistent_orientation_names_elements_or_reorients(die_mesh, t
     assert run(capsys, "nagata", die_mesh, "--cad", SAMPLES / "ushape_die_nurbs.igs", "-o", ref, "--no-report")[0] == 0
     a, b = (read_toolfile(next(d.glob("*.nagata"))) for d in (out, ref))
     assert np.allclose(np.einsum("ij,ij->i", a.normals, b.normals), 1.0, atol=1e-12)
+
+
+def test_unexpected_library_error_is_one_line_exit_2(monkeypatch, capsys, tmp_path):
+    """An error the library did not anticipate still gives one line and exit 2, no traceback
+    (reference: the exception raised by the patched call)."""
+    import cadbridge.pipeline as pipeline
+
+    def boom(*a, **k):
+        raise ValueError("errors 'cad' has non-finite values at [59302]\nsecond line")
+
+    monkeypatch.setattr(pipeline, "convert", boom)
+    code, out, err = run(capsys, "convert", SAMPLES / "trimmed_hole.igs", "-o", tmp_path / "o")
+    assert code == EXIT_BAD_INPUT
+    assert err.count("\n") == 1 and "ValueError: errors 'cad' has non-finite values" in err
+    assert "Traceback" not in err and "CADBRIDGE_DEBUG" in err

@@ -31,10 +31,11 @@ def _unit(v):
 # ----------------------------------------------------------------------------- edge (eq. 15)
 def test_edge_coefficient_matches_closed_form_eq3():
     """Nagata eq. (15) == thesis eq. (3) / Nagata eq. (11) for a != +-1, and the curve
-    meets both orthogonality conditions (Nagata eq. 5a, 5b)."""
+    meets both orthogonality conditions (Nagata eq. 5a, 5b). ``bounded=False``: the formula
+    as published, without the inflected-edge rule."""
     x0, x1 = RNG.normal(size=(500, 3)), RNG.normal(size=(500, 3))
     n0, n1 = _unit(RNG.normal(size=(500, 3))), _unit(RNG.normal(size=(500, 3)))
-    c = edge_coefficient(x0, x1, n0, n1)
+    c = edge_coefficient(x0, x1, n0, n1, bounded=False)
     d = x1 - x0
     a = np.einsum("ij,ij->i", n0, n1)
     rhs0, rhs1 = np.einsum("ij,ij->i", n0, d), -np.einsum("ij,ij->i", n1, d)
@@ -42,6 +43,43 @@ def test_edge_coefficient_matches_closed_form_eq3():
     np.testing.assert_allclose(c, ref, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(np.einsum("ij,ij->i", n0, d - c), 0, atol=1e-10)
     np.testing.assert_allclose(np.einsum("ij,ij->i", n1, d + c), 0, atol=1e-10)
+
+
+def test_edge_coefficient_convex_edges_are_eq15_and_inflected_edges_bounded():
+    """Inflected-edge and edge-plane rules (cadbridge.nagata.edge docs). Where the chord lies
+    on opposite sides of the two tangent planes ((d.n0)(d.n1) < 0: a convex arc) c is eq.
+    (15) as published without its sideways part along b = d x v; where it lies on the same
+    side (an inflection between the ends, thesis §6.2.2) the unbounded (d.v / dc) dv term is
+    dropped. References: eq. (15) itself; the S-curve y = x^3 on [-1, 1], whose end normals
+    are parallel (eq. 15 divides by dc -> 0) and whose best quadratic through the ends is the
+    chord (c = 0); symmetric edges of a sphere (d.v = 0), where nothing may change."""
+    rng = np.random.default_rng(7)  # own generator: the module's RNG sequence stays as it was
+    x0, x1 = rng.normal(size=(2000, 3)), rng.normal(size=(2000, 3))
+    n0, n1 = _unit(rng.normal(size=(2000, 3))), _unit(rng.normal(size=(2000, 3)))
+    d = x1 - x0
+    convex = np.einsum("ij,ij->i", d, n0) * np.einsum("ij,ij->i", d, n1) < 0
+    assert 500 < convex.sum() < 1500  # both kinds are exercised
+    cb, cp = edge_coefficient(x0, x1, n0, n1), edge_coefficient(x0, x1, n0, n1, bounded=False)
+    v, dv = 0.5 * (n0 + n1), 0.5 * (n0 - n1)
+    b = _unit(np.cross(d, v))
+    np.testing.assert_allclose(cb[convex], (cp - np.einsum("ij,ij->i", cp, b)[:, None] * b)[convex],
+                               rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(np.einsum("ij,ij->i", cb, b), 0.0, atol=1e-12)
+    dc = np.einsum("ij,ij->i", n0, dv)
+    first = (np.einsum("ij,ij->i", d, dv) / (1 - dc))[:, None] * v
+    np.testing.assert_allclose(cb[~convex], first[~convex], rtol=1e-10, atol=1e-12)
+    # y = x^3 from (-1, -1) to (1, 1), normals (-3, 1)/sqrt(10) tilted by +-t: eq. (15) grows
+    # like 4/t (until dc = t^2/10 falls below its threshold), the rules stay at the chord
+    a, e = np.array([-1.0, -1.0, 0.0]), np.array([1.0, 1.0, 0.0])
+    for t in (1e-2, 1e-3, 1e-4):
+        m0 = _unit(np.array([-3.0, 1.0, t]))
+        m1 = _unit(np.array([-3.0, 1.0, -t]))
+        assert np.linalg.norm(edge_coefficient(a, e, m0, m1, bounded=False)) > 0.1 / t
+        assert np.linalg.norm(edge_coefficient(a, e, m0, m1)) < 10 * t
+    # sphere chords with exact normals: d.v = 0, the rules change nothing
+    p0, p1 = _unit(rng.normal(size=(500, 3))), _unit(rng.normal(size=(500, 3)))
+    np.testing.assert_allclose(edge_coefficient(p0, p1, p0, p1), edge_coefficient(p0, p1, p0, p1, bounded=False),
+                               rtol=1e-12, atol=1e-14)
 
 
 def test_edge_parallel_normals_exactly_straight():

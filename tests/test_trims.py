@@ -302,3 +302,23 @@ def test_real_faces_vs_occ_classifier(name):
     assert total > 50
     assert agree >= 0.999 * total, f"{total - agree} of {total} disagree with OCC"
     assert agree >= agree_old
+
+
+def test_project_to_trims_across_the_seam_of_a_closed_hole_curve():
+    """A hole written as one closed curve (trimmed_hole.igs: circle R10 about (30, 25) in
+    z = 0, start = end at (20, 25)): points near its seam must find the foot on the other
+    side of the seam, not stop at the end the nearest sample gave. Reference: the distance to
+    the analytic circle. (Newton clamped at t0 gave 0.518 instead of 0.121 at (20.134, 24.5).)"""
+    from cadbridge.iges import read_iges
+    from cadbridge.trims import project_to_trims
+
+    m = read_iges(Path(__file__).parents[1] / "iges_samples" / "trimmed_hole.igs")
+    rng = np.random.default_rng(3)
+    ang = np.concatenate([rng.uniform(0, 2 * np.pi, 1000), np.pi + rng.uniform(-0.05, 0.05, 1000)])
+    rad = rng.uniform(9.0, 11.0, 2000)
+    p = np.c_[30 + rad * np.cos(ang), 25 + rad * np.sin(ang), rng.uniform(-1, 1, 2000)]
+    p = np.vstack([p, [[20.13397458, 24.50000003, 0.0]]])
+    _, _, foot, d, ok = project_to_trims(m.faces[0], p)
+    ref = np.hypot(np.hypot(p[:, 0] - 30, p[:, 1] - 25) - 10, p[:, 2])
+    assert ok.all()
+    np.testing.assert_allclose(d, ref, atol=1e-9)

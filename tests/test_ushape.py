@@ -98,9 +98,9 @@ def test_summary_json_structure(ushape):
             assert len(entry["radius_elements_max_radial_error_pct"]) == 3
             assert all(isinstance(v, float) for v in entry["radius_elements_max_radial_error_pct"])
     for tool in TOOLS:
-        assert data[tool]["cad_quad_vs_cad"]["max_abs_shape_error_mm"] < 0.01
+        assert data[tool]["cad_quad_vs_cad"]["max_abs_surface_error_mm"] < 0.01
     # a flat blank holder: Nagata patches are exact
-    assert data["blankholder"]["cad_quad_vs_cad"]["max_abs_shape_error_mm"] < 1e-12
+    assert data["blankholder"]["cad_quad_vs_cad"]["max_abs_surface_error_mm"] < 1e-12
     assert {"seconds", "params", "files"} <= set(data["_run"])
     for f in data["_run"]["files"]:
         assert (out / f).is_file(), f
@@ -122,7 +122,8 @@ def test_report_figures_per_tool(ushape):
     for tool in TOOLS:
         assert (out / f"{tool}_normal_sources.png").is_file()
         assert (out / f"{tool}_shape_error_by_source.png").is_file()
-        assert (out / tool / f"{tool}_shape_error.png").is_file()
+        assert (out / tool / f"{tool}_surface_error.png").is_file()
+        assert (out / tool / f"{tool}_boundary_error.png").is_file()
         assert (out / tool / f"{tool}_normal_error.png").is_file()
     for tool in WITH_RADIUS:
         png = (out / f"{tool}_section_error.png").read_bytes()

@@ -47,6 +47,7 @@ import math
 import threading
 import warnings
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
@@ -302,6 +303,7 @@ def mesh_cad(
     target_unit: str | None = None,
     parametric: bool = True,
     verbose: bool = False,
+    embed_curves: Sequence = (),
 ) -> Mesh:
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
@@ -326,6 +328,11 @@ def mesh_cad(
     curvature_elements : if > 0, ``Mesh.MeshSizeFromCurvature`` (elements per 2*pi).
     target_unit : ``Geometry.OCCTargetUnit`` (e.g. "M"); None keeps OCC's default (mm).
     parametric : store ``node_entity`` / ``node_uv`` in point_data (module docs).
+    embed_curves : 3D `NurbsCurve` s lying on the CAD faces (e.g. `cadbridge.creases`'
+        crease lines) that must become mesh edges: each is added as a gmsh B-spline and
+        fragmented with the surfaces it lies on (OCC general fuse), which splits those faces
+        along it; pieces of a curve that lie on no face are removed. Raises `MeshError` if a
+        curve lies on no surface.
 
     Returns a `Mesh` with one triangle and/or one quad block (in that order), element
     orientation as gmsh gives it (following each OCC face's orientation), unused nodes
@@ -352,7 +359,7 @@ def mesh_cad(
                 radius_divisions=radius_divisions, length_divisions=length_divisions,
                 fillet_max_radius=fillet_max_radius, sew=sew, sew_tolerance=sew_tolerance,
                 curvature_elements=curvature_elements,
-                target_unit=target_unit, parametric=parametric,
+                target_unit=target_unit, parametric=parametric, embed_curves=list(embed_curves),
             )
         except MeshError:
             raise
@@ -382,9 +389,11 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         g.model.occ.synchronize()
     except Exception as exc:
         raise MeshError(f"{path}: gmsh/OCC cannot import the file: {exc}") from exc
-    surfaces = [t for _, t in g.model.getEntities(2)]
-    if not surfaces:
+    if not g.model.getEntities(2):
         raise MeshError(f"{path}: no surfaces found in the CAD file")
+    if kw["embed_curves"]:
+        _embed_curves(g, kw["embed_curves"], path)
+    surfaces = [t for _, t in g.model.getEntities(2)]
     bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
     diag = float(np.linalg.norm(bb[3:] - bb[:3]))
     size = kw["size"] if kw["size"] is not None else diag / 20.0
@@ -396,10 +405,12 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         "Mesh.MeshSizeFromPoints": 0,
         "Mesh.MeshSizeFromCurvature": kw["curvature_elements"],
         "Mesh.ElementOrder": 1,
-        # Frontal-Delaunay then Blossom recombination with extra smoothing: on the samples
-        # this keeps quad corner angles below ~140 degrees, where the "Frontal-Delaunay for
-        # quads" algorithm (8) left 170-degree corners that Nagata patches cannot bend over.
-        "Mesh.Algorithm": 6,
+        # triangles: Frontal-Delaunay (6). Quads: Delaunay (5) then Blossom recombination
+        # with extra smoothing: on the samples this keeps quad corner angles below ~150
+        # degrees, where "Frontal-Delaunay for quads" (8) left 170-degree corners that Nagata
+        # patches cannot bend over, and its quads are rounder than from (6): on
+        # multiple_knots.igs the Nagata normal error drops from 1.13 to 0.87 degrees.
+        "Mesh.Algorithm": 5 if kw["element"] == "quad" else 6,
         "Mesh.RecombineAll": 1 if kw["element"] == "quad" else 0,
         "Mesh.RecombinationAlgorithm": 1,
         "Mesh.Smoothing": 10,
@@ -434,6 +445,39 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         if len(mesh.triangles):
             raise MeshError(f"{path}: gmsh left {len(mesh.triangles)} triangles in quad mode")
     return mesh
+
+
+def _embed_curves(g, curves: list, path: Path) -> None:
+    """Fragment the surfaces with the curves lying on them, so mesh edges follow the curves."""
+    bb_all = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
+    tol = 1e-7 * float(np.linalg.norm(bb_all[3:] - bb_all[:3]))
+    surf = [t for _, t in g.model.getEntities(2)]
+    boxes = np.array([g.model.getBoundingBox(2, t) for t in surf], dtype=float).reshape(-1, 6)
+    hosts: set[int] = set()
+    tools = []
+    for c in curves:  # loop over the (few) crease curves
+        t0, t1 = c.domain
+        probe = c.evaluate(np.linspace(t0, t1, 9)[1:-1])  # (7, 3) interior points
+        inbox = np.all((probe.min(0) >= boxes[:, :3] - 10 * tol) & (probe.max(0) <= boxes[:, 3:] + 10 * tol), axis=1)
+        found = []
+        for s in np.asarray(surf)[inbox]:
+            cp = np.asarray(g.model.getClosestPoint(2, int(s), probe.ravel())[0], dtype=float).reshape(-1, 3)
+            if np.any(np.linalg.norm(cp - probe, axis=1) <= tol):  # a piece of the curve lies on s
+                found.append(int(s))
+        if not found:
+            raise MeshError(f"{path}: a crease curve (from {probe[0].tolist()}) lies on no gmsh surface")
+        hosts.update(found)
+        knots, mult = np.unique(c.knots, return_counts=True)
+        pts = [g.model.occ.addPoint(*map(float, x)) for x in c.control_points]
+        tools.append((1, g.model.occ.addBSpline(pts, degree=int(c.degree), weights=[float(w) for w in c.weights],
+                                                knots=knots.tolist(), multiplicities=mult.tolist())))
+    g.model.occ.fragment([(2, s) for s in sorted(hosts)], tools)
+    g.model.occ.synchronize()
+    # curve pieces outside every face (beyond trims) would be meshed as free edges: drop them
+    free = [(1, t) for _, t in g.model.getEntities(1) if len(g.model.getAdjacencies(1, t)[0]) == 0]
+    if free:
+        g.model.occ.remove(free, recursive=True)
+        g.model.occ.synchronize()
 
 
 class _quiet_stdout:

@@ -8,7 +8,24 @@ whose tangent is orthogonal to the normals given at its ends.  ``c`` is the
 minimum-norm (least-squares) solution of ``[n] c = {d}`` (eqs. 6-7, 19-20, 32).
 
 * Two normals (smooth edge): closed form of eq. (15) with the decoupled handling of
-  the singular cases (dimensionless threshold ``eps`` on ``dc`` and ``1 - dc``).
+  the singular cases (dimensionless threshold ``eps`` on ``dc`` and ``1 - dc``), and the
+  inflected-edge rule below.
+* Inflected edge: the chord lies on the same side of both end tangent planes,
+  ``(d . n0) (d . n1) > 0``. A convex arc has its chord below the tangent at one end and
+  above it at the other (opposite signs), so this is an inflection between the ends, which
+  no quadratic can hold (thesis §6.2.2, Fig. 56: the node is outside the admissible region).
+  There the term ``(d . v / dc) dv`` of eq. (15) grows without bound as the normals become
+  parallel (``dc = |dv|^2``), e.g. ``|c| = 3.7 |d|`` on a real sample. The rule drops that
+  term, as eq. (15) itself does for parallel normals: ``c = (d . dv) / (1 - dc) v``.
+* Edge plane: the two normals carry the normal curvature of the edge only; the sideways
+  part of ``c`` — along ``b = d x v / |d x v|``, in the tangent plane across the edge —
+  comes from the twist of the normals about the edge, and eq. (15) makes it as large as
+  ``|d . v| / |dv|`` when the normals are nearly parallel (a bulge of 0.3 across a 4 mm
+  edge whose surface is 0.01 from its chord, on a real sample). It is removed:
+  ``c <- c - (c . b) b``, so the edge curve stays in the plane of ``d`` and ``v``. For
+  symmetric edges (circle arcs, cylinders, spheres: ``d . v = 0``) ``c`` is parallel to
+  ``v`` and nothing changes; the tangency conditions then hold up to
+  ``(c . b)(b . dv)``.
 * Any number of normals (sharp edge, non-manifold edge): generalized inverse of
   eqs. (20)-(31) with the rank tests on the dimensionless ``D^(k)``.
 
@@ -34,7 +51,8 @@ def _dot(a: NDArray, b: NDArray) -> NDArray:
 
 
 def edge_coefficient(
-    x0: ArrayLike, x1: ArrayLike, n0: ArrayLike, n1: ArrayLike, eps: float = EPS_SINGULAR
+    x0: ArrayLike, x1: ArrayLike, n0: ArrayLike, n1: ArrayLike, eps: float = EPS_SINGULAR,
+    bounded: bool = True,
 ) -> NDArray[np.float64]:
     """Curvature coefficient of Nagata edges with one normal per end (Nagata eq. 15).
 
@@ -44,7 +62,11 @@ def edge_coefficient(
     n0, n1 : (..., 3) unit normals at the end points.
     eps : threshold on the dimensionless ``dc = n0 . (n0 - n1) / 2``: the ``v`` term is
         dropped when ``1 - dc < eps`` (opposite normals), the ``dv`` term when
-        ``dc < eps`` (parallel normals).  For exactly parallel normals ``c`` is exactly 0.
+        ``dc < eps`` (parallel normals) or when the edge is inflected
+        (``(d . n0) (d . n1) > 0``, module docs).  For exactly parallel normals ``c`` is
+        exactly 0.
+    bounded : apply the inflected-edge and edge-plane rules (module docs); False gives
+        eq. (15) as published.
 
     Returns
     -------
@@ -63,9 +85,20 @@ def edge_coefficient(
     one_m = 1.0 - dc
     keep1 = one_m >= eps
     keep2 = dc >= eps
+    if bounded:
+        # inflected: (d.n0)(d.n1) > eps |d|^2 (dimensionless; round-off of a chord lying in a
+        # tangent plane, e.g. the c = -d edge, does not count)
+        keep2 &= ~(_dot(d, n0) * _dot(d, n1) > eps * _dot(d, d))
     f1 = np.where(keep1, ddelta / np.where(keep1, one_m, 1.0), 0.0)
     f2 = np.where(keep2, dd / np.where(keep2, dc, 1.0), 0.0)
-    return f1[..., None] * v + f2[..., None] * dv
+    c = f1[..., None] * v + f2[..., None] * dv
+    if bounded:
+        b = np.cross(d, v)
+        lb = np.sqrt(_dot(b, b))
+        ok = lb > 1e-12 * np.sqrt(_dot(d, d)) * np.sqrt(_dot(v, v))  # d not along v
+        b = b / np.where(ok, lb, 1.0)[..., None]
+        c = c - np.where(ok, _dot(c, b), 0.0)[..., None] * b
+    return c
 
 
 def _cross(a: NDArray, b: NDArray) -> NDArray:

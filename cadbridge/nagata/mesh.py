@@ -2,10 +2,13 @@
 
 ``NagataMesh(nodes, elements, normals)`` builds one patch per element (thesis eqs. 4-13).
 Edges are identified globally (sorted node pair); an edge whose elements carry different
-corner normals at its ends (a crease) or that is shared by more than two elements with
-differing normals gets one coefficient from *all* those normals through the generalized
-inverse (Nagata 2005, eqs. 19-33), so the patches on both sides share the edge curve.
-Every other edge uses the two-normal closed form (Nagata eq. 15).
+corner normals at both of its ends (a crease) or that is shared by more than two elements
+with differing normals gets one coefficient from *all* those normals through the
+generalized inverse (Nagata 2005, eqs. 19-33), so the patches on both sides share the edge
+curve. An edge whose elements differ at one end only (it leaves a crease node into one side:
+the mesh straddles the crease) takes, at that end, the normal most orthogonal to the edge.
+Every other edge uses the two-normal closed form (Nagata eq. 15, with the bounded rules of
+`cadbridge.nagata.edge`). docs/toolfile.md states the same rule for readers of tool files.
 """
 
 from __future__ import annotations
@@ -201,7 +204,11 @@ class NagataMesh:
             self.tri_corner_normals = np.concatenate(tri_n) if tri_n else np.zeros((0, 3, 3))
             self.quad_corner_normals = np.concatenate(quad_n) if quad_n else np.zeros((0, 4, 3))
         self.crease_edges: NDArray = np.zeros(0, dtype=np.int64)
-        """Global ids of the edges solved with the generalized inverse (see ``edges``)."""
+        """Global ids of the edges whose elements give different corner normals (see ``edges``):
+        solved with the generalized inverse where both ends carry several normals."""
+        self.half_crease_edges: NDArray = np.zeros(0, dtype=np.int64)
+        """Global ids of crease edges with several normals at one end only (a mesh that
+        straddles a crease): at that end the normal most orthogonal to the edge is used."""
         tri_ec, quad_ec = self._edge_coefficients(per_node)
         self.tri_edge_coefficients = tri_ec  # (Et, 3, 3) c1 c2 c3
         self.quad_edge_coefficients = quad_ec  # (Eq, 4, 3) c1 c2 c3 c4
@@ -276,7 +283,26 @@ class NagataMesh:
             n0[row, col] = n_lo[order]
             n1[row, col] = n_hi[order]
             mask[row, col] = True
-            c_edge[ce] = edge_coefficient_multi(x[hi[ce]] - x[lo[ce]], n0, n1, mask, mask, self.eps_rank)
+            d = x[hi[ce]] - x[lo[ce]]
+            multi0 = np.any(mask & (np.abs(n0 - n0[:, :1]).max(axis=2) > 0), axis=1)
+            multi1 = np.any(mask & (np.abs(n1 - n1[:, :1]).max(axis=2) > 0), axis=1)
+            full = multi0 & multi1
+            if np.any(full):  # a crease edge: one curve orthogonal to every normal (eqs. 19-33)
+                f = np.flatnonzero(full)
+                c_edge[ce[f]] = edge_coefficient_multi(d[f], n0[f], n1[f], mask[f], mask[f], self.eps_rank)
+            half = np.flatnonzero(~full)
+            self.half_crease_edges = ce[half]
+            if half.size:
+                # several normals at one end only: the edge leaves a crease node into one side
+                # (elements on both sides of it straddle the crease). Eqs. 19-33 would make its
+                # curve tangent to the crease there (c of size 1e3 |d| on a real mesh); the
+                # normal of the side the edge runs in is the one most orthogonal to it
+                dh = d[half] / np.linalg.norm(d[half], axis=1, keepdims=True)
+                def pick(nn, mk):  # (H, P, 3) -> (H, 3): min |n . d^| over the present rows
+                    score = np.where(mk, np.abs(np.einsum("hpi,hi->hp", nn, dh)), np.inf)
+                    return nn[np.arange(len(nn)), np.argmin(score, axis=1)]
+                c_edge[ce[half]] = edge_coefficient(x[lo[ce[half]]], x[hi[ce[half]]], pick(n0[half], mask[half]),
+                                                    pick(n1[half], mask[half]), self.eps)
         c_inst = c_edge[eid]  # c is invariant under edge reversal
         nt = 3 * len(t)
         return c_inst[:nt].reshape(-1, 3, 3), c_inst[nt:].reshape(-1, 4, 3)

@@ -17,6 +17,7 @@ from typing import Sequence
 
 import numpy as np
 
+from cadbridge.nurbs.basis import basis_funs, find_span
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
@@ -48,6 +49,7 @@ __all__ = [
     "elevate_surface",
     "bezier_patches",
     "tight_bbox",
+    "isocurve",
 ]
 
 _SNAP = 1e-12  # relative tolerance for snapping a cut parameter onto an existing knot
@@ -441,3 +443,28 @@ def tight_bbox(surface: NurbsSurface) -> np.ndarray:
     _, pts, _ = bezier_patches(surface)
     pts = pts.reshape(-1, 3)
     return np.array([pts.min(axis=0), pts.max(axis=0)])
+
+
+def isocurve(surface: NurbsSurface, direction: str, t: float) -> NurbsCurve:
+    """The iso-parametric curve of ``surface`` at u = t (``direction="u"``, a curve in v) or
+    v = t (``"v"``, a curve in u), exact, over the surface's domain in the other parameter.
+
+    In homogeneous coordinates S^w(t, v) = sum_j (sum_i N_i(t) P^w_ij) N_j(v) (P&T eq. 4.15
+    applied to one direction), so the curve's control points are Q^w_j = sum_i N_i(t) P^w_ij
+    with the other direction's knots and degree. At a C0 knot both one-sided limits agree.
+    """
+    if direction not in ("u", "v"):
+        raise ValueError(f"direction must be 'u' or 'v', got {direction!r}")
+    pw = surface._pw  # (nu, nv, 4)
+    if direction == "u":
+        knots, p, other_knots, q, axis = surface.knots_u, surface.degree_u, surface.knots_v, surface.degree_v, 0
+        dom = surface.domain[2:]
+    else:
+        knots, p, other_knots, q, axis = surface.knots_v, surface.degree_v, surface.knots_u, surface.degree_u, 1
+        dom = surface.domain[:2]
+    tt = np.array([float(t)])
+    span = find_span(knots, p, tt)
+    n = basis_funs(span, tt, p, knots)[0]  # (p+1,)
+    rows = np.take(pw, np.arange(span[0] - p, span[0] + 1), axis=axis)  # (p+1, nv, 4) or (nu, p+1, 4)
+    qw = np.tensordot(n, rows, axes=([0], [axis]))  # (n_other, 4)
+    return curve_from_homogeneous(q, other_knots, qw, dom)

@@ -99,9 +99,10 @@ class UShapeSummary:
                 if "radius_elements_max_radial_error_pct" in r:
                     els = " / ".join(f"{e:+.4f}" for e in r["radius_elements_max_radial_error_pct"])
                     lines.append(f"| {tool} | {src} | {r['max_radial_error_pct']:+.4f} | {els} | {r['max_normal_error_deg']:.4f} |")
-                elif "max_abs_shape_error_mm" in r:
+                elif "max_abs_surface_error_mm" in r:
                     lines.append(
-                        f"| {tool} | {src} | shape {r['max_abs_shape_error_mm']:.2e} mm | - | {r['max_normal_error_deg']:.4f} |"
+                        f"| {tool} | {src} | surface {r['max_abs_surface_error_mm']:.2e} mm, boundary "
+                        f"{r['max_boundary_error_mm']:.2e} mm | - | {r['max_normal_error_deg']:.4f} |"
                     )
                 else:  # the polyhedral reference
                     lines.append(f"| {tool} | {src} | {r['max_radial_error_pct']:+.4f} | - | - |")
@@ -309,7 +310,8 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
                                                                 True, projector)]
             summary.tool_files[tool] = tool_data(tq, model.units.name, f"cad/{tool}.igs")
             results["cad_quad_vs_cad"] = {
-                "max_abs_shape_error_mm": tq.stats["max_abs_shape_error"],
+                "max_abs_surface_error_mm": tq.stats["max_abs_surface_error"],
+                "max_boundary_error_mm": tq.stats["max_boundary_error"],
                 "max_normal_error_deg": tq.stats["max_normal_error_deg"],
             }
 
@@ -323,7 +325,8 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
                             grid=max(4, grid // 4), node_face=cf.face, node_distance=cf.distance,
                             projector=projector, progress=progress)
             results["cad_fine_tri_vs_cad"] = {
-                "max_abs_shape_error_mm": tf.stats["max_abs_shape_error"],
+                "max_abs_surface_error_mm": tf.stats["max_abs_surface_error"],
+                "max_boundary_error_mm": tf.stats["max_boundary_error"],
                 "max_normal_error_deg": tf.stats["max_normal_error_deg"],
                 "elements": int(fine.n_elements),
             }

@@ -1,0 +1,184 @@
+"""Errors of a Nagata tool against the CAD model: two honest numbers, and the flat reference.
+
+For sample points x(e, eta, zeta) of the patches (element e):
+
+* **surface error**: signed distance (along the CAD normal) from x to the *underlying*
+  surface of e's face, untrimmed: how well the patch follows the surface it was built on.
+  The CAD normal is taken on e's side of a crease knot line of that face (one-sided at the
+  knot), so a sample on a crease edge is compared with its own side's normal.
+* **boundary error**: distance from x to the *trimmed* model (nearest face, trims decided
+  on the trim curves). It includes the straight boundary chords of patches along curved trim
+  edges, e.g. patches bridging the chords of a hole's circle.
+* **flat surface error**: the surface error of the flat element (linear triangle, bilinear
+  quadrilateral through the same corners) at the same (eta, zeta): what the tool would be
+  without Nagata patches. A Nagata surface worse than that is not worth writing.
+
+The normal error is the angle between the patch normal and that one-sided CAD normal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from cadbridge.model import Model
+
+__all__ = ["ToolErrors", "flat_points", "tool_errors", "worst_elements"]
+
+
+@dataclass
+class ToolErrors:
+    """Per sample point (M,): ``surface`` signed [length], ``normal`` [deg], ``boundary``
+    (>= 0) [length], ``flat_surface`` signed [length]; ``face`` (M,) the face measured
+    against (-1: none, then the trimmed projection's face is used)."""
+
+    surface: np.ndarray
+    normal: np.ndarray
+    boundary: np.ndarray
+    flat_surface: np.ndarray
+    face: np.ndarray
+
+    def stats(self) -> dict:
+        def mx(a):
+            return float(np.max(np.abs(a))) if len(a) else 0.0
+
+        def mean(a):
+            return float(np.mean(np.abs(a))) if len(a) else 0.0
+
+        return {
+            "max_abs_surface_error": mx(self.surface),
+            "mean_abs_surface_error": mean(self.surface),
+            "max_boundary_error": mx(self.boundary),
+            "mean_boundary_error": mean(self.boundary),
+            "max_abs_flat_surface_error": mx(self.flat_surface),
+            "max_normal_error_deg": mx(self.normal),
+            "mean_normal_error_deg": mean(self.normal),
+        }
+
+
+def flat_points(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray) -> np.ndarray:
+    """Points (M, 3) of the flat elements at (elem, eta, zeta): triangle x00 + (x10 - x00) eta
+    + (x11 - x10) zeta (the linear part of thesis eq. 4), quadrilateral bilinear."""
+    out = np.empty((len(elem), 3))
+    kind = nm.element_kind[elem]
+    loc = nm.element_local[elem]
+    t = kind == 3
+    if np.any(t):
+        x = nm.nodes[nm.tri_elements[loc[t]]]  # (m, 3, 3)
+        e, z = eta[t, None], zeta[t, None]
+        out[t] = x[:, 0] + (x[:, 1] - x[:, 0]) * e + (x[:, 2] - x[:, 1]) * z
+    q = ~t
+    if np.any(q):
+        x = nm.nodes[nm.quad_elements[loc[q]]]  # (m, 4, 3)
+        e, z = eta[q, None], zeta[q, None]
+        out[q] = (x[:, 0] * (1 - e) * (1 - z) + x[:, 1] * e * (1 - z) + x[:, 2] * e * z + x[:, 3] * (1 - e) * z)
+    return out
+
+
+def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarray,
+              ref_normals: np.ndarray, piece_uv: np.ndarray | None = None):
+    """Project each point onto the untrimmed surface of its face; on a face with crease knot
+    lines (`nurbs.project.smooth_pieces`), onto the smooth piece its element lies on (the
+    piece holding the element's mean foot parameter, or ``piece_uv`` (M, 2)), with the
+    one-sided normal where the foot is on the piece's crease edge.
+    Returns signed distance (M,), normal aligned with ``ref_normals`` (M, 3), (u, v) (M, 2)."""
+    from cadbridge.nurbs.project import FAILED, project_to_surface, smooth_pieces
+
+    dist = np.full(len(points), np.nan)
+    nrm = np.full((len(points), 3), np.nan)
+    uv = np.full((len(points), 2), np.nan)
+    for f in np.unique(face[face >= 0]):  # loop over faces, vectorised over points
+        sel = np.flatnonzero(face == f)
+        s = model.faces[f].surface
+        pr = project_to_surface(s, points[sel])
+        pieces = smooth_pieces(s)
+        if len(pieces) > 1:
+            if piece_uv is None:
+                _, inv = np.unique(elem[sel], return_inverse=True)
+                cnt = np.bincount(inv)
+                mu, mv = (np.bincount(inv, weights=pr.u) / cnt)[inv], (np.bincount(inv, weights=pr.v) / cnt)[inv]
+            else:
+                mu, mv = piece_uv[sel, 0], piece_uv[sel, 1]
+            dom = np.array([pc.domain for pc in pieces])  # (P, 4)
+            which = np.argmax((mu[:, None] >= dom[None, :, 0]) & (mu[:, None] <= dom[None, :, 1])
+                              & (mv[:, None] >= dom[None, :, 2]) & (mv[:, None] <= dom[None, :, 3]), axis=1)
+            u0, u1, v0, v1 = s.domain
+            for k in np.unique(which):  # loop over the (few) pieces
+                m = which == k
+                pc = pieces[k]
+                q = project_to_surface(pc, points[sel[m]])
+                a, b, c, d = pc.domain
+                fail = np.flatnonzero(q.status == FAILED)
+                if len(fail):
+                    # Newton stalled next to the piece's crease edge: take the whole surface's
+                    # foot clamped into the piece (a foot on the crease line; its distance is
+                    # an upper bound of the true one)
+                    q.u[fail] = np.clip(pr.u[m][fail], a, b)
+                    q.v[fail] = np.clip(pr.v[m][fail], c, d)
+                    q.foot[fail] = s.evaluate(q.u[fail], q.v[fail])
+                eu, ev = 1e-12 * (u1 - u0), 1e-12 * (v1 - v0)
+                lo_u = (np.abs(q.u - a) <= eu) & (a > u0)
+                hi_u = (np.abs(q.u - b) <= eu) & (b < u1)
+                lo_v = (np.abs(q.v - c) <= ev) & (c > v0)
+                hi_v = (np.abs(q.v - d) <= ev) & (d < v1)
+                n = q.normal.copy()
+                at = lo_u | hi_u | lo_v | hi_v
+                if len(fail):
+                    n[fail] = s.normal(q.u[fail], q.v[fail])  # interior of the piece, else one-sided below
+                if np.any(at):
+                    n[at] = s.normal(q.u[at], q.v[at], side_u=np.where(hi_u[at], -1, 1),
+                                     side_v=np.where(hi_v[at], -1, 1))
+                for name, val in (("u", q.u), ("v", q.v), ("foot", q.foot), ("normal", n)):
+                    getattr(pr, name)[m] = val
+        n = pr.normal * np.where(np.einsum("ij,ij->i", pr.normal, ref_normals[sel]) < 0, -1.0, 1.0)[:, None]
+        uv[sel, 0], uv[sel, 1] = pr.u, pr.v
+        dist[sel] = np.einsum("ij,ij->i", points[sel] - pr.foot, n)
+        nrm[sel] = n
+    return dist, nrm, uv
+
+
+def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element_face: np.ndarray,
+                model: Model, project_trimmed) -> ToolErrors:
+    """Surface, normal, boundary and flat surface errors at the patch samples (elem, eta,
+    zeta) (M,) of the `NagataMesh` ``nm``.
+
+    element_face    (E,) face index of each element (-1 where unknown)
+    project_trimmed callable points (M, 3) -> `cadbridge.search.Projection` on the trimmed
+                    model (e.g. `pipeline.CadProjector.project`)
+    """
+    from cadbridge.nagata.errors import angle_deg
+
+    elem = np.asarray(elem, dtype=np.int64)
+    pts, pn = nm.evaluate(elem, eta, zeta)
+    face = np.asarray(element_face, dtype=np.int64)[elem]
+    trimmed = project_trimmed(pts)
+    boundary = np.linalg.norm(pts - trimmed.foot, axis=1)
+    # elements without a face: measure against the trimmed projection's face
+    face = np.where(face >= 0, face, np.asarray(trimmed.face, dtype=np.int64))
+    surface, ncad, uv = _on_faces(model, pts, face, elem, pn)
+    # the flat element lies on the same smooth piece as its Nagata patch
+    _, inv = np.unique(elem, return_inverse=True)
+    ok = np.isfinite(uv[:, 0])
+    cnt = np.maximum(np.bincount(inv, weights=ok.astype(float)), 1.0)
+    piece_uv = np.column_stack([(np.bincount(inv, weights=np.where(ok, uv[:, i], 0.0)) / cnt)[inv] for i in (0, 1)])
+    flat_surface, _, _ = _on_faces(model, flat_points(nm, elem, eta, zeta), face, elem, pn, piece_uv)
+    normal = angle_deg(pn, ncad)
+    for name, a in (("surface", surface), ("flat surface", flat_surface), ("normal", normal), ("boundary", boundary)):
+        if not np.all(np.isfinite(a)):
+            bad = np.flatnonzero(~np.isfinite(a))
+            raise ValueError(f"{name} error could not be measured at {len(bad)} sample points, e.g. on element "
+                             f"{int(elem[bad[0]]) + 1} (1-based) at {pts[bad[0]].tolist()}")
+    return ToolErrors(surface, normal, boundary, flat_surface, face)
+
+
+def worst_elements(err: ToolErrors, elem: np.ndarray, n_elements: int, floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Elements whose Nagata surface error exceeds their flat element's (beyond ``floor``),
+    worst first: (element ids (K,), their max |surface error|, their max |flat error|)."""
+    nag = np.zeros(n_elements)
+    flat = np.zeros(n_elements)
+    np.maximum.at(nag, elem, np.abs(err.surface))
+    np.maximum.at(flat, elem, np.abs(err.flat_surface))
+    worse = np.flatnonzero(nag > np.maximum(flat, floor))
+    order = worse[np.argsort(-nag[worse], kind="stable")]
+    return order, nag[order], flat[order]
