@@ -141,7 +141,7 @@ def test_solidworks_trims_exact_and_delta():
     assert by[157].trim_delta == pytest.approx(np.hypot(7.0, 115.0 - 108.0 - 0.007), rel=1e-3)
     assert all(isinstance(c, InvertedCurve) for c in by[351].trims.outer.curves)
     # PREF = pcurve with closed loops: taken as the file says, delta deferred (no read-time note);
-    # DE 351's pcurve loops do not close: delta measured at read time for the route and its note
+    # DE 351's pcurve loops do not close: the model-space route, noted (delta deferred as well)
     assert not [d.message for d in m.diagnostics if d.de == 41]
     assert any("do not close" in d.message for d in m.diagnostics if d.de == 351)
     assert not any("polyline" in d.message for d in m.diagnostics)
@@ -330,3 +330,22 @@ def test_write_read_round_trip_real(path, tmp_path):
         else:
             assert b.trim_delta == pytest.approx(a.trim_delta, rel=1e-6, abs=1e-9 * m.size())
     assert mapped > 0 if path == SW else mapped == 0
+
+
+def test_sample_many_equals_sample_chain_per_curve():
+    """The batched phase-1 sampling (one packed evaluation, one vectorised unwrap for all
+    curves) gives each curve the parameters and unwrapped angles of sample_chain on it alone
+    (reference: NurbsCurve.sample_parameters, NurbsCurve.evaluate and np.unwrap)."""
+    from cadbridge.iges.analytic import _sample_many, sample_chain
+
+    rng = np.random.default_rng(0)
+    cs = [NurbsCurve(3, [0, 0, 0, 0, 0.4, 1, 1, 1, 1], rng.normal(size=(5, 2)) * 8, rng.random(5) + 0.5)
+          for _ in range(7)]
+
+    def fn(p):
+        return np.column_stack([p[:, 0], np.arctan2(np.sin(p[:, 1]), np.cos(p[:, 1]))])
+
+    for c, (t, n) in zip(cs, _sample_many(cs, fn, (False, True))):
+        t2, n2 = sample_chain(fn, c, (False, True), None, 0.0)
+        assert np.allclose(t, t2, rtol=0, atol=1e-15) and np.allclose(n, n2, rtol=0, atol=1e-12)
+        assert np.ptp(n[:, 1]) > np.pi or np.all(np.abs(np.diff(n[:, 1])) < np.pi)

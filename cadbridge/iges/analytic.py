@@ -213,7 +213,18 @@ def _sample_many(curves: list[NurbsCurve], fn: Callable[[np.ndarray], np.ndarray
     ci, t = pk.sample(MIN_PER_SPAN)
     nat = np.array(fn(pk.evaluate(ci, t, 0)[:, 0, : curves[0].dim]), dtype=float)
     cuts = np.flatnonzero(np.diff(ci)) + 1
-    return [(t[a:b], _unwrap_rows(nat[a:b], angular)) for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(t)])]
+    starts = np.r_[0, cuts]
+    for k in (0, 1):  # np.unwrap (period 2 pi, discont pi) of each curve's run, all runs at once
+        if angular[k] and len(t) > 1:
+            x = nat[:, k]
+            d = np.diff(x)
+            dd = np.mod(d + pi, TWO_PI) - pi
+            dd[(dd == -pi) & (d > 0)] = pi
+            corr = np.where(np.abs(d) < pi, 0.0, dd - d)
+            corr[cuts - 1] = 0.0  # no correction across curves
+            cs = np.concatenate([[0.0], np.cumsum(corr)])
+            nat[:, k] = x + cs - np.repeat(cs[starts], np.diff(np.r_[starts, len(t)]))
+    return [(t[a:b], nat[a:b]) for a, b in zip(starts, np.r_[cuts, len(t)])]
 
 
 def _unwrap_rows(nat: np.ndarray, angular: tuple[bool, bool]) -> np.ndarray:

@@ -1050,8 +1050,8 @@ class Builder:
 
         The file's trim tolerance delta (`trimcheck.loop_deltas`: max distance of S(c2d) to
         the model-space curves) is measured on the parameter-space route and kept for the
-        face: at read time when the route depends on it (PREF "model" / "equal" / unspecified,
-        or "pcurve" loops that do not close), else deferred to the first access of
+        face: at read time when the route depends on it (PREF "model" / "equal" / unspecified),
+        else deferred to the first access of
         `Face.trim_delta` (`trimcheck.DeltaBatch`). Which representation trims the face (IGES 5.3, 4.31-4.32):
           - only one representation on an edge: that one;
           - "pcurve" preferred: the parameter-space curves, unless their loops do not close
@@ -1063,8 +1063,8 @@ class Builder:
             ``DISAGREE_REL`` x size; then over 190-198 (exact analytic inversion) the
             model-space curves, over 118/120/122 the parameter-space curves if their loops
             close (the spec fixes that parametrisation; OCC's faces agree).
-        Each choice against the file's preference or beyond DISAGREE_REL is noted (closed
-        "pcurve" loops are taken as the file says, unmeasured: their delta is the face's
+        Each choice against the file's preference or beyond DISAGREE_REL is noted ("pcurve"
+        loops are decided by closure alone, unmeasured: their delta is the face's
         ``trim_delta``, which `cadbridge inspect` and `verify` report)."""
         pm = self.param_map(sde)
         loops = ([outer] if outer is not None else []) + list(inner)
@@ -1083,7 +1083,7 @@ class Builder:
         has_both = any(pc is not None and mc is not None for raw in loops for pc, mc in raw)
         pairs = self._mapped_pairs(res, loops)
         delta = None
-        if pairs is not None and (pref != "pcurve" or not closed):  # the route (or its note) needs delta now
+        if pairs is not None and pref != "pcurve":  # the route depends on delta: measured now
             d = float(loop_deltas([(res.surface, pairs)])[0])
             delta = None if np.isnan(d) else d
         elif pairs is not None:
@@ -1091,11 +1091,11 @@ class Builder:
         box = res.surface.bbox()
         size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
         use_model = False
-        if has_both and delta is not None:
-            if pref == "pcurve":
-                use_model = not closed
-                why = "the parameter-space loops do not close on the surface"
-            elif pref == "model":
+        if has_both and pref == "pcurve":
+            use_model = not closed
+            why = "preferred: pcurve, but the parameter-space loops do not close on the surface"
+        elif has_both and delta is not None:
+            if pref == "model":
                 use_model = delta > AGREE_REL * size
                 why = "the model-space curves are preferred"
             else:
@@ -1111,9 +1111,12 @@ class Builder:
                 res2 = map_loops(pm, loops, outer is not None, False)
             except ValueError as exc:
                 return self._untrimmed(pm, sde, de, str(exc))
-            self.note(f"parameter-space curves over the {pm.kind} surface disagree with the model-space curves "
-                      f"(delta {delta:.3g}, {delta / size:.3g} x size): trim derived from the model-space curves "
-                      f"({why})", de)
+            if delta is None:
+                self.note(f"trim derived from the model-space curves over the {pm.kind} surface ({why})", de)
+            else:
+                self.note(f"parameter-space curves over the {pm.kind} surface disagree with the model-space curves "
+                          f"(delta {delta:.3g}, {delta / size:.3g} x size): trim derived from the model-space curves "
+                          f"({why})", de)
             res = res2
         if delta is not None:
             self._delta[de] = delta

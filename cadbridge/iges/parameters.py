@@ -326,7 +326,10 @@ def prepare_params(entries: dict[int, DirectoryEntry], precs: list[Record], pdel
     if redo.size:
         body = bulk.body
         texts = [body[s:e] for s, e in zip(tstart[redo].tolist(), tend[redo].tolist())]
-        vals = np.array([float(t.replace("D", "E").replace("d", "e")) for t in texts])
+        try:  # plain E (or no) exponents: C-level conversion of the whole batch
+            vals = np.array(list(map(float, texts)))
+        except ValueError:  # a Fortran D exponent somewhere
+            vals = np.array([float(t.replace("D", "E").replace("d", "e")) for t in texts])
         fval[redo] = vals
         fexact[redo] = np.isfinite(vals)  # an overflow is reported by the Python path
     ok = fexact & (kind != 3)

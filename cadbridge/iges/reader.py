@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 from collections import Counter
 from os import PathLike
 from pathlib import Path
@@ -29,8 +30,16 @@ def read_iges(path: str | PathLike) -> Model:
 
 
 def read_iges_string(text: str, filename: str = "<string>") -> Model:
-    """Read IGES text (as from a file). Raises IgesError, never another exception type."""
+    """Read IGES text (as from a file). Raises IgesError, never another exception type.
+
+    Python's cyclic garbage collector is paused while reading (and restored after): a file
+    becomes hundreds of thousands of small acyclic objects (records, tokens, arrays), whose
+    allocation would otherwise trigger full collections again and again (about 30 % of the
+    read of a 25 MB file); reference counting frees memory as usual meanwhile."""
     holder: list[Builder] = []
+    paused = gc.isenabled()
+    if paused:
+        gc.disable()
     try:
         return _read(text, filename, holder)
     except IgesError:
@@ -41,6 +50,9 @@ def read_iges_string(text: str, filename: str = "<string>") -> Model:
             de, line, etype = holder[0].current_location()
         raise IgesError(f"unexpected {type(exc).__name__}: {exc}", filename=filename, line=line, de=de,
                         entity_type=etype) from exc
+    finally:
+        if paused:
+            gc.enable()
 
 
 def _read(text: str, filename: str, holder: list) -> Model:
