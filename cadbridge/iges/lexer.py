@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass, field
-from itertools import accumulate
+from itertools import accumulate, repeat
 from operator import itemgetter
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -62,6 +62,7 @@ def _lines(text: str) -> list[str]:
 
 
 _LETTER = itemgetter(72)
+_DATA = itemgetter(slice(0, 72))
 _SEQ_FIELD = itemgetter(slice(73, 80))
 _DROP_DIGITS_BLANKS = str.maketrans("", "", "0123456789 ")
 _SECTION_RUNS = re.compile(r"(S*)(G+)(D*)(P*)(T?)")
@@ -91,7 +92,9 @@ def _split_regular(lines: list[str], filename: str) -> Sections | None:
         m = len(run)
         if seqs[pos : pos + m] != list(range(1, m + 1)):
             return None
-        recs.extend(_new_record(Record, (lines[pos + j][:72], pos + j + 1, j + 1)) for j in range(m))
+        # Record(line[:72], file line, seq) for each line of the run, built in C (map/zip)
+        recs.extend(map(_new_record, repeat(Record), zip(map(_DATA, lines[pos : pos + m]),
+                                                         range(pos + 1, pos + m + 1), range(1, m + 1))))
         pos += m
     if not secs.terminate:
         secs.notes.append((len(lines), "no Terminate (T) section: file may be truncated"))
