@@ -80,10 +80,11 @@ class Row:
     no_projection: int = 0  # samples OCC found no projection for
     foot_on_border: int = 0  # Nagata samples whose foot is on the border of the surface's domain
     worst_nagata: tuple = (0.0, False, 0.0)  # (distance, foot on border, normal part) of the worst sample
+    rebuild_dev: float = float("nan")  # max |rebuilt - written COEFFICIENTS| / size over the tools
     exit_code_first: int | None = None  # of the plain convert, when a retry with --allow-worse followed
 
     def _ok(self, nag: float, flat: float) -> bool:
-        if self.exit_code != 0 or self.refused or self.unassigned or self.no_projection:
+        if self.exit_code != 0 or self.refused or self.unassigned or self.no_projection or not self.rebuild_dev <= 1e-9:
             return False
         if not (np.isfinite(nag) and np.isfinite(flat)):
             return False
@@ -260,6 +261,13 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
     if not tfs:
         row.message = row.message or "no tool file written"
         return
+    devs = []
+    for tf in tfs:  # acceptance "Coefficients": written == rebuilt by the documented rule
+        if tf.coefficients is None:
+            devs.append(np.inf)
+        else:
+            devs.append(float(np.abs(R.rebuild(tf) - tf.coefficients).max(initial=0)) / R.model_size(tf))
+    row.rebuild_dev = max(devs)
     per = [R.sample_grid(tf, div) for tf in tfs]
     total = sum(len(p[0]) for p in per)
     stride = max(1, math.ceil(total / max_samples))
@@ -311,9 +319,9 @@ def _r(x: float) -> str:
 
 def table(rows: list[Row], div: int, max_samples: int) -> str:
     head = ("| file | element | tools | elements (measured) | samples | Nagata max dist [mm] | flat max dist [mm] | "
-            "ratio | pass | Nagata max normal part [mm] | flat max normal part [mm] | ratio (normal part) | "
+            "ratio | pass | rebuild dev / size | Nagata max normal part [mm] | flat max normal part [mm] | ratio (normal part) | "
             "convert [s] | measure [s] | note |")
-    out = [head, "|" + "---|" * 15]
+    out = [head, "|" + "---|" * 16]
     for r in rows:
         notes = []
         if r.refused:
@@ -331,7 +339,7 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
         meas = (f"{r.elements} ({r.measured})" if r.measured != r.elements else f"{r.elements}") if r.elements else "-"
         out.append(
             f"| {r.file} | {r.element} | {', '.join(r.tools) or '-'} | {meas} | {r.samples or '-'} | "
-            f"{_e(r.nagata)} | {_e(r.flat)} | {_r(r.ratio)} | {'yes' if r.passed else 'NO'} | "
+            f"{_e(r.nagata)} | {_e(r.flat)} | {_r(r.ratio)} | {'yes' if r.passed else 'NO'} | {_e(r.rebuild_dev)} | "
             f"{_e(r.nagata_normal)} | {_e(r.flat_normal)} | {_r(r.ratio_normal)}{'' if r.passed_normal else ' (no)'} | "
             f"{r.convert_s:.1f} | {r.measure_s:.1f} | {'; '.join(notes).replace('|', '/')} |")
     n_pass = sum(r.passed for r in rows)
@@ -339,7 +347,8 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
     out.append("")
     out.append(
         f"{n_pass} of {len(rows)} pass on the distance ({n_pass_n} on the normal part): Nagata <= 0.25 x flat, or "
-        "both <= 1e-9 x size. dist = distance (GeomAPI_ProjectPointOnSurf) to the untrimmed OCC surface of the "
+        "both <= 1e-9 x size, and the written COEFFICIENTS equal the rebuilt ones within 1e-9 x size (rebuild dev: "
+        "max deviation / node-box diagonal, independent reader tests/toolfile_reference.py). dist = distance (GeomAPI_ProjectPointOnSurf) to the untrimmed OCC surface of the "
         "face nearest the element's flat centroid (BRepExtrema_DistShapeShape); normal part = |(x - foot) . n(foot)|, "
         "which ignores how far a sample lies beyond the border of the surface's parameter domain. "
         f"Grid {div} divisions per patch; at most {max_samples} samples per row (every k-th element beyond).")
