@@ -10,9 +10,11 @@ model-space curves, over dense samples of c2d (`SAMPLES_PER_SPAN` per knot span)
 2. one KD-tree over those samples, each lifted by a fourth coordinate ``loop id x L`` (L far
    larger than the model), so the nearest sample of a query point always belongs to the
    same loop (no all-pairs distances, one tree for the whole file);
-3. from each of the `NEAREST` nearest samples, Newton on f(t) = (C(t) - P) . C'(t) on its
-   piece (exact curve, compiled, `NEWTON_STEPS`), t clamped to the piece's domain; the
-   nearest foot wins (at a junction of two pieces the true foot may lie on the other one).
+3. from the nearest of the `NEAREST` nearest samples on each distinct piece, Newton on
+   f(t) = (C(t) - P) . C'(t) on its piece (exact curve, compiled, at most `NEWTON_STEPS`, a
+   point leaves when its step is below 1e-15 of the piece's domain), t clamped to the
+   piece's domain; the nearest foot wins (at a junction of two pieces the true foot may lie
+   on the other one).
 
 The result is per face (model units) and is what `Face.trim_delta` holds. Faces whose trim
 route does not depend on delta get it lazily: `DeltaBatch` keeps what the computation needs
@@ -32,7 +34,8 @@ __all__ = ["DeltaBatch", "PackedCurves", "eval_packed", "loop_deltas", "SAMPLES_
 
 SAMPLES_PER_SPAN = 16  # samples of c2d per knot span
 TREE_PER_SPAN = 64  # samples per knot span of the model curves in the KD-tree (Newton starts; 16 let
-# Newton settle in a wrong local minimum on the long degree-6 pieces of the ANSA file)
+# Newton settle in a wrong local minimum on the long degree-6 pieces of the ANSA file, 8 x degree
+# on pieces of the Euclid bearing)
 NEWTON_STEPS = 4
 NEAREST = 3  # Newton starts per query point (nearest tree samples)
 
@@ -64,10 +67,12 @@ class PackedCurves:
     def __len__(self) -> int:
         return len(self.degree)
 
-    def sample(self, per_span: int) -> tuple[np.ndarray, np.ndarray]:
-        """(curve index (M,), t (M,)): ``per_span`` intervals per non-empty knot span of each
-        curve's domain, ends included (as `NurbsCurve.sample_parameters`)."""
-        return _sample_packed(self.degree, self.koff, self.knots, self.dom, per_span)
+    def sample(self, per_span) -> tuple[np.ndarray, np.ndarray]:
+        """(curve index (M,), t (M,)): ``per_span`` intervals (an int, or one per curve) per
+        non-empty knot span of each curve's domain, ends included (as
+        `NurbsCurve.sample_parameters`)."""
+        per = np.broadcast_to(np.asarray(per_span, dtype=np.int64), self.degree.shape)
+        return _sample_packed(self.degree, self.koff, self.knots, self.dom, np.ascontiguousarray(per))
 
     def evaluate(self, ci: np.ndarray, t: np.ndarray, order: int) -> np.ndarray:
         """Derivatives up to ``order`` of curve ci[k] at t[k]: (N, order+1, 3)."""
@@ -76,7 +81,7 @@ class PackedCurves:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _sample_packed(degree, koff, knots, dom, per_span):  # pragma: no cover - compiled
+def _sample_packed(degree, koff, knots, dom, per):  # pragma: no cover - compiled
     nc = len(degree)
     count = 0
     for c in range(nc):
@@ -85,9 +90,9 @@ def _sample_packed(degree, koff, knots, dom, per_span):  # pragma: no cover - co
         for k in range(koff[c], koff[c + 1]):
             x = knots[k]
             if x > prev and x < t1:
-                count += per_span
+                count += per[c]
                 prev = x
-        count += per_span + 1
+        count += per[c] + 1
     ci = np.empty(count, dtype=np.int64)
     tt = np.empty(count)
     m = 0
@@ -98,9 +103,9 @@ def _sample_packed(degree, koff, knots, dom, per_span):  # pragma: no cover - co
             last = k == koff[c + 1]
             x = t1 if last else knots[k]
             if last or (x > a and x < t1):
-                for j in range(per_span):
+                for j in range(per[c]):
                     ci[m] = c
-                    tt[m] = a + (x - a) * j / per_span
+                    tt[m] = a + (x - a) * j / per[c]
                     m += 1
                 a = x
         ci[m] = c
@@ -217,24 +222,37 @@ def loop_deltas(items: list[tuple]) -> np.ndarray:
     # the 3 nearest samples (often on two pieces at a junction): Newton from each, the nearest foot wins
     _, kk = tree.query(np.column_stack([pts, qloop * lift]), k=min(NEAREST, len(cs)))
     kk = np.asarray(kk).reshape(len(pts), -1)
-    k = kk.ravel()
-    p3 = np.repeat(pts, kk.shape[1], axis=0)
+    # one start per (query, piece): further samples on the same piece lead to the same foot
+    ck = ci[kk]
+    keep = np.ones(kk.shape, dtype=bool)
+    for j in range(1, kk.shape[1]):
+        keep[:, j] = np.all(ck[:, j : j + 1] != ck[:, :j], axis=1)
+    qi = np.nonzero(keep)[0]
+    k = kk[keep]
+    p3 = pts[qi]
     c = ci[k]
     t = tt[k].copy()
     lo, hi = pm.dom[c, 0], pm.dom[c, 1]
+    act = np.arange(len(t))  # points still moving
     for _ in range(NEWTON_STEPS):
-        d = pm.evaluate(c, t, 2)
-        r = d[:, 0] - p3
+        ca, ta, pa = c[act], t[act], p3[act]
+        d = pm.evaluate(ca, ta, 2)
+        r = d[:, 0] - pa
         f = np.einsum("ij,ij->i", r, d[:, 1])
         g1 = np.einsum("ij,ij->i", d[:, 1], d[:, 1])
         fp = g1 + np.einsum("ij,ij->i", r, d[:, 2])
         fp = np.where(fp > 0, fp, g1 + 1e-300)
-        t = np.clip(t - f / fp, lo, hi)
+        tn = np.clip(ta - f / fp, lo[act], hi[act])
+        t[act] = tn
+        act = act[np.abs(tn - ta) > 1e-15 * np.maximum(hi[act] - lo[act], 1e-300)]
+        if act.size == 0:
+            break
     dist = np.linalg.norm(pm.evaluate(c, t, 0)[:, 0] - p3, axis=1)
     dist = np.minimum(dist, np.linalg.norm(cs[k] - p3, axis=1))  # Newton never worse than the sample
-    dist = dist.reshape(kk.shape).min(axis=1)
+    best = np.full(len(pts), np.inf)
+    np.minimum.at(best, qi, dist)
     res = np.full(len(items), -np.inf)
-    np.maximum.at(res, qitem, dist)
+    np.maximum.at(res, qitem, best)
     have = np.isfinite(res)
     out[have] = res[have]
     return out
