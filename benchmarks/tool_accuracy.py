@@ -15,10 +15,14 @@ For every file of iges_samples/*.igs and ../shared/iges_real/*, in tri and in qu
 3. measure both against OpenCASCADE: the IGES read by ``IGESControl_Reader``
    (``cadbridge.occ.reference.occ_read``: OCC's reader and surfaces, none of cadbridge's
    geometry); each element goes to the OCC face nearest its flat centroid
-   (``BRepExtrema_DistShapeShape`` vertex vs the whole shape, ``SupportOnShape2``; when the
+   (``BRepExtrema_DistShapeShape`` vertex vs a compound of all faces, ``SupportOnShape2``; when the
    support is an edge or a vertex, the adjacent face whose surface is nearest the centroid),
    and each sample's surface error is its distance to that face's untrimmed surface
-   (``GeomAPI_ProjectPointOnSurf`` on ``BRep_Tool.Surface``, location applied).
+   (``GeomAPI_ProjectPointOnSurf`` on ``BRep_Tool.Surface``, location applied). If the
+   element's corner nodes are not on that face's surface (1e-6 x size), e.g. an element
+   along a sharp face border whose chord centroid is nearer the neighbour face, the element
+   goes instead to the face, among those nearest its centroid and its corners, whose surface
+   holds the corners best; the row counts such elements (and those on no single face).
 
 Pass: max Nagata surface error <= 0.25 x max flat surface error, or both below 1e-9 x size
 (size = diagonal of the tool file's node box, the largest over the file's tools).
@@ -81,6 +85,8 @@ class Row:
     foot_on_border: int = 0  # Nagata samples whose foot is on the border of the surface's domain
     worst_nagata: tuple = (0.0, False, 0.0)  # (distance, foot on border, normal part) of the worst sample
     rebuild_dev: float = float("nan")  # max |rebuilt - written COEFFICIENTS| / size over the tools
+    reassigned: int = 0  # elements whose corners are not on the face nearest their centroid
+    straddling: int = 0  # elements whose corners lie on no single face (within 1e-6 x size)
     exit_code_first: int | None = None  # of the plain convert, when a retry with --allow-worse followed
 
     def _ok(self, nag: float, flat: float) -> bool:
@@ -154,6 +160,16 @@ class OccReference:
         fmap = TopTools_IndexedMapOfShape()
         TopExp.MapShapes_s(self.shape, TopAbs_FACE, fmap)
         self._face_index = fmap  # face -> 1-based index, the index used below (minus 1)
+        # distances are taken to a compound of the faces, not to the shape: for a solid,
+        # BRepExtrema_DistShapeShape gives 0 for a point inside it (the flat centroid of a
+        # convex part, e.g. a chord of a cylinder)
+        from OCP.BRep import BRep_Builder
+        from OCP.TopoDS import TopoDS_Compound
+
+        builder, self.faces_compound = BRep_Builder(), TopoDS_Compound()
+        builder.MakeCompound(self.faces_compound)
+        for i in range(1, fmap.Extent() + 1):
+            builder.Add(self.faces_compound, fmap.FindKey(i))
         self.surfaces = []
         for i in range(1, fmap.Extent() + 1):
             face = TopoDS.Face_s(fmap.FindKey(i))
@@ -225,7 +241,7 @@ class OccReference:
         from OCP.gp import gp_Pnt
 
         v = BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex()
-        d = BRepExtrema_DistShapeShape(v, self.shape)
+        d = BRepExtrema_DistShapeShape(v, self.faces_compound)
         if not d.IsDone() or d.NbSolution() == 0:
             return -1
         best, best_d = -1, np.inf
@@ -288,7 +304,25 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
         row.samples += len(elem)
         X = tf.nodes[np.maximum(tf.conn[keep_elem], 0)] * scale
         cent = np.where((tf.nn[keep_elem] == 3)[:, None], X[:, :3].mean(axis=1), X.mean(axis=1))
-        face_of = {int(e): occ.nearest_face(c) for e, c in zip(keep_elem, cent)}
+        face_of = {}
+        ontol = 1e-6 * R.model_size(tf) * scale  # a corner node "on" a surface (nodes are CAD points)
+        for e, c, xe in zip(keep_elem, cent, X):
+            k = occ.nearest_face(c)
+            corners = xe[: tf.nn[e]]
+            if k >= 0 and np.max(occ.distance(k, corners)) <= ontol:
+                face_of[int(e)] = k
+                continue
+            # the flat centroid is nearer another face than the element's own (the element
+            # runs along a face border): take, among the faces nearest its centroid and its
+            # corners, the one whose surface holds all corners (smallest max distance)
+            cands = {k} | {occ.nearest_face(x) for x in corners}
+            cands.discard(-1)
+            best = min(cands, key=lambda f: float(np.max(occ.distance(f, corners))), default=-1)
+            if best != k:
+                row.reassigned += 1
+            if best < 0 or np.max(occ.distance(best, corners)) > ontol:
+                row.straddling += 1  # corners on no single face: measured against `best`
+            face_of[int(e)] = best
         fa = np.array([face_of[int(e)] for e in elem])
         row.unassigned += sum(1 for v in face_of.values() if v < 0)
         for k in np.unique(fa):
@@ -332,6 +366,10 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
             notes.append(r.message)
         if r.unassigned:
             notes.append(f"{r.unassigned} elements with no OCC face")
+        if r.reassigned:
+            notes.append(f"{r.reassigned} elements to the face holding their corners, not the one nearest the centroid")
+        if r.straddling:
+            notes.append(f"{r.straddling} elements with corners on no single face")
         if r.no_projection:
             notes.append(f"{r.no_projection} samples without an OCC projection")
         if r.exit_code == 0 and np.isfinite(r.nagata) and r.worst_nagata[1]:
