@@ -87,6 +87,7 @@ class Row:
     rebuild_dev: float = float("nan")  # max |rebuilt - written COEFFICIENTS| / size over the tools
     reassigned: int = 0  # elements whose corners are not on the face nearest their centroid
     straddling: int = 0  # elements whose corners lie on no single face (within 1e-6 x size)
+    node_gap: float = 0.0  # max distance of an element's corner nodes to its face's surface
     exit_code_first: int | None = None  # of the plain convert, when a retry with --allow-worse followed
 
     def _ok(self, nag: float, flat: float) -> bool:
@@ -309,8 +310,10 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
         for e, c, xe in zip(keep_elem, cent, X):
             k = occ.nearest_face(c)
             corners = xe[: tf.nn[e]]
-            if k >= 0 and np.max(occ.distance(k, corners)) <= ontol:
+            gap = float(np.max(occ.distance(k, corners))) if k >= 0 else np.inf
+            if gap <= ontol:
                 face_of[int(e)] = k
+                row.node_gap = max(row.node_gap, gap)
                 continue
             # the flat centroid is nearer another face than the element's own (the element
             # runs along a face border): take, among the faces nearest its centroid and its
@@ -320,8 +323,10 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
             best = min(cands, key=lambda f: float(np.max(occ.distance(f, corners))), default=-1)
             if best != k:
                 row.reassigned += 1
-            if best < 0 or np.max(occ.distance(best, corners)) > ontol:
+            gap = float(np.max(occ.distance(best, corners))) if best >= 0 else np.inf
+            if gap > ontol:
                 row.straddling += 1  # corners on no single face: measured against `best`
+                row.node_gap = max(row.node_gap, gap)
             face_of[int(e)] = best
         fa = np.array([face_of[int(e)] for e in elem])
         row.unassigned += sum(1 for v in face_of.values() if v < 0)
@@ -353,9 +358,9 @@ def _r(x: float) -> str:
 
 def table(rows: list[Row], div: int, max_samples: int) -> str:
     head = ("| file | element | tools | elements (measured) | samples | Nagata max dist [mm] | flat max dist [mm] | "
-            "ratio | pass | rebuild dev / size | Nagata max normal part [mm] | flat max normal part [mm] | ratio (normal part) | "
+            "ratio | pass | corner-node gap [mm] | rebuild dev / size | Nagata max normal part [mm] | flat max normal part [mm] | ratio (normal part) | "
             "convert [s] | measure [s] | note |")
-    out = [head, "|" + "---|" * 16]
+    out = [head, "|" + "---|" * 17]
     for r in rows:
         notes = []
         if r.refused:
@@ -377,7 +382,8 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
         meas = (f"{r.elements} ({r.measured})" if r.measured != r.elements else f"{r.elements}") if r.elements else "-"
         out.append(
             f"| {r.file} | {r.element} | {', '.join(r.tools) or '-'} | {meas} | {r.samples or '-'} | "
-            f"{_e(r.nagata)} | {_e(r.flat)} | {_r(r.ratio)} | {'yes' if r.passed else 'NO'} | {_e(r.rebuild_dev)} | "
+            f"{_e(r.nagata)} | {_e(r.flat)} | {_r(r.ratio)} | {'yes' if r.passed else 'NO'} | "
+            f"{_e(r.node_gap) if r.elements else '-'} | {_e(r.rebuild_dev)} | "
             f"{_e(r.nagata_normal)} | {_e(r.flat_normal)} | {_r(r.ratio_normal)}{'' if r.passed_normal else ' (no)'} | "
             f"{r.convert_s:.1f} | {r.measure_s:.1f} | {'; '.join(notes).replace('|', '/')} |")
     n_pass = sum(r.passed for r in rows)
@@ -386,7 +392,9 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
     out.append(
         f"{n_pass} of {len(rows)} pass on the distance ({n_pass_n} on the normal part): Nagata <= 0.25 x flat, or "
         "both <= 1e-9 x size, and the written COEFFICIENTS equal the rebuilt ones within 1e-9 x size (rebuild dev: "
-        "max deviation / node-box diagonal, independent reader tests/toolfile_reference.py). dist = distance (GeomAPI_ProjectPointOnSurf) to the untrimmed OCC surface of the "
+        "max deviation / node-box diagonal, independent reader tests/toolfile_reference.py). Corner-node gap: max "
+        "distance of an element's corner nodes (CAD points) to the OCC surface it is measured against, a floor of "
+        "both errors (the file's own edge/surface gaps, or elements across faces). dist = distance (GeomAPI_ProjectPointOnSurf) to the untrimmed OCC surface of the "
         "face nearest the element's flat centroid (BRepExtrema_DistShapeShape); normal part = |(x - foot) . n(foot)|, "
         "which ignores how far a sample lies beyond the border of the surface's parameter domain. "
         f"Grid {div} divisions per patch; at most {max_samples} samples per row (every k-th element beyond).")
