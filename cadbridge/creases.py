@@ -64,6 +64,7 @@ def straddling_elements(
     nodes: np.ndarray | None = None,
     node_normal: np.ndarray | None = None,
     crease_angle: float = 5.0,
+    element_face: list[np.ndarray] | None = None,
 ) -> np.ndarray:
     """Global ids (over ``blocks`` in order) of elements that straddle a crease, (K,).
 
@@ -73,6 +74,9 @@ def straddling_elements(
                  sharp edge between two faces are found too (else only crease lines inside
                  one face)
     crease_angle degrees, for sharp edges between faces (as in `cad_normals`)
+    element_face per block (E_b,): the face each element lies on (`CadNormals.element_face`);
+                 a candidate too, so an element of a narrow face whose corners all sit on its
+                 neighbours' edges is not taken for a straddling one
 
     Inside one face: all corners on face f and, for a crease knot k of f, some corner has
     u < k and another u > k beyond 1e-9 x the parameter range (corners on the line are
@@ -87,7 +91,7 @@ def straddling_elements(
     offset = 0
     tol3 = 1e-4 * model.size()
     cos_c = np.cos(np.radians(crease_angle))
-    for conn in blocks:  # loop over blocks (one or two), vectorised over elements
+    for bi, conn in enumerate(blocks):  # loop over blocks (one or two), vectorised over elements
         conn = np.asarray(conn)
         f = node_face[conn]
         same = np.all(f == f[:, :1], axis=1) & (f[:, 0] >= 0)
@@ -108,15 +112,19 @@ def straddling_elements(
         two = np.flatnonzero(~same & np.all(f >= 0, axis=1))
         if nodes is not None and node_normal is not None and len(two):
             k = conn.shape[1]
-            # (element, candidate face = a corner's face, corner) triples
-            e3 = np.repeat(two, k * k)
-            cand = np.repeat(f[two], k, axis=1).ravel()  # candidate face of each triple
-            corner = np.tile(conn[two], (1, k)).ravel()  # every corner against each candidate
-            dist = np.empty(len(e3))
+            fc = f[two]  # candidate faces: the corners' faces and the element's own
+            if element_face is not None:
+                fc = np.column_stack([fc, np.asarray(element_face[bi])[two]])
+                fc = np.where(fc >= 0, fc, fc[:, :1])
+            nc = fc.shape[1]
+            # (element, candidate face, corner) triples
+            cand = np.repeat(fc, k, axis=1).ravel()  # candidate face of each triple
+            corner = np.tile(conn[two], (1, nc)).ravel()  # every corner against each candidate
+            dist = np.empty(len(cand))
             for fk in np.unique(cand):  # loop over faces, vectorised over corners
                 m = cand == fk
                 dist[m] = project_to_surface(model.faces[fk].surface, nodes[corner[m]]).distance
-            on_all = (dist.reshape(len(two), k, k) <= tol3).all(axis=2).any(axis=1)
+            on_all = (dist.reshape(len(two), nc, k) <= tol3).all(axis=2).any(axis=1)
             nrm = node_normal[conn[two]]  # (T, k, 3)
             cos = np.abs(np.einsum("tai,tbi->tab", nrm, nrm)).min(axis=(1, 2))
             bad[two[~on_all & (cos < cos_c)]] = True

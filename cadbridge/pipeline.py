@@ -180,7 +180,7 @@ class CadProjector:
         from cadbridge.search import build_search_index
 
         if self._untrimmed is None:
-            faces = [dataclasses.replace(f, trims=None) for f in self.model.faces]
+            faces = [dataclasses.replace(f, trims=None, trim_delta=None) for f in self.model.faces]
             m = dataclasses.replace(self.model, faces=faces)
             self._untrimmed = (m, build_search_index(m))
         return self._untrimmed
@@ -253,6 +253,7 @@ def build_tool(
     mesh, corner_normals = _triangles_first(mesh, corner_normals)
     progress.stage(f"{name}: Nagata patches")
     nm = NagataMesh(mesh.nodes, _blocks(mesh), corner_normals)
+    grid = sample_divisions(nm, grid)
     g = nm.sample_grid(grid)
     sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
     stats: dict = {}
@@ -270,17 +271,18 @@ def build_tool(
             ef = ef.astype(np.int64)
             if remap is not None:
                 ef = ef[remap]
-        progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points)")
+        progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
         err = tool_errors(nm, g.elem, g.eta, g.zeta, ef, model, projector.project)
         sample.update(surface_error=err.surface, boundary_error=err.boundary,
                       flat_surface_error=err.flat_surface, normal_error=err.normal)
         stats = err.stats()
+        stats["grid"] = grid
         if straddling is not None and remap is not None:
             inv = np.empty_like(remap)
             inv[remap] = np.arange(len(remap))
             straddling = inv[np.asarray(straddling, dtype=np.int64)]
-        diagnosis = _diagnose(nm, err, g.elem, straddling, model.size())
-    strad = _straddling_ids(nm, straddling)
+        diagnosis = _diagnose(nm, err, g.elem, straddling, model.size(), ef)
+    strad = _straddling_ids(nm, straddling, ef)
     if len(strad):
         more = f" (and {len(strad) - 10} more)" if len(strad) > 10 else ""
         diagnosis.insert(0, f"mesh straddles a crease: elements {', '.join(str(int(e) + 1) for e in strad[:10])}"
@@ -291,17 +293,43 @@ def build_tool(
                       ef, diagnosis)
 
 
-def _straddling_ids(nm, straddling) -> np.ndarray:
+def _straddling_ids(nm, straddling, element_face=None) -> np.ndarray:
     """Sorted element ids that straddle a crease: the given ones (CAD check) and the elements
-    on an edge with several corner normals at one end only (`NagataMesh.half_crease_edges`)."""
+    on an edge with several corner normals at one end only (`NagataMesh.half_crease_edges`)
+    whose elements lie on one face (on a face border such an edge is a sharp edge fading
+    below the crease angle along its length, not a straddle)."""
     ids = [np.asarray(straddling if straddling is not None else [], dtype=np.int64)]
     if len(nm.half_crease_edges):
         topo = nm.edges
-        ids.append(topo["inst_elem"][np.isin(topo["inst_edge"], nm.half_crease_edges)])
+        inst = np.flatnonzero(np.isin(topo["inst_edge"], nm.half_crease_edges))
+        el = topo["inst_elem"][inst]
+        if element_face is not None:
+            ef = np.asarray(element_face)[el]
+            edge = topo["inst_edge"][inst]
+            lo = np.full(len(topo["edges"]), np.iinfo(np.int64).max)
+            hi = np.full(len(topo["edges"]), -1)
+            np.minimum.at(lo, edge, ef)
+            np.maximum.at(hi, edge, ef)
+            el = el[lo[edge] == hi[edge]]
+        ids.append(el)
     return np.unique(np.concatenate(ids))
 
 
-def _diagnose(nm, err, elem: np.ndarray, straddling, size: float) -> list[str]:
+SAMPLE_BUDGET = 400_000
+"""Most patch sample points the error measurement takes (the grid is coarsened to fit)."""
+
+
+def sample_divisions(nm, grid: int, budget: int = SAMPLE_BUDGET) -> int:
+    """The largest n <= ``grid`` (at least 2) whose uniform grid on every patch has at most
+    ``budget`` points ((n+1)(n+2)/2 per triangle, (n+1)^2 per quadrilateral)."""
+    nt, nq = len(nm.tri_elements), len(nm.quad_elements)
+    n = int(grid)
+    while n > 2 and nt * (n + 1) * (n + 2) // 2 + nq * (n + 1) ** 2 > budget:
+        n -= 1
+    return n
+
+
+def _diagnose(nm, err, elem: np.ndarray, straddling, size: float, element_face=None) -> list[str]:
     """Lines naming the elements (1-based, tool-file numbering) whose Nagata surface error
     exceeds their flat element's, worst first, each with the reason: straddles a crease,
     inadmissible edge (|c . d| >= |d|^2: the edge curve turns back), bad normal (a corner
@@ -314,7 +342,7 @@ def _diagnose(nm, err, elem: np.ndarray, straddling, size: float) -> list[str]:
     if s["max_abs_surface_error"] <= max(s["max_abs_flat_surface_error"], floor):
         return []
     worst, nag, flat = worst_elements(err, elem, nm.n_elements, floor)
-    strad = set(_straddling_ids(nm, straddling).tolist())
+    strad = set(_straddling_ids(nm, straddling, element_face).tolist())
     reasons = []
     for e, a, b in zip(worst[:5].tolist(), nag[:5], flat[:5]):  # the five worst, for the message
         reasons.append(f"element {e + 1} ({a:.3g} vs flat {b:.3g}): {_reason(nm, e, strad)}")
@@ -418,7 +446,7 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
     write_coefficients_listing(folder / f"{name}_coefficients.txt", tri_c, quad_c)
     write_nagata_iges(tri_c, quad_c, folder / f"{name}_nagata.igs", units=units)
 
-    verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(4, return_params=True)
+    verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(min(4, sample_divisions(nm, 4)), return_params=True)
     _, vnorm = nm.evaluate(pe, peta, pzeta)
     surface_data = {"normal": vnorm, "element": pe.astype(np.int32)}
     if projector is not None and tool.element_face is not None:
@@ -522,7 +550,10 @@ def _consistently_oriented(mesh: Mesh, orient: bool) -> Mesh:
 
 
 def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress,
-                     orient: bool = False) -> list[ToolResult]:
+                     orient: bool = False, meshed_per_face: bool = False) -> list[ToolResult]:
+    """Tools of ``mesh`` (normals, Nagata patches, errors). ``meshed_per_face``: the mesh was
+    made face by face from this CAD (gmsh), so no element can span two faces; only crease
+    lines inside faces are checked for straddling elements."""
     mesh = _consistently_oriented(mesh, orient)
     progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
                    f" ({len(mesh.nodes)} nodes)")
@@ -533,7 +564,10 @@ def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far
     if cn is not None:
         from cadbridge.creases import straddling_elements
 
-        straddle[straddling_elements(_blocks(mesh), model, cn.face, cn.u, cn.v, mesh.nodes, cn.normals)] = True
+        between = not meshed_per_face
+        straddle[straddling_elements(_blocks(mesh), model, cn.face, cn.u, cn.v,
+                                     mesh.nodes if between else None, cn.normals if between else None,
+                                     element_face=cn.element_face)] = True
     if model is None:
         groups = {"": [np.ones(len(b), dtype=bool) for b in mesh.cells]}
     else:
@@ -659,7 +693,7 @@ def convert(
     mesh.name = Path(cad).stem
     projector = CadProjector(model, progress)
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
-                             orient=True)
+                             orient=True, meshed_per_face=True)
     check_tools(tools, allow_worse)
     result = RunResult(Path(output), tools)
     with staged_output(output) as tmp:

@@ -31,13 +31,16 @@ __all__ = ["ToolErrors", "flat_points", "tool_errors", "worst_elements"]
 class ToolErrors:
     """Per sample point (M,): ``surface`` signed [length], ``normal`` [deg], ``boundary``
     (>= 0) [length], ``flat_surface`` signed [length]; ``face`` (M,) the face measured
-    against (-1: none, then the trimmed projection's face is used)."""
+    against (-1: none, then the trimmed projection's face is used); ``fallback`` how many
+    samples had no foot on their element's face and were measured against the nearest
+    trimmed face instead."""
 
     surface: np.ndarray
     normal: np.ndarray
     boundary: np.ndarray
     flat_surface: np.ndarray
     face: np.ndarray
+    fallback: int = 0  # samples measured against the nearest trimmed face (no foot on their own)
 
     def stats(self) -> dict:
         def mx(a):
@@ -54,6 +57,7 @@ class ToolErrors:
             "max_abs_flat_surface_error": mx(self.flat_surface),
             "max_normal_error_deg": mx(self.normal),
             "mean_normal_error_deg": mean(self.normal),
+            "samples_on_nearest_face": int(self.fallback),
         }
 
 
@@ -162,14 +166,27 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
     ok = np.isfinite(uv[:, 0])
     cnt = np.maximum(np.bincount(inv, weights=ok.astype(float)), 1.0)
     piece_uv = np.column_stack([(np.bincount(inv, weights=np.where(ok, uv[:, i], 0.0)) / cnt)[inv] for i in (0, 1)])
-    flat_surface, _, _ = _on_faces(model, flat_points(nm, elem, eta, zeta), face, elem, pn, piece_uv)
+    flat = flat_points(nm, elem, eta, zeta)
+    flat_surface, _, _ = _on_faces(model, flat, face, elem, pn, piece_uv)
+    # where Newton found no foot on the element's own face, the nearest trimmed face stands in
+    # (counted in ``fallback``; the distance is then an upper bound of the surface error)
+    miss = np.flatnonzero(~np.isfinite(surface) | ~np.isfinite(flat_surface))
+    if len(miss):
+        n_t = np.asarray(trimmed.normal, dtype=float)[miss]
+        n_t = n_t * np.where(np.einsum("ij,ij->i", n_t, pn[miss]) < 0, -1.0, 1.0)[:, None]
+        surface[miss] = np.einsum("ij,ij->i", pts[miss] - trimmed.foot[miss], n_t)
+        ncad[miss] = n_t
+        ft = project_trimmed(flat[miss])
+        nf = np.asarray(ft.normal, dtype=float)
+        nf = nf * np.where(np.einsum("ij,ij->i", nf, pn[miss]) < 0, -1.0, 1.0)[:, None]
+        flat_surface[miss] = np.einsum("ij,ij->i", flat[miss] - ft.foot, nf)
     normal = angle_deg(pn, ncad)
     for name, a in (("surface", surface), ("flat surface", flat_surface), ("normal", normal), ("boundary", boundary)):
         if not np.all(np.isfinite(a)):
             bad = np.flatnonzero(~np.isfinite(a))
             raise ValueError(f"{name} error could not be measured at {len(bad)} sample points, e.g. on element "
                              f"{int(elem[bad[0]]) + 1} (1-based) at {pts[bad[0]].tolist()}")
-    return ToolErrors(surface, normal, boundary, flat_surface, face)
+    return ToolErrors(surface, normal, boundary, flat_surface, face, len(miss))
 
 
 def worst_elements(err: ToolErrors, elem: np.ndarray, n_elements: int, floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -247,7 +247,7 @@ def test_bad_input_one_line_and_nothing_written(argv, code, die_mesh, tmp_path, 
 
 # ----------------------------------------------------------------------------- convert
 def _samples():
-    for p in sorted(SAMPLES.glob("*.igs")):
+    for p in sorted(q for q in SAMPLES.glob("*.igs") if not q.name.startswith("production_die")):
         yield pytest.param(p, id=p.stem)
 
 
