@@ -48,8 +48,8 @@ import numpy as np
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["ArcMap", "Frame", "InvertedCurve", "MappedCurve", "ParamMap", "ax2_x_direction", "sample_chain",
-           "HERMITE_REL_TOL"]
+__all__ = ["ArcMap", "Frame", "InvertedCurve", "MappedCurve", "ParamMap", "SurfaceInvertedCurve", "ax2_x_direction",
+           "invert_edges", "sample_chain", "HERMITE_REL_TOL"]
 
 HERMITE_REL_TOL = 1e-10  # `to_nurbs` default: cubic deviation relative to the curve's (u, v) box
 MIN_PER_SPAN = 16  # samples per knot span of the sampled curve at least
@@ -890,3 +890,131 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
                 pieces.append((j, InvertedCurve(c, fn, sh, post, ang, t, nat + sh, surface), True))
         out.append(pieces)
     return MappedLoops(surface, out, sources)
+
+
+# ---------------------------------------------------------------------------- 128 without pcurves
+class SurfaceInvertedCurve(InvertedCurve):
+    """A model-space edge C(t) (3D NurbsCurve) inverted onto a NURBS surface S by Newton:
+    uv(t) = the foot of C(t) on S, each evaluation started from the reference table
+    (t_ref, uv_ref) interpolated at t (`invert_edges` builds the table by the global
+    projection, with periodic parameters unwrapped along the loop and parameters that are
+    undefined at a pole filled from the neighbouring samples). In a closed direction the foot
+    is shifted by whole periods to the reference; at a pole (where S's tangent along a
+    parameter vanishes) that parameter is the reference's. Derivatives as `InvertedCurve`
+    (chain rule through the surface Jacobian)."""
+
+    def __init__(self, base: NurbsCurve, surface: NurbsSurface, t_ref: np.ndarray, uv_ref: np.ndarray,
+                 period: tuple[float, float], pole_tol: float) -> None:
+        super().__init__(base, None, np.zeros(2), ((0, None), (1, None)), (False, False), t_ref, uv_ref, surface)
+        self.period = tuple(float(p) for p in period)
+        self.pole_tol = float(pole_tol)
+
+    def _natural(self, t) -> np.ndarray:
+        from cadbridge.nurbs.project import FAILED, project_to_surface
+
+        t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+        seed = np.column_stack([np.interp(t, self.t_ref, self.nat_ref[:, k]) for k in (0, 1)])
+        u0, u1, v0, v1 = self.surface.domain
+        lo, hi = np.array([u0, v0]), np.array([u1, v1])
+        start = seed.copy()
+        for k in (0, 1):
+            if self.period[k] > 0:
+                start[:, k] = lo[k] + np.mod(start[:, k] - lo[k], self.period[k])
+        start = np.clip(start, lo, hi)
+        pts = _eval(self.base, t)
+        res = project_to_surface(self.surface, pts, uv0=start, global_check=False)
+        uv = np.column_stack([res.u, res.v])
+        bad = res.status == FAILED
+        if bad.any():  # Newton from the table stalled: the global projection
+            g = project_to_surface(self.surface, pts[bad])
+            uv[bad] = np.column_stack([g.u, g.v])
+        return _fix_uv(self.surface, uv, seed, self.period, self.pole_tol)
+
+
+def _fix_uv(surface: NurbsSurface, uv: np.ndarray, ref: np.ndarray, period: tuple[float, float],
+            pole_tol: float) -> np.ndarray:
+    """Feet (N, 2) made continuous with ``ref`` (N, 2): closed directions shifted by whole
+    periods to the reference, a parameter undefined at a pole (|S_u| or |S_v| <= pole_tol
+    there) replaced by the reference's."""
+    uv = np.array(uv, dtype=float)
+    for k in (0, 1):
+        if period[k] > 0:
+            uv[:, k] -= period[k] * np.round((uv[:, k] - ref[:, k]) / period[k])
+    u0, u1, v0, v1 = surface.domain
+    d = surface.derivatives(np.clip(uv[:, 0], u0, u1), np.clip(uv[:, 1], v0, v1), order=1)
+    for k, dk in ((0, d[:, 1, 0]), (1, d[:, 0, 1])):
+        pole = np.linalg.norm(dk, axis=1) <= pole_tol
+        uv[pole, k] = ref[pole, k]
+    return uv
+
+
+def invert_edges(surface: NurbsSurface, pieces: list[NurbsCurve], rel_gap: float = 1e-9,
+                 join_rel: float = 1e-3) -> list:
+    """A trim loop in the (u, v) of a NURBS surface from the model-space pieces of its edges
+    (3D NurbsCurves joined end to start, in loop order, each already oriented along the loop).
+
+    Each piece becomes a `SurfaceInvertedCurve`. Its reference table: the piece's samples
+    (`MIN_PER_SPAN` per knot span) projected globally onto S (`project_to_surface`), then
+    along the whole loop in order: periodic parameters of a closed surface
+    (`closed_directions`) unwrapped (the loop shifted by whole periods so its middle lies in
+    the domain), and a parameter left undefined at a pole filled from the nearest sample of
+    the same piece where it is defined. Where two consecutive pieces (or the last and the
+    first) meet at one 3D point but at (u, v) farther apart than ``rel_gap`` x the domain's
+    diagonal (along a degenerate edge of S: a pole), the straight (u, v) line between the two
+    is inserted (it maps to that one point). Returns the (u, v) pieces. Raises ValueError
+    when a piece cannot be projected or the loop winds around a closed direction."""
+    from cadbridge.nurbs.project import FAILED, closed_directions, project_to_surface
+
+    if not pieces:
+        raise ValueError("empty trim loop")
+    u0, u1, v0, v1 = surface.domain
+    diag = float(np.hypot(u1 - u0, v1 - v0))
+    box = surface.bbox()
+    size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+    closed = closed_directions(surface)
+    period = (u1 - u0 if closed[0] else 0.0, v1 - v0 if closed[1] else 0.0)
+    pole_tol = 1e-9 * size / max(diag, 1e-300)
+    ts = [c.sample_parameters(MIN_PER_SPAN) for c in pieces]
+    pts = [_eval(c, t) for c, t in zip(pieces, ts)]
+    allp = np.vstack(pts)
+    res = project_to_surface(surface, allp)
+    if np.any(res.status == FAILED):
+        raise ValueError(f"{int(np.sum(res.status == FAILED))} points of the model-space edges could not be "
+                         "projected onto the surface")
+    uv = np.column_stack([res.u, res.v])
+    cuts = np.cumsum([len(t) for t in ts])[:-1]
+    d = surface.derivatives(uv[:, 0], uv[:, 1], order=1)
+    # poles: fill an undefined parameter from the nearest defined sample of the same piece
+    for k, dk in ((0, d[:, 1, 0]), (1, d[:, 0, 1])):
+        pole = np.linalg.norm(dk, axis=1) <= pole_tol
+        if not pole.any():
+            continue
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(uv)]):
+            ok = np.flatnonzero(~pole[a:b])
+            if ok.size and not pole[a:b].all():
+                idx = np.arange(b - a)
+                near = ok[np.abs(idx[:, None] - ok[None, :]).argmin(axis=1)]
+                uv[a:b, k] = uv[a + near, k]
+    for k in (0, 1):  # seams: continuous along the loop, its middle inside the domain
+        if period[k] > 0:
+            uv[:, k] = np.unwrap(uv[:, k], period=period[k])
+            lo = (u0, v0)[k]
+            mid = 0.5 * (uv[:, k].min() + uv[:, k].max())
+            uv[:, k] -= period[k] * np.floor((mid - lo) / period[k])
+    refs = np.split(uv, cuts)
+    out: list = []
+    n = len(pieces)
+    for i, (c, t, r) in enumerate(zip(pieces, ts, refs)):
+        out.append(SurfaceInvertedCurve(c, surface, t, r, period, pole_tol))
+        a, b = r[-1], refs[(i + 1) % n][0]
+        gap3 = float(np.linalg.norm(pts[(i + 1) % n][0] - pts[i][-1]))
+        if gap3 > join_rel * size:
+            raise ValueError(f"pieces {i + 1} and {(i + 1) % n + 1} of the loop do not join in model space "
+                             f"(gap {gap3:.3g})")
+        if np.linalg.norm(b - a) > rel_gap * diag:
+            for k in (0, 1):
+                if period[k] > 0 and abs(b[k] - a[k]) > 0.5 * period[k]:
+                    raise ValueError("the loop winds around the closed surface (no seam edge): not a "
+                                     "closed loop in (u, v)")
+            out.append(NurbsCurve(1, np.array([0.0, 0.0, 1.0, 1.0]), np.vstack([a, b])))
+    return out
