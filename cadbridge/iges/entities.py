@@ -15,7 +15,7 @@ import numpy as np
 
 from cadbridge.iges.directory import DirectoryEntry
 from cadbridge.iges.analytic import (ArcMap, Frame, MappedLoops, ParamMap, cylinder_map, fixed_map,
-                                     map_loops, plane_map, revolution_map, sphere_map,
+                                     invert_edges, map_loops, plane_map, revolution_map, sphere_map,
                                      torus_map)
 from cadbridge.iges.trimcheck import DeltaBatch, loop_deltas
 from cadbridge.iges.errors import IgesError
@@ -38,6 +38,7 @@ INTERPRETED_TYPES = frozenset(
 )
 MAX_DEPTH = 64  # pointer nesting guard (no unbounded recursion on cyclic or deep files)
 DOMAIN_REL_TOL = 1e-6  # U0..V1 this close outside the knot range are clamped (with a note)
+VERTEX_REL = 1e-6  # an edge curve read over its whole knot range must end at its vertices (x its extent)
 
 # IGES standard colours (DE field 13 values 1..8) as RGB in 0..1
 STANDARD_COLORS = {1: (0.0, 0.0, 0.0), 2: (1.0, 0.0, 0.0), 3: (0.0, 1.0, 0.0), 4: (0.0, 0.0, 1.0),
@@ -414,8 +415,9 @@ class Builder:
         except ValueError as exc:
             raise self._wrap(p, exc, "N") from None
 
-    def bspline_curve(self, p: Params) -> NurbsCurve:
-        """126: K, M, PROP1-4, knots T(-M..N+M), weights W(0..K), points (K+1)x3, V0, V1."""
+    def bspline_curve(self, p: Params, whole_if_empty: bool = False) -> NurbsCurve:
+        """126: K, M, PROP1-4, knots T(-M..N+M), weights W(0..K), points (K+1)x3, V0, V1.
+        ``whole_if_empty``: an empty range V0 = V1 means the whole knot range (noted)."""
         k = p.int(1, "K")
         m = p.int(2, "M")
         if m < 1:
@@ -439,6 +441,10 @@ class Builder:
         a, b = p.real(v0, "V0"), p.real(v0 + 1, "V1")
         self._own_end[p.de] = v0 + 2 + (3 if p.has(v0 + 4) else 0)
         lo, hi = knots[m], knots[k + 1]
+        if whole_if_empty and a == b and lo < hi:
+            self.note(f"V0 = V1 = {a!r}: the whole knot range [{float(lo)!r}, {float(hi)!r}] used", p.de,
+                      p.line(v0))
+            a, b = float(lo), float(hi)
         a, b = self._clamp_range(p, a, b, lo, hi, v0, "V0", "V1")
         if lo <= a < b <= hi:
             # knots non-decreasing (checked above), values finite (`Params.reals` rejects
@@ -885,7 +891,8 @@ class Builder:
             loops = []
             for x in loop_des:
                 with self.visiting(x):
-                    loops.append(load(x))
+                    # 508 loops without parameter-space curves: from their model-space edges
+                    loops.append(load(x, surface, de) if load == self.brep_loop else load(x))
             trims = None
             if loops and all(lp is not None for lp in loops):
                 trims = Trim(loops[0], loops[1:]) if first_is_outer else Trim(None, loops)
@@ -1159,13 +1166,58 @@ class Builder:
                 pairs.append(([c for i, c, _ in lp if i in ok], [c for j in ok for c in raw[j][1]]))
         return pairs or None
 
-    def brep_loop(self, de: int) -> TrimLoop | None:
-        """508 loop as parameter-space curves (None, with a note, if an edge has none)."""
+    def brep_loop(self, de: int, surface: NurbsSurface | None = None, face_de: int | None = None) -> TrimLoop | None:
+        """508 loop as parameter-space curves; where an edge has none and the face's NURBS
+        ``surface`` (a 128) is given, the loop built from the model-space curves of its edges
+        (`_model_loop`); else None, with a note."""
         edges = self.loop_raw(de, want_model=False)
-        if not edges or any(pc is None for pc, _ in edges):
-            self.note("B-rep loop without parameter-space curves: face left untrimmed", de)
+        if edges and all(pc is not None for pc, _ in edges):
+            return TrimLoop([c for pc, _ in edges for c in pc])
+        if edges and surface is not None:
+            loop = self._model_loop(de, surface, face_de)
+            if loop is not None:
+                return loop
+        self.note("B-rep loop without parameter-space curves: face left untrimmed", de)
+        return None
+
+    def _model_loop(self, de: int, surface: NurbsSurface, face_de: int | None) -> TrimLoop | None:
+        """508 loop ``de`` over the NURBS ``surface`` from the model-space curves of its 504
+        edges (in loop order, each reversed where OF = 0: `loop_raw`), inverted onto the
+        surface by Newton (`analytic.invert_edges`: seams unwrapped along the loop, poles
+        bridged). Its trim delta (largest distance of S(uv(t)) from the edges, `loop_deltas`)
+        is noted and kept for face ``face_de``. None (with a note) when an edge has no usable
+        model-space curve or the result does not close in (u, v)."""
+        edges = self.loop_raw(de, want_model=True)
+        pieces = [c for _, m in edges if m for c in m]
+        skipped = sum(1 for _, m in edges if not m)
+        if not pieces:
+            self.note("B-rep loop without parameter-space curves and without usable model-space curves", de)
             return None
-        return TrimLoop([c for pc, _ in edges for c in pc])
+        # an edge without a usable model-space curve (a 126 with V0 = V1: a point edge) is
+        # dropped; its neighbours must then join in model space (`invert_edges` checks)
+        try:
+            curves = invert_edges(surface, pieces)
+        except ValueError as exc:
+            self.note(f"B-rep loop without parameter-space curves: model-space edges not invertible ({exc})", de)
+            return None
+        u0, u1, v0, v1 = surface.domain
+        a = curves[0].evaluate([curves[0].domain[0]])[0]
+        b = curves[-1].evaluate([curves[-1].domain[1]])[0]
+        gap = float(np.linalg.norm(a - b))
+        if not gap <= 1e-6 * np.hypot(u1 - u0, v1 - v0):
+            self.note(f"B-rep loop without parameter-space curves: its model-space edges do not close on the "
+                      f"surface ((u, v) gap {gap:.3g})", de)
+            return None
+        d = float(loop_deltas([(surface, [(curves, pieces)])])[0])
+        box = surface.bbox()
+        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+        pts = f" ({skipped} point edges dropped)" if skipped else ""
+        self.note(f"B-rep loop without parameter-space curves: trim loop built from its {len(edges) - skipped} "
+                  f"model-space edges{pts} inverted onto the B-spline surface (delta {d:.3g}, {d / size:.3g} x "
+                  "size)", de)
+        if face_de is not None and np.isfinite(d):
+            self._delta[face_de] = max(d, self._delta.get(face_de, 0.0))
+        return TrimLoop(curves, pieces)
 
     def loop_raw(self, de: int, want_model: bool = True):
         """508 loop: N, then per edge TYPE, EDGE, NDX, OF, K, K x (ISOP, CURV) -> list of
@@ -1234,9 +1286,58 @@ class Builder:
             raise src.error(f"edge index {ndx} outside 1..{n} of edge list DE {de}", k, "NDX")
         p.require(1 + 5 * n, "N")
         self._own_end[de] = 2 + 5 * n
-        c = p.pointer(2 + 5 * (ndx - 1), f"CURV({ndx})", allow_zero=False)
-        self.entry(c, p, 2 + 5 * (ndx - 1), f"CURV({ndx})")
-        return list(self.curve_pieces(c))
+        k0 = 2 + 5 * (ndx - 1)
+        c = p.pointer(k0, f"CURV({ndx})", allow_zero=False)
+        ce = self.entry(c, p, k0, f"CURV({ndx})")
+        try:
+            return list(self.curve_pieces(c))
+        except IgesError:
+            done = self._cache.get(("edge-whole", de, ndx))
+            if done is not None:
+                self._failed_at = None
+                return list(done)
+            ends = self._edge_vertices(p, k0) if ce.entity_type == 126 else None
+            if ends is None:
+                raise
+            # a 126 edge curve with V0 = V1 (SolidEdge writes 0, 0 on knots [-1, 0]): its whole
+            # knot range, if that runs between the edge's start and terminate vertices (either
+            # way: then oriented from start to terminate); else (e.g. a point edge at a pole)
+            # the curve stays unusable
+            self._failed_at = None
+            pieces = self._cached(("curve-whole", c), lambda: [apply_curve(
+                self.bspline_curve(self.params(c), whole_if_empty=True), self.transform(c))])
+            a = pieces[0].evaluate([pieces[0].domain[0]])[0]
+            b = pieces[-1].evaluate([pieces[-1].domain[1]])[0]
+            fwd = max(np.linalg.norm(a - ends[0]), np.linalg.norm(b - ends[1]))
+            rev = max(np.linalg.norm(a - ends[1]), np.linalg.norm(b - ends[0]))
+            span = max(float(np.ptp(np.vstack([q.control_points for q in pieces]), axis=0).max()), 1e-300)
+            if not min(fwd, rev) <= VERTEX_REL * span or not np.linalg.norm(ends[1] - ends[0]) > VERTEX_REL * span:
+                raise
+            if rev < fwd:
+                self.note(f"edge curve DE {c} runs from the terminate to the start vertex of edge {ndx}: reversed", de)
+                pieces = [reverse_curve(q) for q in reversed(pieces)]
+            self._cache[("edge-whole", de, ndx)] = pieces
+            return list(pieces)
+
+    def _edge_vertices(self, p: Params, k0: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(start, terminate) vertex of the 504 edge whose CURV is field k0 of ``p`` (SVP, SV,
+        TVP, TV follow it; a 502 vertex list: N, then N x (X, Y, Z)), None if unreadable."""
+        out = []
+        try:
+            for j in (1, 3):
+                vl, ix = p.pointer(k0 + j, "SVP" if j == 1 else "TVP"), p.int(k0 + j + 1, "SV" if j == 1 else "TV")
+                e = self.entries.get(vl)
+                if e is None or e.entity_type != 502:
+                    return None
+                q = self.params(vl)
+                if not 1 <= ix <= q.int(1, "N"):
+                    return None
+                x = q.reals(2 + 3 * (ix - 1), 3, "X,Y,Z")
+                xf = self.transform(vl)
+                out.append(x if _is_identity(xf) else xf[0] @ x + xf[1])
+        except IgesError:
+            return None
+        return out[0], out[1]
 
     def shell_faces(self, de: int) -> list[int]:
         """DEs of the 510 faces of a 514 shell (N, then N x (FACE, OF))."""
