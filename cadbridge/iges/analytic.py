@@ -928,7 +928,98 @@ class SurfaceInvertedCurve(InvertedCurve):
         if bad.any():  # Newton from the table stalled: the global projection
             g = project_to_surface(self.surface, pts[bad])
             uv[bad] = np.column_stack([g.u, g.v])
+        uv = _polish(self.surface, uv, pts)
         return _fix_uv(self.surface, uv, seed, self.period, self.pole_tol)
+
+    def derivatives(self, t, order: int = 1) -> np.ndarray:
+        """Derivatives of the foot uv(t) up to ``order`` (<= 2): t (N,) -> (N, order+1, 2).
+
+        Exact also where C is off S (by the file's delta): uv(t) solves F = J^T r = 0 with
+        r = S(uv) - C(t), J = [Su Sv]; implicit differentiation gives H w = J^T C' with
+        H_ab = S_a . S_b + S_ab . r, w = uv', and H w' = S_a . C'' + (S_ac w_c) . C'
+        - (S_ac . S_b + S_a . S_bc + S_abc . r) w_b w_c - (S_ab . (J w - C')) w_b (summed
+        over b, c). Where the foot is held on an edge of the domain (the nearest point of S
+        lies beyond it), or at a pole along the parameter S does not depend on there, that
+        parameter is constant and the other follows the same equations.
+        """
+        if order > 2:
+            raise ValueError("SurfaceInvertedCurve derivatives are implemented up to order 2")
+        t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+        uv = self._natural(t)
+        out = np.zeros((len(t), order + 1, 2))
+        out[:, 0] = uv
+        if order == 0:
+            return out
+        u0, u1, v0, v1 = self.surface.domain
+        d = self.surface.derivatives(np.clip(uv[:, 0], u0, u1), np.clip(uv[:, 1], v0, v1), order=order + 1)
+        c = _ders(self.base, t, order)
+        r = d[:, 0, 0] - c[:, 0]
+        s1 = np.stack([d[:, 1, 0], d[:, 0, 1]], axis=1)  # (N, 2, 3): S_a
+        s2 = np.stack([np.stack([d[:, 2, 0], d[:, 1, 1]], 1), np.stack([d[:, 1, 1], d[:, 0, 2]], 1)], 1)  # S_ab
+        h = np.einsum("nai,nbi->nab", s1, s1) + np.einsum("nabi,ni->nab", s2, r)
+        # a foot held on the domain's edge (the projection clamps there): that parameter is
+        # constant, the other one follows the 1D foot condition along the edge
+        held = np.column_stack([(uv[:, 0] <= u0) | (uv[:, 0] >= u1), (uv[:, 1] <= v0) | (uv[:, 1] >= v1)])
+        held |= np.linalg.norm(s1, axis=2) <= self.pole_tol  # at a pole: the parameter S does not depend on
+        for k in (0, 1):
+            h[held[:, k], k, :] = 0.0
+            h[held[:, k], :, k] = 0.0
+            h[held[:, k], k, k] = 1.0
+        rhs1 = np.einsum("nai,ni->na", s1, c[:, 1])
+        rhs1[held] = 0.0
+        w = np.linalg.solve(h, rhs1[..., None])[..., 0]
+        out[:, 1] = w
+        if order >= 2:
+            s3 = np.empty((len(t), 2, 2, 2, 3))  # S_abc: index sum k = number of u's
+            for a in (0, 1):
+                for b in (0, 1):
+                    for e in (0, 1):
+                        nu = 3 - (a + b + e)
+                        s3[:, a, b, e] = d[:, nu, 3 - nu]
+            sw = np.einsum("naci,nc->nai", s2, w)  # S_ac w_c
+            rhs = np.einsum("nai,ni->na", s1, c[:, 2]) + np.einsum("nai,ni->na", sw, c[:, 1])
+            rhs -= np.einsum("nai,nbi,nb->na", sw, s1, w)  # (S_ac w_c) . S_b w_b
+            rhs -= np.einsum("nai,nbi,nb->na", s1, sw, w)  # S_a . (S_bc w_c) w_b
+            rhs -= np.einsum("nabci,ni,nb,nc->na", s3, r, w, w)
+            rhs -= np.einsum("nabi,ni,nb->na", s2, np.einsum("nbi,nb->ni", s1, w) - c[:, 1], w)
+            rhs[held] = 0.0
+            out[:, 2] = np.linalg.solve(h, rhs[..., None])[..., 0]
+        return out
+
+
+def _polish(surface: NurbsSurface, uv: np.ndarray, pts: np.ndarray, steps: int = 2) -> np.ndarray:
+    """Full Newton steps on J^T (S(uv) - P) = 0 (H = J^T J + S_ab . r) from converged feet:
+    the feet to rounding, so that uv(t) is smooth to rounding too (the projection's stopping
+    rule leaves noise that a 1e-10 Hermite fit, `to_nurbs`, chases without end). A step that
+    would leave the domain, or where H is not positive definite (a pole), is not taken."""
+    u0, u1, v0, v1 = surface.domain
+    lo, hi = np.array([u0, v0]), np.array([u1, v1])
+    uv = np.array(uv, dtype=float)
+    for _ in range(steps):
+        d = surface.derivatives(np.clip(uv[:, 0], u0, u1), np.clip(uv[:, 1], v0, v1), order=2)
+        r = d[:, 0, 0] - pts
+        su, sv = d[:, 1, 0], d[:, 0, 1]
+        g = np.column_stack([np.einsum("ni,ni->n", su, r), np.einsum("ni,ni->n", sv, r)])
+        huu = np.einsum("ni,ni->n", su, su) + np.einsum("ni,ni->n", d[:, 2, 0], r)
+        huv = np.einsum("ni,ni->n", su, sv) + np.einsum("ni,ni->n", d[:, 1, 1], r)
+        hvv = np.einsum("ni,ni->n", sv, sv) + np.einsum("ni,ni->n", d[:, 0, 2], r)
+        det = huu * hvv - huv * huv
+        ok = (huu > 0) & (hvv > 0) & (det > 1e-12 * np.maximum(huu * hvv, 1e-300))
+        sd = np.where(ok, det, 1.0)
+        step = np.column_stack([(hvv * g[:, 0] - huv * g[:, 1]) / sd, (huu * g[:, 1] - huv * g[:, 0]) / sd])
+        new = uv - np.where(ok[:, None], step, 0.0)
+        out = (new < lo) | (new > hi)
+        # a foot on the domain's edge (the projection's clamp) stays there; the other
+        # parameter by the 1D Newton step along the edge
+        for k, hkk in ((0, hvv), (1, huu)):  # k clamped -> the other one (o) moves by g_o / H_oo
+            o = 1 - k
+            one = out[:, k] & ~out[:, o] & ok
+            new[one, k] = np.clip(new[one, k], lo[k], hi[k])
+            new[one, o] = uv[one, o] - g[one, o] / hkk[one]
+        new = np.where((np.all(out, axis=1) | ~ok)[:, None], uv, new)
+        new = np.where(np.all((new >= lo) & (new <= hi), axis=1)[:, None], new, uv)
+        uv = new
+    return uv
 
 
 def _fix_uv(surface: NurbsSurface, uv: np.ndarray, ref: np.ndarray, period: tuple[float, float],
