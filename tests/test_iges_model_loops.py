@@ -167,3 +167,37 @@ def test_brep_faces_without_pcurves_trimmed_as_occ(name):
             assert d <= margin, (name, k, f.de, (uu[i], vv[i]), bool(ours[i]), d, margin)
         checked += len(uu)
     assert checked > 0
+
+
+def test_edge_off_the_surface_foot_and_derivatives():
+    """An edge 0.01 off a NURBS cylinder (a circle of radius r + 0.01 at height z0; the
+    files' edges are up to 1e-4 x size off their surfaces): the foot of C(t) is at the same
+    angle and height, so uv(t) = (z0 / h, revolved_angle_to_v(a0 + arc_angle(t))) in closed
+    form; values and first and second derivatives of the inverted curve against it (the
+    derivatives against central differences of the closed form)."""
+    r, h, z0, off = 3.0, 5.0, 2.0, 0.01
+    s = construct.revolved_surface(construct.line([r, 0, 0], [r, 0, h]), [0, 0, 0], [0, 0, 1], 0.0, 2 * pi)
+    a0, a1 = 0.4, 2.6
+    rr = r + off
+    arc = construct.circular_arc([0, 0, z0], [rr * np.cos(a0), rr * np.sin(a0), z0],
+                                 [rr * np.cos(a1), rr * np.sin(a1), z0])
+    back = reverse_curve(construct.circular_arc([0, 0, z0 + 1], [rr * np.cos(a0), rr * np.sin(a0), z0 + 1],
+                                                [rr * np.cos(a1), rr * np.sin(a1), z0 + 1]))
+    lines = [construct.line(arc.evaluate([arc.domain[1]])[0], back.evaluate([back.domain[0]])[0]),
+             construct.line(back.evaluate([back.domain[1]])[0], arc.evaluate([arc.domain[0]])[0])]
+    c = invert_edges(s, [arc, lines[0], back, lines[1]])[0]
+    sweep = a1 - a0
+
+    def exact(t):
+        return np.column_stack([np.full(len(t), z0 / h),
+                                construct.revolved_angle_to_v(a0 + construct.arc_angle(t, sweep), 0.0, 2 * pi)])
+
+    t = np.linspace(*c.domain, 37)[1:-1]
+    t = t[np.min(np.abs(t[:, None] - np.asarray(arc.knots)[None]), axis=1) > 1e-3]  # away from C1 knots of v(angle)
+    d = c.derivatives(t, 2)
+    assert np.allclose(d[:, 0], exact(t), atol=1e-12)
+    e = 1e-5
+    d1 = (exact(t + e) - exact(t - e)) / (2 * e)
+    d2 = (exact(t + e) - 2 * exact(t) + exact(t - e)) / e**2
+    assert np.allclose(d[:, 1], d1, atol=1e-8), np.abs(d[:, 1] - d1).max()
+    assert np.allclose(d[:, 2], d2, atol=1e-4), np.abs(d[:, 2] - d2).max()
