@@ -350,17 +350,32 @@ def mesh_cad(
         if v is not None and (int(v) != v or v < 1):
             raise MeshError(f"{nm} must be a positive integer, got {v!r}")
 
+
+    kw = dict(element=element, size=size, structured=structured, divisions=divisions,
+              radius_divisions=radius_divisions, length_divisions=length_divisions,
+              fillet_max_radius=fillet_max_radius, sew=sew, sew_tolerance=sew_tolerance,
+              curvature_elements=curvature_elements, target_unit=target_unit, parametric=parametric,
+              embed_curves=list(embed_curves))
+    try:
+        return _mesh_once(path, verbose, heal=False, **kw)
+    except MeshError as first:
+        if "gmsh failed" not in str(first):
+            raise
+        # real CAD: degenerated edges and edges shorter than the tolerance break gmsh's 1D
+        # loops ("The 1D mesh seems not to be forming a closed loop"); OCC's shape fixing
+        # (Geometry.OCCFixDegenerated / OCCFixSmallEdges) on import repairs them
+        try:
+            return _mesh_once(path, verbose, heal=True, **kw)
+        except MeshError as second:
+            raise MeshError(f"{second} (also after OCC shape healing; first attempt: {first})") from second
+
+
+def _mesh_once(path: Path, verbose: bool, heal: bool, **kw) -> Mesh:
     import gmsh
 
     with GmshSession(verbose) as sess:
         try:
-            return _mesh_in_session(
-                sess, path, element=element, size=size, structured=structured, divisions=divisions,
-                radius_divisions=radius_divisions, length_divisions=length_divisions,
-                fillet_max_radius=fillet_max_radius, sew=sew, sew_tolerance=sew_tolerance,
-                curvature_elements=curvature_elements,
-                target_unit=target_unit, parametric=parametric, embed_curves=list(embed_curves),
-            )
+            return _mesh_in_session(sess, path, heal=heal, **kw)
         except MeshError:
             raise
         except Exception as exc:
@@ -379,6 +394,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         "Geometry.OCCSewFaces": 1 if kw["sew"] else 0,
         "Geometry.Tolerance": kw["sew_tolerance"],
         "Geometry.OCCImportLabels": 0,
+        "Geometry.OCCFixDegenerated": 1 if kw["heal"] else 0,
+        "Geometry.OCCFixSmallEdges": 1 if kw["heal"] else 0,
     }
     if kw["target_unit"]:
         opts["Geometry.OCCTargetUnit"] = kw["target_unit"]
@@ -401,7 +418,9 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         raise MeshError(f"{path}: degenerate bounding box {bb.tolist()}")
     mopts: dict[str, float | str] = {
         "Mesh.MeshSizeMax": size,
-        "Mesh.MeshSizeMin": 0.0,
+        # curvature sizing refines at most 20 x below the size (a pole or a sliver face
+        # of tiny radius would otherwise ask for elements without end)
+        "Mesh.MeshSizeMin": size / 20.0 if kw["curvature_elements"] else 0.0,
         "Mesh.MeshSizeFromPoints": 0,
         "Mesh.MeshSizeFromCurvature": kw["curvature_elements"],
         "Mesh.ElementOrder": 1,
