@@ -18,15 +18,16 @@ fresh model (best of ``--repeat``), outside the read time. The table is also wri
 from __future__ import annotations
 
 import argparse
-import contextlib
 import cProfile
-import os
 import pstats
 import sys
 import time
 from pathlib import Path
 
 from cadbridge.iges import read_iges
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_kernel import best_of, quiet_fd  # noqa: E402  (shared helpers of the benchmarks)
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "iges_real"
@@ -35,31 +36,6 @@ if not REAL.is_dir():
 SAMPLES = ROOT / "iges_samples"
 
 
-@contextlib.contextmanager
-def quiet_fd():
-    """Silence C-level stdout/stderr (OCCT's reader prints its own messages)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = os.dup(1), os.dup(2)
-    with open(os.devnull, "w") as null:
-        os.dup2(null.fileno(), 1)
-        os.dup2(null.fileno(), 2)
-        try:
-            yield
-        finally:
-            sys.stdout.flush()
-            os.dup2(saved[0], 1)
-            os.dup2(saved[1], 2)
-            os.close(saved[0])
-
-
-def best_of(fn, repeat: int) -> float:
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def occ_read(path: Path):
