@@ -54,10 +54,13 @@ def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_
             out = self.stream or sys.stderr
             # on a terminal the progress line is rewritten with "\r": start a fresh line
             line = f"cadbridge: compiling numerical kernels (first run only, about {self.seconds:.0f} s)"
-            if getattr(out, "isatty", lambda: False)():
-                line = "\r" + line.ljust(110)
-            out.write(line + "\n")
-            out.flush()
+            try:
+                if getattr(out, "isatty", lambda: False)():
+                    line = "\r" + line.ljust(110)
+                out.write(line + "\n")
+                out.flush()
+            except (ValueError, OSError):
+                pass  # the stream is gone (closed by its owner): a notice must never break a compile
 
         def on_end(self, ev) -> None:
             pass

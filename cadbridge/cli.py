@@ -418,7 +418,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from cadbridge._jit import announce_compilation
 
-    announce_compilation(sys.stderr)  # one stderr line if numba has to compile (cold cache)
+    announce_compilation()  # one line on the then-current stderr if numba has to compile (cold cache)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

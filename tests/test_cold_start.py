@@ -69,3 +69,27 @@ def test_notice_only_for_cadbridge_functions_and_only_once():
     finally:
         if saved is not None:
             saved.said = True
+
+
+def test_notice_to_a_closed_stream_never_breaks_a_compile():
+    """The CLI's stream may be closed by the time a kernel compiles (pytest's captured
+    stderr of an earlier test; a fresh clone's cold cache showed it as an IgesError "I/O
+    operation on closed file" from the P-section scan): the compile must still succeed.
+    Reference: the function's result."""
+    numba = pytest.importorskip("numba")
+    from cadbridge import _jit
+
+    saved = _jit._listener
+    stream = io.StringIO()
+    stream.close()
+    try:
+        if saved is not None:
+            saved.said = False
+        _jit.announce_compilation(stream, seconds=7)
+        ns = {"__name__": "cadbridge._probe_closed"}
+        exec("def f(x):\n    return x * 3\n", ns)  # noqa: S102 - a fresh function in that module
+        assert numba.njit(ns["f"])(2) == 6
+    finally:
+        if saved is not None:
+            saved.said = True
+            saved.stream = None
