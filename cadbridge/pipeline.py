@@ -91,12 +91,13 @@ class RunResult:
     def summary(self) -> str:
         nan = float("nan")
         lines = [f"wrote {len(self.files)} files to {self.output}"]
-        lines.append(f"  {'tool':<16}{'source':<8}{'nodes':>7}{'elems':>7}{'surface err':>13}{'boundary err':>14}"
+        w = max([16] + [len(t.name) + 2 for t in self.tools])  # long names keep their own column
+        lines.append(f"  {'tool':<{w}}{'source':<8}{'nodes':>7}{'elems':>7}{'surface err':>13}{'boundary err':>14}"
                      f"{'flat err':>11}{'normal err':>12}")
         for t in self.tools:
             s = t.stats
             lines.append(
-                f"  {t.name:<16}{t.normal_source:<8}{len(t.mesh.nodes):>7}{t.mesh.n_elements:>7}"
+                f"  {t.name:<{w}}{t.normal_source:<8}{len(t.mesh.nodes):>7}{t.mesh.n_elements:>7}"
                 f"{s.get('max_abs_surface_error', nan):>13.3e}{s.get('max_boundary_error', nan):>14.3e}"
                 f"{s.get('max_abs_flat_surface_error', nan):>11.3e}{s.get('max_normal_error_deg', nan):>11.4f}°"
             )
@@ -134,7 +135,7 @@ def tool_groups(mesh: Mesh, model, element_face: list[np.ndarray]) -> dict[str, 
     for k in range(n):  # one pass per tool, not per element
         sel = labels == k
         names = sorted({model.faces[f].name for f in np.unique(ef[sel]) if f >= 0 and model.faces[f].name})
-        prefix = os.path.commonprefix(names).rstrip("_- ") if names else ""
+        prefix = os.path.commonprefix(names).rstrip("_- (") if names else ""
         name = (names[0] if len(names) == 1 else prefix if len(prefix) >= 2 else "") or (
             mesh.name if n == 1 else f"{mesh.name}_{k + 1}")
         base, i = name, 2
