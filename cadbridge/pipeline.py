@@ -290,8 +290,31 @@ def build_tool(
                             f"{more} (1-based, {len(strad)} in all) have corners on both sides of a crease line or "
                             f"sharp edge, and no normal can make a patch fold inside an element; remesh with mesh "
                             f"edges on the creases (cadbridge convert does)")
+    folded = folded_elements(nm)
+    if len(folded):
+        more = f" (and {len(folded) - 10} more)" if len(folded) > 10 else ""
+        diagnosis.insert(0, f"mesh folds over itself: elements {', '.join(str(int(e) + 1) for e in folded[:10])}{more} "
+                            f"(1-based, {len(folded)} in all) are wound against the normals at all their corners "
+                            f"(overlapping elements); remesh")
     return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance,
                       ef, diagnosis)
+
+
+def folded_elements(nm) -> np.ndarray:
+    """Elements (global ids) whose polyhedral normal (winding) points against the normal at
+    every one of their corners: in a consistently wound mesh with oriented normals, a folded
+    (overlapping) element, e.g. triangles a mesher laid over each other. (K,) sorted."""
+    out = []
+    for conn, cn, glob in ((nm.tri_elements, nm.tri_corner_normals, nm.tri_global),
+                           (nm.quad_elements, nm.quad_corner_normals, nm.quad_global)):
+        if len(conn) == 0:
+            continue
+        x = nm.nodes[conn]
+        en = (np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]) if conn.shape[1] == 3
+              else np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 1]))
+        against = np.einsum("eki,ei->ek", cn, en) < 0
+        out.append(glob[against.all(axis=1) & (np.linalg.norm(en, axis=1) > 0)])
+    return np.sort(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
 
 
 def _straddling_ids(nm, straddling, element_face=None) -> np.ndarray:

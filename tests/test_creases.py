@@ -192,3 +192,18 @@ def test_guard_stops_a_mesh_that_straddles_a_crease(tmp_path, model, capsys):
     text = capsys.readouterr().out
     assert code == EXIT_OK and len(list(out.glob("*.nagata"))) == 1
     assert "straddles a crease" in text
+
+
+def test_folded_elements_are_found():
+    """Two triangles in the plane z = 0 with normals +z, wound consistently across their
+    shared edge 0-2 (0->2 in one, 2->0 in the other), but the second's third vertex lies on
+    the same side of that edge as the first's: it is laid back over the first. Reference:
+    the hand-made fold; its mirror (vertex on the other side) is a proper neighbour."""
+    from cadbridge.pipeline import folded_elements
+
+    up = np.tile([0.0, 0.0, 1.0], (4, 1))
+    x = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0.8, 0.3, 0]])
+    t = np.array([[0, 1, 2], [0, 2, 3]])
+    assert folded_elements(NagataMesh(x, t, up)).tolist() == [1]
+    x[3] = [0.2, 0.7, 0.0]  # the other side of 0-2: no fold
+    assert folded_elements(NagataMesh(x, t, up)).tolist() == []
