@@ -27,25 +27,13 @@ from pathlib import Path
 from cadbridge.iges import read_iges
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_kernel import best_of, quiet_fd  # noqa: E402  (shared helpers of the benchmarks)
+from bench_kernel import best_of, occ_read, quiet_fd  # noqa: E402  (shared helpers of the benchmarks)
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "iges_real"
 if not REAL.is_dir():
     REAL = Path("/work/shared/iges_real")
 SAMPLES = ROOT / "iges_samples"
-
-
-
-
-def occ_read(path: Path):
-    from OCP.IGESControl import IGESControl_Reader
-
-    with quiet_fd():
-        r = IGESControl_Reader()
-        r.ReadFile(str(path))
-        r.TransferRoots()
-        return r.OneShape()
 
 
 def files(extra: list[str]) -> list[Path]:
