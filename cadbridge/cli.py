@@ -79,7 +79,17 @@ class Progress:
 
 
 class UsageError(Exception):
-    """Wrong combination of arguments (exit code 2, like argparse's own errors)."""
+    """Wrong combination of arguments or unusable input (exit code 2, like argparse's own errors)."""
+
+
+class CheckFailed(Exception):
+    """A check the user asked for did not hold (exit code 1): the message says which."""
+
+
+# Subcommands that live in their own module (one module per job). Each module defines
+# ``register(sub, fmt) -> None`` that adds its parser with ``set_defaults(func=...)``; its
+# command functions raise `UsageError` (exit 2) or `CheckFailed` (exit 1) with one line.
+COMMAND_MODULES: tuple[str, ...] = ()
 
 
 def _say(msg: str) -> None:
@@ -391,11 +401,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", type=int, default=20, help="grid divisions per patch")
     p.add_argument("--fine-size", type=float, default=4.0, help="element size of the unstructured triangle variant (mm)")
     p.set_defaults(func=cmd_ushape)
+
+    import importlib
+
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub, fmt)
     return parser
 
 
 def _known_errors() -> tuple[type[BaseException], ...]:
-    errs: list[type[BaseException]] = [UsageError, FileNotFoundError, IsADirectoryError, PermissionError,
+    errs: list[type[BaseException]] = [UsageError, CheckFailed, FileNotFoundError, IsADirectoryError, PermissionError,
                                        NotADirectoryError]
     for mod, name in (
         ("cadbridge.iges", "IgesError"),
@@ -429,7 +444,7 @@ def main(argv: list[str] | None = None) -> int:
         from cadbridge.pipeline import ToolQualityError
 
         print(f"cadbridge {args.command}: error: {exc}", file=sys.stderr)
-        return EXIT_CHECK_FAILED if isinstance(exc, (ProjectionError, ToolQualityError)) else EXIT_BAD_INPUT
+        return EXIT_CHECK_FAILED if isinstance(exc, (ProjectionError, ToolQualityError, CheckFailed)) else EXIT_BAD_INPUT
     except (ValueError, ArithmeticError, MemoryError, OSError, RuntimeError, LookupError, TypeError) as exc:
         # anything the library did not anticipate: still one line (the input it could not
         # handle); CADBRIDGE_DEBUG=1 shows the traceback for a bug report
