@@ -892,7 +892,7 @@ class Builder:
             for x in loop_des:
                 with self.visiting(x):
                     # 508 loops without parameter-space curves: from their model-space edges
-                    loops.append(load(x, surface, de) if load == self.brep_loop else load(x))
+                    loops.append(load(x, surface) if load == self.brep_loop else load(x))
             trims = None
             if loops and all(lp is not None for lp in loops):
                 trims = Trim(loops[0], loops[1:]) if first_is_outer else Trim(None, loops)
@@ -1166,7 +1166,7 @@ class Builder:
                 pairs.append(([c for i, c, _ in lp if i in ok], [c for j in ok for c in raw[j][1]]))
         return pairs or None
 
-    def brep_loop(self, de: int, surface: NurbsSurface | None = None, face_de: int | None = None) -> TrimLoop | None:
+    def brep_loop(self, de: int, surface: NurbsSurface | None = None) -> TrimLoop | None:
         """508 loop as parameter-space curves; where an edge has none and the face's NURBS
         ``surface`` (a 128) is given, the loop built from the model-space curves of its edges
         (`_model_loop`); else None, with a note."""
@@ -1174,18 +1174,19 @@ class Builder:
         if edges and all(pc is not None for pc, _ in edges):
             return TrimLoop([c for pc, _ in edges for c in pc])
         if edges and surface is not None:
-            loop = self._model_loop(de, surface, face_de)
+            loop = self._model_loop(de, surface)
             if loop is not None:
                 return loop
         self.note("B-rep loop without parameter-space curves: face left untrimmed", de)
         return None
 
-    def _model_loop(self, de: int, surface: NurbsSurface, face_de: int | None) -> TrimLoop | None:
+    def _model_loop(self, de: int, surface: NurbsSurface) -> TrimLoop | None:
         """508 loop ``de`` over the NURBS ``surface`` from the model-space curves of its 504
         edges (in loop order, each reversed where OF = 0: `loop_raw`), inverted onto the
         surface by Newton (`analytic.invert_edges`: seams unwrapped along the loop, poles
-        bridged). Its trim delta (largest distance of S(uv(t)) from the edges, `loop_deltas`)
-        is noted and kept for face ``face_de``. None (with a note) when an edge has no usable
+        bridged). Its trim delta (largest distance of S(uv(t)) from the edges) is the face's
+        deferred ``trim_delta`` (`trimcheck.DeltaBatch`, computed on first access; the loop
+        keeps its edges as ``model_curves``). None (with a note) when an edge has no usable
         model-space curve or the result does not close in (u, v)."""
         edges = self.loop_raw(de, want_model=True)
         pieces = [c for _, m in edges if m for c in m]
@@ -1208,15 +1209,12 @@ class Builder:
             self.note(f"B-rep loop without parameter-space curves: its model-space edges do not close on the "
                       f"surface ((u, v) gap {gap:.3g})", de)
             return None
-        d = float(loop_deltas([(surface, [(curves, pieces)])])[0])
-        box = surface.bbox()
-        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
         pts = f" ({skipped} point edges dropped)" if skipped else ""
+        # delta (S(uv(t)) against the edges) decides nothing here: deferred with the face's
+        # other loops to the first `Face.trim_delta` access (`face`, `trimcheck.DeltaBatch`)
         self.note(f"B-rep loop without parameter-space curves: trim loop built from its {len(edges) - skipped} "
-                  f"model-space edges{pts} inverted onto the B-spline surface (delta {d:.3g}, {d / size:.3g} x "
-                  "size)", de)
-        if face_de is not None and np.isfinite(d):
-            self._delta[face_de] = max(d, self._delta.get(face_de, 0.0))
+                  f"model-space edges{pts} inverted onto the B-spline surface (its delta: the face's trim_delta)",
+                  de)
         return TrimLoop(curves, pieces)
 
     def loop_raw(self, de: int, want_model: bool = True):
