@@ -49,6 +49,7 @@ from cadbridge.nurbs.project import (
     surface_samples,
 )
 from cadbridge.nurbs.ops import bezier_patches, curve_bezier_segments
+from cadbridge.nurbs.project_many import SurfacePack, project_to_surfaces
 from cadbridge.nurbs.surface import NurbsSurface
 from cadbridge.trims import project_to_trims
 
@@ -290,6 +291,13 @@ class SearchIndex:
     sample_face: np.ndarray
     size: float
     n_faces: int
+    pack: SurfacePack | None = None  # the faces' surfaces packed for `project_to_surfaces` (built on first use)
+
+    def surface_pack(self, model: Model) -> SurfacePack:
+        """The `SurfacePack` of the model's face surfaces (built once, kept on the index)."""
+        if self.pack is None:
+            self.pack = SurfacePack([f.surface for f in model.faces])
+        return self.pack
 
 
 def build_search_index(model: Model) -> SearchIndex:
@@ -402,35 +410,30 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
     return key % n, key // n
 
 
-def _project_pairs(model: Model, n_faces: int, pts: np.ndarray, cp: np.ndarray, cf: np.ndarray, tol: float):
+def _project_pairs(model: Model, index: SearchIndex, pts: np.ndarray, cp: np.ndarray, cf: np.ndarray, tol: float):
     """Project the points ``pts[cp]`` onto the surfaces of faces ``cf`` (pairs sorted by face;
-    one vectorised `project_to_surface` per face). Returns per pair u, v, foot (M, 3),
+    all pairs in one `project_to_surfaces` call). Returns per pair u, v, foot (M, 3),
     distance, normal (M, 3), status, inside (foot not FAILED and inside the face's trims) and
     out (foot not FAILED but outside the trims: the face's nearest point is on its loops)."""
     m = len(cp)
-    pu, pv, pdist = np.empty(m), np.empty(m), np.empty(m)
-    pfoot, pnorm = np.empty((m, 3)), np.empty((m, 3))
-    pstat = np.empty(m, dtype=np.int8)
     inside = np.zeros(m, dtype=bool)
     out = np.zeros(m, dtype=bool)
+    r = project_to_surfaces(index.surface_pack(model), cf, pts[cp], tol=tol)
     if m == 0:
-        return pu, pv, pfoot, pdist, pnorm, pstat, inside, out
-    starts = np.searchsorted(cf, np.arange(n_faces + 1))
-    for k in np.unique(cf):
-        a, b = starts[k], starts[k + 1]
-        face = model.faces[k]
-        r = project_to_surface(face.surface, pts[cp[a:b]], tol=tol)
-        pu[a:b], pv[a:b], pfoot[a:b], pdist[a:b] = r.u, r.v, r.foot, r.distance
-        pnorm[a:b], pstat[a:b] = r.normal, r.status
-        ok = r.status != FAILED
-        if face.trims is not None and np.any(ok):
-            oi = np.nonzero(ok)[0]
-            isin = face.contains(r.u[oi], r.v[oi])
-            ok[oi[~isin]] = False
+        return r.u, r.v, r.foot, r.distance, r.normal, r.status, inside, out
+    ok = r.status != FAILED
+    cuts = np.flatnonzero(np.diff(cf)) + 1
+    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [m]])):
+        face = model.faces[int(cf[a])]
+        okf = ok[a:b]
+        if face.trims is not None and np.any(okf):
+            oi = np.nonzero(okf)[0]
+            isin = face.contains(r.u[a + oi], r.v[a + oi])
+            okf[oi[~isin]] = False
             if face.trims.outer is not None or face.trims.inner:
                 out[a + oi[~isin]] = True
-        inside[a:b] = ok
-    return pu, pv, pfoot, pdist, pnorm, pstat, inside, out
+        inside[a:b] = okf
+    return r.u, r.v, r.foot, r.distance, r.normal, r.status, inside, out
 
 
 _BLOCK = 262144  # points projected together at most (larger inputs go block by block)
@@ -486,7 +489,7 @@ def project_points(
     else:
         ub = np.full(n, np.inf)
         cp1 = cf1 = np.zeros(0, dtype=np.int64)
-    r1 = _project_pairs(model, index.n_faces, pts, cp1, cf1, tol)
+    r1 = _project_pairs(model, index, pts, cp1, cf1, tol)
     # a foot inside the nearest sample's face is a point of the model: a tighter bound
     bound = ub.copy()
     good = r1[6] & (r1[5] != FAILED)
@@ -494,7 +497,7 @@ def project_points(
 
     # 2. the other candidate (point, face) pairs: sub-patch boxes within the bound
     cp2, cf2 = _candidate_pairs(index, pts, bound, exclude=f0 if len(cp1) else None)
-    r2 = _project_pairs(model, index.n_faces, pts, cp2, cf2, tol)
+    r2 = _project_pairs(model, index, pts, cp2, cf2, tol)
     cp, cf = np.concatenate([cp1, cp2]), np.concatenate([cf1, cf2])
     pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate([x, y]) for x, y in zip(r1, r2))
     candidates = np.bincount(cp, minlength=n)

@@ -1,0 +1,397 @@
+"""Orthogonal projection of (point, surface) pairs onto many NURBS surfaces at once.
+
+`project_to_surfaces(pack, which, points)` gives, for pair i, the nearest point of surface
+``which[i]`` to ``points[i]``: the same algorithm as `project_to_surface` (start from the
+nearest grid sample, projected Newton with the full Jacobian, Neto 2010 app. B eqs. 32-36 /
+Piegl & Tiller §6.1; then its global check from other discrete local minima of the sampled
+distance and its edge check for feet clamped to a domain edge), but each stage runs for all
+pairs of all surfaces in one compiled call (`SurfacePack`: the surfaces' control nets, knots
+and sample grids packed into flat arrays), in parallel over blocks of pairs. Only the
+sample KD-tree queries stay per surface (one k-nearest query per surface serves all three
+stages). Surfaces with internal crease knot lines (`smooth_pieces`) go through
+`project_to_surface`.
+
+Cost: one Python step per surface per call (a tree query), the rest compiled; for many
+surfaces with few points each this is several times faster than a loop over
+`project_to_surface` (whose per-call numpy overhead dominated there).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from cadbridge.nurbs.project import (
+    _CHECK_K,
+    _CHECK_SEEDS,
+    _EDGE_SEEDS,
+    CONVERGED,
+    FAILED,
+    ON_BOUNDARY,
+    SurfaceProjection,
+    _ders2_one,
+    _global_seeds,
+    _newton_range,
+    _wrap_clamp,
+    project_to_surface,
+    smooth_pieces,
+    surface_samples,
+)
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = ["SurfacePack", "project_to_surfaces"]
+
+_TASK = 256  # pairs per parallel task at most
+_PARALLEL_MIN = 4096  # fewer pairs: serial
+
+
+class SurfacePack:
+    """Surfaces and their start-value sample grids (`surface_samples`) in flat arrays for the
+    compiled kernels. surfaces: the list packed (index = surface id); single: (S,) bool, the
+    surface has no internal crease lines (else `project_to_surface` handles its pairs)."""
+
+    def __init__(self, surfaces: list[NurbsSurface]) -> None:
+        self.surfaces = list(surfaces)
+        s = len(self.surfaces)
+        self.single = np.array([len(smooth_pieces(x)) == 1 for x in self.surfaces], dtype=bool)
+        self.samples = [surface_samples(x) for x in self.surfaces]
+        self.deg = np.array([[x.degree_u, x.degree_v] for x in self.surfaces], dtype=np.int64).reshape(s, 2)
+        self.shape = np.array([x.shape for x in self.surfaces], dtype=np.int64).reshape(s, 2)
+        self.rational = np.array([x.rational for x in self.surfaces], dtype=np.bool_)
+        self.domain = np.array([x.domain for x in self.surfaces], dtype=float).reshape(s, 4)
+        self.closed = np.array([[m.closed_u, m.closed_v] for m in self.samples], dtype=np.bool_).reshape(s, 2)
+        self.size = np.array([max(m.size, 1e-300) for m in self.samples], dtype=float)
+
+        def flat(arrays):
+            off = np.zeros(len(arrays) + 1, dtype=np.int64)
+            off[1:] = np.cumsum([a.size for a in arrays])
+            data = np.concatenate([np.ravel(a) for a in arrays]) if arrays else np.zeros(0)
+            return np.ascontiguousarray(data, dtype=float), off
+
+        self.pw, self.pw_off = flat([x._pw for x in self.surfaces])
+        self.ku, self.ku_off = flat([x.knots_u for x in self.surfaces])
+        self.kv, self.kv_off = flat([x.knots_v for x in self.surfaces])
+        self.us, self.us_off = flat([m.us for m in self.samples])
+        self.vs, self.vs_off = flat([m.vs for m in self.samples])
+        self.spts, self.s_off = flat([m.points for m in self.samples])
+        self.s_off //= 3
+        self.spts = self.spts.reshape(-1, 3)
+        self.suv = np.ascontiguousarray(np.concatenate([m.uv for m in self.samples]) if s else np.zeros((0, 2)))
+        self.spacing = np.ascontiguousarray(np.concatenate([m.spacing for m in self.samples]) if s else np.zeros(0))
+
+    def kernel_args(self) -> tuple:
+        return (self.pw, self.pw_off, self.ku, self.ku_off, self.kv, self.kv_off, self.deg, self.shape,
+                self.rational, self.domain, self.closed)
+
+
+# ---------------------------------------------------------------------------- kernels
+@numba.njit(cache=True, error_model="numpy")
+def _surface(pw, pw_off, ku, ku_off, kv, kv_off, shape, s):  # pragma: no cover - compiled
+    nu, nv = shape[s, 0], shape[s, 1]
+    net = pw[pw_off[s] : pw_off[s + 1]].reshape((nu, nv, 4))
+    return net, ku[ku_off[s] : ku_off[s + 1]], kv[kv_off[s] : kv_off[s + 1]]
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
+                 pts, noise, u, v, iters, max_iter, a, b):  # pragma: no cover - compiled
+    """`_newton_range` on pairs a..b-1 (one surface, sid[a])."""
+    s = sid[a]
+    net, kku, kkv = _surface(pw, pw_off, ku, ku_off, kv, kv_off, shape, s)
+    u0, u1, v0, v1 = domain[s, 0], domain[s, 1], domain[s, 2], domain[s, 3]
+    cu, cv = closed[s, 0], closed[s, 1]
+    for t in range(a, b):  # start values wrapped / clamped into the domain (as `_newton`)
+        u[t] = _wrap_clamp(u[t], u0, u1, cu)
+        v[t] = _wrap_clamp(v[t], v0, v1, cv)
+    _newton_range(net, kku, kkv, deg[s, 0], deg[s, 1], rational[s], u0, u1, v0, v1, cu, cv, eps1[s], tol,
+                  pts, noise, u, v, iters, max_iter, a, b)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
+                   pts, noise, u, v, foot, dist, normal, status, degen, a, b):  # pragma: no cover - compiled
+    """Final classification of `_newton` for pairs a..b-1 (one surface): foot, distance,
+    status (orthogonality check, binding edge), unit normal Su x Sv (degen: the normal needs
+    the limit normal of `NurbsSurface.normal`)."""
+    s = sid[a]
+    net, kku, kkv = _surface(pw, pw_off, ku, ku_off, kv, kv_off, shape, s)
+    p, q = deg[s, 0], deg[s, 1]
+    u0, u1, v0, v1 = domain[s, 0], domain[s, 1], domain[s, 2], domain[s, 3]
+    cu, cv = closed[s, 0], closed[s, 1]
+    e1 = eps1[s]
+    tiny = 1e-300
+    ndu_u = np.empty((p + 1, p + 1))
+    ndu_v = np.empty((q + 1, q + 1))
+    lu = np.empty(p + 1)
+    ru = np.empty(p + 1)
+    lv = np.empty(q + 1)
+    rv = np.empty(q + 1)
+    au = np.empty((2, p + 1))
+    av = np.empty((2, q + 1))
+    bu = np.empty((3, p + 1))
+    bv = np.empty((3, q + 1))
+    aw = np.empty((3, 3, 4))
+    der = np.empty((3, 3, 3))
+    for t in range(a, b):
+        uu, vv = u[t], v[t]
+        _ders2_one(net, kku, kkv, p, q, rational[s], uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+        rx, ry, rz = der[0, 0, 0] - pts[t, 0], der[0, 0, 1] - pts[t, 1], der[0, 0, 2] - pts[t, 2]
+        sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
+        svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]
+        d = np.sqrt(rx * rx + ry * ry + rz * rz)
+        f = sux * rx + suy * ry + suz * rz
+        g = svx * rx + svy * ry + svz * rz
+        lsu = np.sqrt(sux * sux + suy * suy + suz * suz)
+        lsv = np.sqrt(svx * svx + svy * svy + svz * svz)
+        edge_u = (not cu) and ((uu <= u0 and f > 0) or (uu >= u1 and f < 0))
+        edge_v = (not cv) and ((vv <= v0 and g > 0) or (vv >= v1 and g < 0))
+        off_u = 0.0 if edge_u else abs(f) / max(lsu, tiny)
+        off_v = 0.0 if edge_v else abs(g) / max(lsv, tiny)
+        cos_u = abs(f) / max(lsu * d, tiny)
+        cos_v = abs(g) / max(lsv * d, tiny)
+        binding = ((edge_u and cos_u > tol) or (edge_v and cos_v > tol)) and d > e1
+        ok = max(off_u, off_v) <= 1e3 * e1 + noise[t]
+        ok = ok and np.isfinite(d) and np.isfinite(uu) and np.isfinite(vv)
+        foot[t, 0], foot[t, 1], foot[t, 2] = der[0, 0, 0], der[0, 0, 1], der[0, 0, 2]
+        dist[t] = d
+        status[t] = FAILED if not ok else (ON_BOUNDARY if binding else CONVERGED)
+        nx = suy * svz - suz * svy
+        ny = suz * svx - sux * svz
+        nz = sux * svy - suy * svx
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        m = max(lsu, lsv)
+        degen[t] = not (ln > 1e-10 * m * m)
+        if not ok:
+            normal[t, 0] = normal[t, 1] = normal[t, 2] = np.nan
+        else:
+            normal[t, 0], normal[t, 1], normal[t, 2] = nx / ln, ny / ln, nz / ln
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _run_tasks(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
+               pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop
+               ):  # pragma: no cover - compiled
+    for k in numba.prange(tstart.shape[0]):
+        if kind == 0:
+            _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
+                         pts, noise, u, v, iters, max_iter, tstart[k], tstop[k])
+        else:
+            _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
+                           tol, pts, noise, u, v, foot, dist, normal, status, degen, tstart[k], tstop[k])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _run_tasks_serial(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
+                      tol, pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop
+                      ):  # pragma: no cover - compiled
+    for k in range(tstart.shape[0]):
+        if kind == 0:
+            _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
+                         pts, noise, u, v, iters, max_iter, tstart[k], tstop[k])
+        else:
+            _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
+                           tol, pts, noise, u, v, foot, dist, normal, status, degen, tstart[k], tstop[k])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _inward(t, grid, lo, hi, frac):  # pragma: no cover - compiled
+    """`_edge_check`'s start ``frac`` grid cells inside the domain from an edge parameter."""
+    n = grid.shape[0]
+    if n < 2:
+        return t
+    k = min(max(np.searchsorted(grid, t), 1), n - 1)
+    h = grid[k] - grid[k - 1]
+    if t <= lo:
+        return lo + frac * h
+    if t >= hi:
+        return hi - frac * h
+    return t
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _inward_starts(rows, sid, u, v, us, us_off, vs, vs_off, domain, out_u, out_v):  # pragma: no cover - compiled
+    """Starts half a cell (out[0]) and one cell (out[1]) inside from the edge feet of ``rows``."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        s = sid[r]
+        gu = us[us_off[s] : us_off[s + 1]]
+        gv = vs[vs_off[s] : vs_off[s + 1]]
+        for j, frac in enumerate((0.5, 1.0)):
+            out_u[j, i] = _inward(u[r], gu, domain[s, 0], domain[s, 1], frac)
+            out_v[j, i] = _inward(v[r], gv, domain[s, 2], domain[s, 3], frac)
+
+
+# ---------------------------------------------------------------------------- driver
+def _tasks(sid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Runs of equal surface id (sid sorted) cut into pieces of at most _TASK pairs."""
+    n = len(sid)
+    if n == 0:
+        z = np.zeros(0, dtype=np.int64)
+        return z, z
+    cuts = np.flatnonzero(np.diff(sid)) + 1
+    starts = np.concatenate([[0], cuts])
+    stops = np.concatenate([cuts, [n]])
+    cnt = (stops - starts + _TASK - 1) // _TASK
+    a = np.repeat(starts, cnt) + _TASK * (np.arange(int(cnt.sum())) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    b = np.minimum(a + _TASK, np.repeat(stops, cnt))
+    return a.astype(np.int64), b.astype(np.int64)
+
+
+class _Run:
+    """Newton + classification of pairs (sid sorted) from start values (u, v)."""
+
+    def __init__(self, pack: SurfacePack, sid: np.ndarray, pts: np.ndarray, tol: float, max_iter: int) -> None:
+        self.pack, self.sid, self.pts, self.tol, self.max_iter = pack, sid, pts, tol, max_iter
+        self.eps1 = tol * pack.size
+        # absolute round-off of r = S - P per pair: a few ulps of the largest coordinate involved
+        n = len(pts)
+        self.noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + pack.size[sid]) if n else np.zeros(0)
+        self.tasks = _tasks(sid)
+
+    def __call__(self, u: np.ndarray, v: np.ndarray) -> SurfaceProjection:
+        n = len(self.pts)
+        u = np.ascontiguousarray(u, dtype=float).copy()
+        v = np.ascontiguousarray(v, dtype=float).copy()
+        iters = np.zeros(n, dtype=np.int32)
+        foot, normal = np.empty((n, 3)), np.empty((n, 3))
+        dist, status, degen = np.empty(n), np.empty(n, dtype=np.int8), np.zeros(n, dtype=np.bool_)
+        if n:
+            run = _run_tasks if n >= _PARALLEL_MIN else _run_tasks_serial
+            for kind in (0, 1):
+                run(kind, *self.pack.kernel_args(), self.sid, self.eps1, self.tol, self.pts, self.noise, u, v, iters,
+                    int(self.max_iter), foot, dist, normal, status, degen, *self.tasks)
+            bad = np.flatnonzero(degen & (status != FAILED))
+            for s in np.unique(self.sid[bad]):  # poles, collapsed edges: the limit normal
+                sel = bad[self.sid[bad] == s]
+                normal[sel] = self.pack.surfaces[s].normal(u[sel], v[sel])
+        return SurfaceProjection(u, v, foot, dist, normal, status, iters)
+
+
+def _replace(res: SurfaceProjection, tgt: np.ndarray, extra: SurfaceProjection, better: np.ndarray) -> None:
+    """Where ``better``, write the restart into the result of its pair ``tgt``; several for one
+    pair: the nearest (stable order, nearest written last)."""
+    idx = np.flatnonzero(better)
+    if not len(idx):
+        return
+    idx = idx[np.argsort(-extra.distance[idx], kind="stable")]
+    rows = tgt[idx]
+    for name in ("u", "v", "foot", "distance", "normal", "status"):
+        getattr(res, name)[rows] = getattr(extra, name)[idx]
+    np.add.at(res.iterations, rows, extra.iterations[idx])
+
+
+def project_to_surfaces(pack: SurfacePack, which, points, *, tol: float = 1e-12, max_iter: int = 30
+                        ) -> SurfaceProjection:
+    """Nearest point of surface ``pack.surfaces[which[i]]`` to ``points[i]`` for every pair i.
+
+    which (M,) int surface ids, points (M, 3). Same result as
+    ``project_to_surface(pack.surfaces[which[i]], points[i], tol=tol, max_iter=max_iter)``
+    (start from the nearest sample, Newton, global check, edge check; every foot checked for
+    orthogonality, FAILED otherwise). Returns a `SurfaceProjection` of M pairs.
+    """
+    which = np.asarray(which, dtype=np.int64).ravel()
+    pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+    m = len(which)
+    if len(pts) != m:
+        raise ValueError(f"project_to_surfaces: {m} surface ids for {len(pts)} points")
+    out = SurfaceProjection(np.empty(m), np.empty(m), np.empty((m, 3)), np.empty(m), np.empty((m, 3)),
+                            np.empty(m, dtype=np.int8), np.zeros(m, dtype=np.int32))
+    if m == 0:
+        return out
+    order = np.argsort(which, kind="stable")
+    sid = which[order]
+    multi = ~pack.single[sid]
+    if np.any(multi):  # surfaces with internal creases: piece by piece (`project_to_surface`)
+        for s in np.unique(sid[multi]):
+            rows = order[sid == s]
+            r = project_to_surface(pack.surfaces[s], pts[rows], tol=tol, max_iter=max_iter)
+            for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
+                getattr(out, name)[rows] = getattr(r, name)
+        keep = ~multi
+        order, sid = order[keep], sid[keep]
+    if not len(order):
+        return out
+    p = np.ascontiguousarray(pts[order])
+    n = len(p)
+    res = _sorted_pairs(pack, sid, p, tol, max_iter)
+    for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
+        getattr(out, name)[order] = getattr(res, name)
+    return out
+
+
+def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float, max_iter: int) -> SurfaceProjection:
+    n = len(p)
+    # one k-nearest query per surface serves the start (column 0), the global and edge checks
+    k = _CHECK_K
+    dk = np.full((n, k), np.inf)
+    ik = np.zeros((n, k), dtype=np.int64)  # global sample index (pack.suv, pack.spts)
+    kk = np.zeros(n, dtype=np.int64)  # k of the surface: min(_CHECK_K, samples)
+    cuts = np.flatnonzero(np.diff(sid)) + 1
+    starts, stops = np.concatenate([[0], cuts]), np.concatenate([cuts, [n]])
+    for a, b in zip(starts, stops):
+        s = int(sid[a])
+        smp = pack.samples[s]
+        ks = min(k, len(smp.uv))
+        d_, i_ = smp.tree.query(p[a:b], k=ks)
+        dk[a:b, :ks] = np.asarray(d_).reshape(b - a, ks)
+        ik[a:b, :ks] = np.asarray(i_).reshape(b - a, ks) + pack.s_off[s]
+        ik[a:b, ks:] = ik[a:b, :1]
+        kk[a:b] = ks
+    run = _Run(pack, sid, p, tol, max_iter)
+    uv = pack.suv[ik[:, 0]]
+    res = run(uv[:, 0], uv[:, 1])
+
+    # global check: restarts from other discrete local minima of the sampled distance
+    d = np.where(res.status == FAILED, np.inf, res.distance)
+    d = np.where(np.isfinite(d), d, np.inf)
+    rows_all, seeds_all = [], []
+    for a, b in zip(starts, stops):
+        s = int(sid[a])
+        smp = pack.samples[s]
+        ks = int(kk[a])
+        if ks < 2:
+            continue
+        o = pack.s_off[s]
+        rows, sidx = _global_seeds(d[a:b], np.ascontiguousarray(dk[a:b, :ks]), np.ascontiguousarray(ik[a:b, :ks] - o), smp.spacing, smp.points, p[a:b],
+                                   res.u[a:b], res.v[a:b], smp.us, smp.vs, smp.closed_u, smp.closed_v, _CHECK_SEEDS)
+        if len(rows):
+            rows_all.append(rows + a)
+            seeds_all.append(sidx + o)
+    if rows_all:
+        rows = np.concatenate(rows_all)
+        uv = pack.suv[np.concatenate(seeds_all)]
+        extra = _Run(pack, sid[rows], p[rows], tol, max_iter)(uv[:, 0], uv[:, 1])
+        _replace(res, rows, extra, (extra.status != FAILED) & (extra.distance < d[rows]))
+
+    # edge check: feet clamped to a domain edge restart half / one cell inside and from the
+    # nearby samples within sqrt(d^2 + (2h)^2)
+    rows = np.flatnonzero(res.status == ON_BOUNDARY)
+    if len(rows):
+        su = np.empty((2, len(rows)))
+        sv = np.empty((2, len(rows)))
+        _inward_starts(rows, sid, res.u, res.v, pack.us, pack.us_off, pack.vs, pack.vs_off, pack.domain, su, sv)
+        owners = [rows, rows]
+        starts_u, starts_v = [su[0], su[1]], [sv[0], sv[1]]
+        multi = kk[rows] > 1
+        if np.any(multi):
+            r = rows[multi]
+            dkr, ikr = dk[r], ik[r]
+            rad = np.sqrt(res.distance[r] ** 2 + (2.0 * pack.spacing[ikr[:, 0]]) ** 2)
+            cand = dkr <= rad[:, None]
+            cand[:, 0] = False
+            cand &= np.arange(k)[None, :] < kk[r][:, None]
+            cand &= np.cumsum(cand, axis=1) <= _EDGE_SEEDS
+            rr, cc = np.nonzero(cand)
+            uv = pack.suv[ikr[rr, cc]]
+            starts_u.append(uv[:, 0])
+            starts_v.append(uv[:, 1])
+            owners.append(r[rr])
+        owner = np.concatenate(owners)
+        order = np.argsort(owner, kind="stable")  # by owner = by surface (sid sorted), same per-pair order
+        owner = owner[order]
+        eu, ev = np.concatenate(starts_u)[order], np.concatenate(starts_v)[order]
+        extra = _Run(pack, sid[owner], p[owner], tol, max_iter)(eu, ev)
+        dd = res.distance[owner]
+        better = (extra.status != FAILED) & (extra.distance < dd - 1e-3 * tol * pack.size[sid[owner]])
+        _replace(res, owner, extra, better)
+    return res
