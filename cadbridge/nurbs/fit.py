@@ -1,0 +1,613 @@
+"""Least-squares fitting of one NURBS surface to scattered points with (u, v) parameters.
+
+The fit minimises (Piegl & Tiller §9.4.3 extended by a smoothing term, as in Hoschek & Lasser §4.4)
+
+    F(P) = sum_k w_k |S(u_k, v_k) - x_k|^2 + lam * E(P),
+    E(P) = integral over the domain of |S_uu|^2 + 2 |S_uv|^2 + |S_vv|^2 du dv   (thin-plate energy)
+
+over the control points P (the weights of a rational fit are fixed, so S is linear in P). The
+normal equations (A^T W A + lam G) P = A^T W X are assembled directly in banded form by a numba
+kernel (a point touches (p+1)^2 (q+1)^2 entries) and solved as a scipy.sparse system (SuperLU);
+G = D2u (x) Mv + 2 D1u (x) D1v + Mu (x) D2v from exact 1D Gram matrices of basis derivatives
+(Gauss-Legendre per knot span). lam = smoothing * sum(w) * L^4 / A with L the longest side and A
+the area of the parameter domain, so the user weight is dimensionless and independent of the
+units of the coordinates and parameters.
+
+Around the solve (`fit_surface`):
+
+- robust reweighting: Huber (k = 1.345), then Tukey's biweight (c = 4.685) on the distances,
+  scale 1.4826 MAD, never below half the tolerance (a deviation within the tolerance is never an
+  outlier), restarted from Huber after every refinement so a region the coarser net could not
+  follow is not thrown away;
+- parameter correction: every iteration re-projects the points onto the current fit (Newton point
+  inversion, P&T §6.1 / §9.4.1 "parameter correction", Hoschek 1988) starting from their current
+  (u, v);
+- knot insertion: a cell (knot span pair) whose deviation statistic exceeds the tolerance gets a
+  knot in the middle of its u-span and/or v-span (the direction(s) along which its residuals vary),
+  until no cell exceeds the tolerance ("tolerance") or the control net limit is reached
+  ("control-net limit"); "no improvement" when a refinement no longer lowers the worst cell.
+  The statistic is the cell's maximum distance for exact data, and for noisy data (estimated noise
+  sigma above tol/20, `estimate_noise`) its 90 % quantile against tol + 1.645 sigma: the 90 %
+  quantile of |N(0, sigma^2)| is 1.645 sigma, so what is left above it is systematic.
+
+All arrays are float64; points (N, 3) in model units, parameters (N,).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from cadbridge.nurbs.basis import ders_basis_funs, ders_basis_one, find_span, find_span_one, validate_knots
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = [
+    "FitError",
+    "SurfaceFit",
+    "bending_matrix",
+    "cox_de_boor",
+    "estimate_noise",
+    "fit_surface",
+    "gram_matrix",
+    "solve_control_points",
+    "uniform_knots",
+]
+
+HUBER_K = 1.345  # Huber's constant (95 % efficiency at the normal distribution)
+TUKEY_C = 4.685  # Tukey's biweight constant (95 % efficiency)
+MAD_TO_SIGMA = 1.4826  # sigma = 1.4826 x median absolute deviation for normal data
+Q90_Z = 1.6448536269514722  # 90 % quantile of |Z|, Z ~ N(0, 1): P(|Z| < 1.645) = 0.9
+
+
+class FitError(ValueError):
+    """Input the fit cannot work with (too few points, no data under control points, ...)."""
+
+
+# ---------------------------------------------------------------------------- Cox-de Boor
+def cox_de_boor(knots, p: int, u: float) -> np.ndarray:
+    """All B-spline basis functions N_{i,k}(u), k = 0..p, i = 0..m, by the raw Cox-de Boor
+    recursion (P&T eq. 2.5; Krohe 2020 eq. 13) on any knot vector t_0..t_m, clamped or not.
+
+    Returns (p+1, m+1) with [k, i] = N_{i,k}(u), laid out as Krohe's Table 5.1:
+    N_{i,0} = 1 on [t_i, t_{i+1}) and N_{m,0} = 1 for u >= t_m; a fraction with a zero
+    denominator is 0 (0/0 := 0); a term that needs a knot beyond t_m is 0 (Krohe's "numerical
+    approach"). Only entries with i + k + 1 <= m are true basis functions (they agree with
+    P&T A2.2 inside the domain); the others are what that table lists for a knot vector that is
+    one knot short.
+    """
+    t = np.asarray(knots, dtype=float)
+    m = len(t) - 1
+    out = np.zeros((p + 1, m + 1))
+    for i in range(m):
+        out[0, i] = 1.0 if t[i] <= u < t[i + 1] else 0.0
+    out[0, m] = 1.0 if u >= t[m] else 0.0
+    for k in range(1, p + 1):
+        for i in range(m + 1):
+            f = 0.0
+            if i + k <= m and t[i + k] != t[i]:
+                f = (u - t[i]) / (t[i + k] - t[i]) * out[k - 1, i]
+            g = 0.0
+            if i + k + 1 <= m and t[i + k + 1] != t[i + 1]:
+                g = (t[i + k + 1] - u) / (t[i + k + 1] - t[i + 1]) * out[k - 1, i + 1]
+            out[k, i] = f + g
+    return out
+
+
+def uniform_knots(p: int, n_spans: int, lo: float, hi: float) -> np.ndarray:
+    """Clamped knot vector with ``n_spans`` equal spans over [lo, hi]: (n_spans + 2p + 1,)."""
+    inner = np.linspace(lo, hi, n_spans + 1)
+    return np.concatenate([np.full(p, lo), inner, np.full(p, hi)])
+
+
+# ---------------------------------------------------------------------------- smoothing matrices
+def gram_matrix(knots: np.ndarray, p: int, order: int) -> sp.csr_matrix:
+    """Exact Gram matrix G_ij = integral of N_i^(r) N_j^(r) over the knot domain, r = ``order``:
+    (n, n) sparse, bandwidth p. Gauss-Legendre with p+1 nodes per span (exact for degree 2p)."""
+    knots = np.asarray(knots, dtype=float)
+    n = len(knots) - p - 1
+    xg, wg = np.polynomial.legendre.leggauss(p + 1)
+    spans = np.arange(p, n)
+    a, b = knots[spans], knots[spans + 1]
+    keep = b > a
+    spans, a, b = spans[keep], a[keep], b[keep]
+    uq = (0.5 * (b - a)[:, None] * (xg[None, :] + 1.0) + a[:, None]).ravel()
+    wq = (0.5 * (b - a)[:, None] * wg[None, :]).ravel()
+    sq = np.repeat(spans, p + 1)
+    if order > p:
+        return sp.csr_matrix((n, n))
+    d = ders_basis_funs(sq, uq, p, knots, order)[:, order, :]  # (Q, p+1)
+    idx = sq[:, None] - p + np.arange(p + 1)
+    rows = np.repeat(idx, p + 1, axis=1).ravel()
+    cols = np.tile(idx, (1, p + 1)).ravel()
+    vals = (wq[:, None, None] * d[:, :, None] * d[:, None, :]).ravel()
+    return sp.csr_matrix((vals, (rows, cols)), shape=(n, n))
+
+
+def bending_matrix(knots_u, p: int, knots_v, q: int) -> sp.csr_matrix:
+    """Matrix G of the thin-plate energy E = sum_c P_c^T G P_c of a polynomial tensor-product
+    surface (P_c one coordinate of the control net flattened i * nv + j): (nu*nv, nu*nv)."""
+    mu, mv = gram_matrix(knots_u, p, 0), gram_matrix(knots_v, q, 0)
+    d1u, d1v = gram_matrix(knots_u, p, 1), gram_matrix(knots_v, q, 1)
+    d2u, d2v = gram_matrix(knots_u, p, 2), gram_matrix(knots_v, q, 2)
+    g = sp.kron(d2u, mv) + 2.0 * sp.kron(d1u, d1v) + sp.kron(mu, d2v)
+    return g.tocsr()
+
+
+# ---------------------------------------------------------------------------- normal equations
+@numba.njit(cache=True, error_model="numpy")
+def _assemble_range(ku, kv, p, q, cw, u, v, x, w, band, rhs, start, stop):  # pragma: no cover - compiled
+    """Accumulate A^T W A (banded: band[i, j, di + p, dj + q] couples control points (i, j) and
+    (i + di, j + dj)) and A^T W X (rhs (nu, nv, 3)) over points start..stop-1. A's entries are
+    the rational basis R_ab = Nu_a Nv_b cw_ab / sum Nu Nv cw (cw all ones: polynomial)."""
+    nu, nv = cw.shape
+    ndu_u = np.empty((p + 1, p + 1))
+    ndu_v = np.empty((q + 1, q + 1))
+    lu = np.empty(p + 1)
+    ru = np.empty(p + 1)
+    lv = np.empty(q + 1)
+    rv = np.empty(q + 1)
+    au = np.empty((2, p + 1))
+    av = np.empty((2, q + 1))
+    bu = np.empty((1, p + 1))
+    bv = np.empty((1, q + 1))
+    r = np.empty((p + 1, q + 1))
+    for t in range(start, stop):
+        wt = w[t]
+        if wt == 0.0:
+            continue
+        su = find_span_one(ku, p, nu, u[t])
+        sv = find_span_one(kv, q, nv, v[t])
+        ders_basis_one(su, u[t], p, ku, 0, ndu_u, lu, ru, au, bu)
+        ders_basis_one(sv, v[t], q, kv, 0, ndu_v, lv, rv, av, bv)
+        i0 = su - p
+        j0 = sv - q
+        den = 0.0
+        for a in range(p + 1):
+            for b in range(q + 1):
+                val = bu[0, a] * bv[0, b] * cw[i0 + a, j0 + b]
+                r[a, b] = val
+                den += val
+        inv = 1.0 / den
+        for a in range(p + 1):
+            for b in range(q + 1):
+                r[a, b] *= inv
+        x0, x1, x2 = x[t, 0], x[t, 1], x[t, 2]
+        for a in range(p + 1):
+            for b in range(q + 1):
+                ra = r[a, b] * wt
+                rhs[i0 + a, j0 + b, 0] += ra * x0
+                rhs[i0 + a, j0 + b, 1] += ra * x1
+                rhs[i0 + a, j0 + b, 2] += ra * x2
+                blk = band[i0 + a, j0 + b]
+                for c in range(p + 1):
+                    for d in range(q + 1):
+                        blk[c - a + p, d - b + q] += ra * r[c, d]
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _assemble_parallel(ku, kv, p, q, cw, u, v, x, w, bands, rhss):  # pragma: no cover - compiled
+    n = u.shape[0]
+    nt = bands.shape[0]
+    step = (n + nt - 1) // nt
+    for k in numba.prange(nt):
+        _assemble_range(ku, kv, p, q, cw, u, v, x, w, bands[k], rhss[k], k * step, min(n, (k + 1) * step))
+
+
+def _normal_equations(ku, kv, p, q, cw, u, v, x, w) -> tuple[sp.csr_matrix, np.ndarray]:
+    """(A^T W A as (n, n) CSR, A^T W X as (n, 3)), n = nu * nv, index i * nv + j."""
+    nu, nv = cw.shape
+    nt = max(1, min(numba.get_num_threads(), 1 + len(u) // 50000))
+    bands = np.zeros((nt, nu, nv, 2 * p + 1, 2 * q + 1))
+    rhss = np.zeros((nt, nu, nv, 3))
+    args = (np.ascontiguousarray(ku), np.ascontiguousarray(kv), int(p), int(q), np.ascontiguousarray(cw),
+            np.ascontiguousarray(u), np.ascontiguousarray(v), np.ascontiguousarray(x), np.ascontiguousarray(w))
+    if nt == 1:
+        _assemble_range(*args, bands[0], rhss[0], 0, len(u))
+    else:
+        _assemble_parallel(*args, bands, rhss)
+    band = bands.sum(axis=0)
+    rhs = rhss.sum(axis=0).reshape(nu * nv, 3)
+    i, j, di, dj = np.meshgrid(np.arange(nu), np.arange(nv), np.arange(-p, p + 1), np.arange(-q, q + 1), indexing="ij")
+    ii, jj = i + di, j + dj
+    ok = (ii >= 0) & (ii < nu) & (jj >= 0) & (jj < nv)
+    rows = (i * nv + j)[ok]
+    cols = (ii * nv + jj)[ok]
+    mat = sp.csr_matrix((band[ok], (rows, cols)), shape=(nu * nv, nu * nv))
+    return mat, rhs
+
+
+def solve_control_points(u, v, points, weights, knots_u, p: int, knots_v, q: int, *, ctrl_weights=None,
+                         smoothing: float = 0.0, gram: sp.csr_matrix | None = None) -> np.ndarray:
+    """Control points (nu, nv, 3) minimising sum w_k |S(u_k, v_k) - x_k|^2 + lam E (module doc).
+
+    u, v (N,), points (N, 3), weights (N,) >= 0; ctrl_weights (nu, nv) fixed NURBS weights (None:
+    polynomial); smoothing the dimensionless user weight (0: plain least squares, which needs data
+    under every control point); gram an already built `bending_matrix`. Raises FitError when the
+    system is singular (say where).
+    """
+    ku, kv = np.asarray(knots_u, dtype=float), np.asarray(knots_v, dtype=float)
+    nu, nv = len(ku) - p - 1, len(kv) - q - 1
+    cw = np.ones((nu, nv)) if ctrl_weights is None else np.asarray(ctrl_weights, dtype=float)
+    mat, rhs = _normal_equations(ku, kv, p, q, cw, u, v, points, weights)
+    if smoothing > 0.0:
+        if gram is None:
+            gram = bending_matrix(ku, p, kv, q)
+        lu_, lv_ = ku[-1] - ku[0], kv[-1] - kv[0]
+        lam = smoothing * float(np.sum(weights)) * max(lu_, lv_) ** 4 / (lu_ * lv_)
+        mat = mat + lam * gram
+    else:
+        diag = mat.diagonal()
+        empty = np.nonzero(diag <= 1e-14 * max(float(diag.max(initial=0.0)), 1e-300))[0]
+        if empty.size:
+            i, j = divmod(int(empty[0]), nv)
+            raise FitError(f"{empty.size} of {nu * nv} control points have no data under them "
+                           f"(first: ({i}, {j}) of {nu}x{nv}); give --smoothing > 0 or fewer control points")
+    try:
+        lu = spla.splu(mat.tocsc())
+        sol = lu.solve(rhs)
+    except RuntimeError as exc:  # SuperLU: "Factor is exactly singular"
+        raise FitError(f"the least-squares system of the {nu}x{nv} control net is singular ({exc}); "
+                       f"the points do not span the surface: give --smoothing > 0 or fewer control points") from None
+    if not np.all(np.isfinite(sol)):
+        raise FitError(f"the least-squares system of the {nu}x{nv} control net is singular: the points do not "
+                       f"span the surface; give --smoothing > 0 or fewer control points")
+    return sol.reshape(nu, nv, 3)
+
+
+# ---------------------------------------------------------------------------- noise
+@numba.njit(cache=True, error_model="numpy")
+def _local_scales(pts, nbr, out):  # pragma: no cover - compiled
+    """Robust noise scale per neighbourhood: quadratic height field h(a, b) in the PCA frame of
+    each neighbourhood (rows of nbr), 1.4826 x median |residual| x sqrt(k / (k - 6))."""
+    k = nbr.shape[1]
+    a = np.empty((k, 6))
+    h = np.empty(k)
+    loc = np.empty((k, 3))
+    for s in range(nbr.shape[0]):
+        c0 = 0.0
+        c1 = 0.0
+        c2 = 0.0
+        for j in range(k):
+            c0 += pts[nbr[s, j], 0]
+            c1 += pts[nbr[s, j], 1]
+            c2 += pts[nbr[s, j], 2]
+        c0 /= k
+        c1 /= k
+        c2 /= k
+        for j in range(k):
+            loc[j, 0] = pts[nbr[s, j], 0] - c0
+            loc[j, 1] = pts[nbr[s, j], 1] - c1
+            loc[j, 2] = pts[nbr[s, j], 2] - c2
+        cov = loc.T @ loc
+        _, vec = np.linalg.eigh(cov)  # ascending: vec[:, 0] is the normal
+        proj = loc @ vec
+        for j in range(k):
+            x = proj[j, 2]
+            y = proj[j, 1]
+            a[j, 0] = 1.0
+            a[j, 1] = x
+            a[j, 2] = y
+            a[j, 3] = x * x
+            a[j, 4] = x * y
+            a[j, 5] = y * y
+            h[j] = proj[j, 0]
+        coef = np.linalg.lstsq(a, h)[0]
+        res = np.abs(h - a @ coef)
+        out[s] = MAD_TO_SIGMA * np.median(res) * math.sqrt(k / (k - 6.0))
+
+
+def estimate_noise(points: np.ndarray, k: int = 12, sample: int = 20000, seed: int = 0) -> float:
+    """Noise sigma of scattered surface points from the data alone: median over up to ``sample``
+    points of the robust scale of a local quadratic fit to their k nearest neighbours (curvature
+    does not bias it; isolated outliers do not either). Model units; ~0 for exact data."""
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, dtype=float)
+    if len(pts) < k + 1:
+        return 0.0
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(pts), size=min(sample, len(pts)), replace=False)
+    tree = cKDTree(pts)
+    _, nbr = tree.query(pts[pick], k=k, workers=-1)
+    out = np.empty(len(pick))
+    _local_scales(pts, np.ascontiguousarray(nbr, dtype=np.int64), out)
+    return float(np.median(out))
+
+
+# ---------------------------------------------------------------------------- the fit
+@dataclass
+class SurfaceFit:
+    """Result of `fit_surface` for N points.
+
+    surface    the fitted NurbsSurface
+    u, v       (N,) final parameters (feet of the points on the fit)
+    distance   (N,) |x - S(u, v)| after the last parameter correction, model units
+    signed     (N,) (x - S) . n, n the unit normal of the fit at the foot
+    weight     (N,) final robust weight in [0, 1] (0: outlier, ignored by the fit)
+    stop       "tolerance", "control-net limit" or "no improvement"
+    tolerance, noise   the tolerance and the noise sigma used (model units)
+    history    one dict per refinement level: ctrl (nu, nv), max, rms, worst cell statistic
+    """
+
+    surface: NurbsSurface
+    u: np.ndarray
+    v: np.ndarray
+    distance: np.ndarray
+    signed: np.ndarray
+    weight: np.ndarray
+    stop: str
+    tolerance: float
+    noise: float
+    history: list[dict] = field(default_factory=list)
+
+    @property
+    def outliers(self) -> np.ndarray:
+        """(N,) bool: points the robust reweighting set to weight 0."""
+        return self.weight <= 0.0
+
+    @property
+    def max_deviation(self) -> float:
+        return float(self.distance.max())
+
+    @property
+    def rms(self) -> float:
+        return float(np.sqrt(np.mean(self.distance**2)))
+
+    def inlier_stats(self) -> tuple[float, float]:
+        """(max, rms) distance over the points that are not outliers."""
+        d = self.distance[~self.outliers]
+        return (float(d.max()), float(np.sqrt(np.mean(d**2)))) if d.size else (0.0, 0.0)
+
+
+def _robust_weights(r: np.ndarray, kind: str, floor: float) -> np.ndarray:
+    """Huber or Tukey weights of residuals r (N,) with scale 1.4826 MAD (at least ``floor``)."""
+    s = max(MAD_TO_SIGMA * float(np.median(np.abs(r))), floor, 1e-300)
+    z = np.abs(r) / s
+    if kind == "huber":
+        return np.minimum(1.0, HUBER_K / np.maximum(z, 1e-300))
+    if kind == "tukey":
+        t = z / TUKEY_C
+        return np.where(t < 1.0, (1.0 - t * t) ** 2, 0.0)
+    raise ValueError(f"robust must be 'tukey', 'huber' or None, got {kind!r}")
+
+
+def _cell_statistic(cell: np.ndarray, d: np.ndarray, q: float, n_cells: int) -> np.ndarray:
+    """Per cell (flat index, N,) the q-quantile of d (N,) (q = 1: the maximum); -inf if empty."""
+    out = np.full(n_cells, -np.inf)
+    if q >= 1.0:
+        np.maximum.at(out, cell, d)
+        return out
+    order = np.lexsort((d, cell))
+    cs, ds = cell[order], d[order]
+    starts = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+    counts = np.diff(np.r_[starts, len(cs)])
+    pick = starts + np.floor(q * (counts - 1)).astype(np.int64)
+    out[cs[starts]] = ds[pick]
+    return out
+
+
+def _variation(cell, bins, r, n_cells) -> np.ndarray:
+    """Variance over 4 bins (along one direction inside each cell) of the bins' mean residual."""
+    key = cell * 4 + bins
+    cnt = np.bincount(key, minlength=4 * n_cells).reshape(n_cells, 4)
+    sm = np.bincount(key, weights=r, minlength=4 * n_cells).reshape(n_cells, 4)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(cnt > 0, sm / np.maximum(cnt, 1), np.nan)
+    ok = cnt > 0
+    tot = np.maximum(ok.sum(axis=1), 1)
+    mu = np.nansum(mean, axis=1) / tot
+    return np.nansum(np.where(ok, (mean - mu[:, None]) ** 2, 0.0), axis=1) / tot
+
+
+def fit_surface(
+    points,
+    u,
+    v,
+    *,
+    degree: tuple[int, int] = (3, 3),
+    tolerance: float = 0.01,
+    knots: tuple[np.ndarray, np.ndarray] | None = None,
+    initial_spans: tuple[int, int] | None = None,
+    max_ctrl: tuple[int, int] = (60, 60),
+    smoothing: float = 1e-9,
+    robust: str | None = "tukey",
+    correct_parameters: bool = True,
+    refine: bool = True,
+    rational_base: NurbsSurface | None = None,
+    domain: tuple[float, float, float, float] | None = None,
+    noise: float | None = None,
+    point_weights=None,
+    max_levels: int = 12,
+    progress=None,
+) -> SurfaceFit:
+    """Fit one NURBS surface to points with start parameters, refining knots to a tolerance.
+
+    points (N, 3); u, v (N,) start parameters (from a base surface, `cadbridge.fitting`).
+    degree (p, q); tolerance: max deviation wanted (model units); knots: fixed start knot vectors
+    (clamped; default uniform with ``initial_spans`` spans, by default 4 along the longer side of
+    the domain); max_ctrl: control net limit (nu, nv); smoothing: thin-plate weight (module doc;
+    0 = plain least squares); robust: "tukey" (Huber, then Tukey), "huber" or None;
+    correct_parameters: re-project onto the fit each iteration; refine: insert knots (False: one
+    net, fixed knots); rational_base: a surface whose degrees, knots and weights the fit takes
+    (knots inserted into it carry the weights along; its control points are not used);
+    domain: (u0, u1, v0, v1) of the fit (default the box of the parameters); noise: sigma of
+    the data (default `estimate_noise`); point_weights (N,) >= 0; progress: object with
+    ``stage(text)`` (cadbridge.cli.Progress).
+    """
+    x = np.asarray(points, dtype=float)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise FitError(f"points must have shape (N, 3), got {x.shape}")
+    u = np.array(u, dtype=float).ravel()
+    v = np.array(v, dtype=float).ravel()
+    n = len(x)
+    if len(u) != n or len(v) != n:
+        raise FitError(f"{n} points but {len(u)} u and {len(v)} v parameters")
+    bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(u) & np.isfinite(v))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise FitError(f"{int(bad.sum())} points or parameters are not finite (first: point {k}, 0-based)")
+    if not tolerance > 0:
+        raise FitError(f"tolerance must be > 0, got {tolerance}")
+    if smoothing < 0:
+        raise FitError(f"smoothing must be >= 0, got {smoothing}")
+    pw_user = np.ones(n) if point_weights is None else np.asarray(point_weights, dtype=float).ravel()
+    if pw_user.shape != (n,) or not np.all(np.isfinite(pw_user)) or np.any(pw_user < 0):
+        raise FitError("point_weights must be (N,) finite and >= 0")
+
+    if rational_base is not None:
+        p, q = rational_base.degree_u, rational_base.degree_v
+        from cadbridge.nurbs.ops import restrict_surface
+
+        base = restrict_surface(rational_base, domain) if domain is not None else restrict_surface(rational_base)
+        ku, kv = base.knots_u.copy(), base.knots_v.copy()
+        dom = (ku[p], ku[-p - 1], kv[q], kv[-q - 1])
+    else:
+        p, q = (int(degree[0]), int(degree[1]))
+        base = None
+        if domain is None:
+            span_u, span_v = float(np.ptp(u)), float(np.ptp(v))
+            if not (span_u > 0 and span_v > 0):
+                raise FitError("the point parameters span no area (all points on one iso-line of the base): "
+                               "are the points collinear?")
+            dom = (float(u.min()), float(u.max()), float(v.min()), float(v.max()))
+        else:
+            dom = tuple(float(t) for t in domain)
+        if knots is not None:
+            ku, kv = (np.asarray(k, dtype=float) for k in knots)
+        else:
+            lu_, lv_ = dom[1] - dom[0], dom[3] - dom[2]
+            if initial_spans is None:
+                s = 4
+                initial_spans = (max(1, round(s * lu_ / max(lu_, lv_))), max(1, round(s * lv_ / max(lu_, lv_))))
+            ku = uniform_knots(p, int(initial_spans[0]), dom[0], dom[1])
+            kv = uniform_knots(q, int(initial_spans[1]), dom[2], dom[3])
+    validate_knots(ku, p, len(ku) - p - 1, "knots_u")
+    validate_knots(kv, q, len(kv) - q - 1, "knots_v")
+    dom = (ku[p], ku[-p - 1], kv[q], kv[-q - 1])
+    nu, nv = len(ku) - p - 1, len(kv) - q - 1
+    if n < nu * nv:
+        raise FitError(f"{n} points are fewer than the {nu}x{nv} = {nu * nv} control points of the start net")
+    if nu > max_ctrl[0] or nv > max_ctrl[1]:
+        raise FitError(f"the start net {nu}x{nv} exceeds the control net limit {max_ctrl[0]}x{max_ctrl[1]}")
+    u = np.clip(u, dom[0], dom[1])
+    v = np.clip(v, dom[2], dom[3])
+
+    sigma = estimate_noise(x) if noise is None else float(noise)
+    noisy = sigma > 0.05 * tolerance
+    q_stat, thresh = (0.9, tolerance + Q90_Z * sigma) if noisy else (1.0, tolerance)
+    stage = getattr(progress, "stage", None) or (lambda text: None)
+
+    def make_surface(ku, kv, cp, cw):
+        return NurbsSurface(p, q, ku, kv, cp, cw if base is not None else None)
+
+    def correct(surf, u, v):
+        """Foot parameters, distances and signed distances of all points on surf."""
+        if correct_parameters:
+            from cadbridge.nurbs.project import FAILED, project_to_surface
+
+            res = project_to_surface(surf, x, uv0=np.column_stack([u, v]), tol=1e-10, max_iter=12,
+                                     global_check=False)
+            ok = res.status != FAILED
+            u = np.where(ok, res.u, u)
+            v = np.where(ok, res.v, v)
+        foot = surf.evaluate(u, v)
+        r = x - foot
+        nrm = surf.normal(u, v)
+        signed = np.einsum("ij,ij->i", r, nrm)
+        dist = np.linalg.norm(r, axis=1)
+        signed = np.where(np.isfinite(signed), signed, dist)
+        return u, v, dist, signed
+
+    history: list[dict] = []
+    stop = "tolerance"
+    rob_w = np.ones(n)
+    best_worst = np.inf
+    stale = 0
+    for level in range(max_levels):
+        nu, nv = len(ku) - p - 1, len(kv) - q - 1
+        cw = base.weights if base is not None else np.ones((nu, nv))
+        gram = bending_matrix(ku, p, kv, q) if smoothing > 0 else None
+        n_iter = 1 if robust is None else 2
+        for it in range(n_iter):
+            stage(f"level {level + 1}: {nu}x{nv} control points, solve {it + 1}/{n_iter}")
+            cp = solve_control_points(u, v, x, pw_user * rob_w, ku, p, kv, q,
+                                      ctrl_weights=cw if base is not None else None, smoothing=smoothing, gram=gram)
+            surf = make_surface(ku, kv, cp, cw)
+            u, v, dist, signed = correct(surf, u, v)
+            if robust is not None:
+                rob_w = _robust_weights(signed, robust, 0.5 * tolerance)
+        # knot spans of each point and the cell statistic
+        iu = find_span(ku, p, u) - p
+        iv = find_span(kv, q, v) - q
+        nsu, nsv = len(ku) - 2 * p - 1, len(kv) - 2 * q - 1
+        # span indices over the distinct spans (all spans are non-empty: insertion keeps them so)
+        cell = iu * nsv + iv
+        stat = _cell_statistic(cell, dist, q_stat, nsu * nsv)
+        worst = float(stat.max())
+        history.append(dict(ctrl=(nu, nv), max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
+                            worst_cell=worst, outliers=int(np.count_nonzero(rob_w <= 0))))
+        flagged = np.nonzero(stat > thresh)[0]
+        if not refine:
+            stop = "tolerance" if flagged.size == 0 else "fixed knots"
+            break
+        if flagged.size == 0:
+            stop = "tolerance"
+            break
+        if worst < 0.98 * best_worst:
+            best_worst, stale = worst, 0
+        else:
+            stale += 1
+            if stale >= 2:
+                stop = "no improvement"
+                break
+        # direction of refinement: the direction(s) along which a flagged cell's residuals vary
+        lo_u, hi_u = ku[p + iu], ku[p + iu + 1]
+        lo_v, hi_v = kv[q + iv], kv[q + iv + 1]
+        bu = np.clip(((u - lo_u) / np.maximum(hi_u - lo_u, 1e-300) * 4).astype(np.int64), 0, 3)
+        bv = np.clip(((v - lo_v) / np.maximum(hi_v - lo_v, 1e-300) * 4).astype(np.int64), 0, 3)
+        var_u = _variation(cell, bu, signed, nsu * nsv)
+        var_v = _variation(cell, bv, signed, nsu * nsv)
+        top = np.maximum(var_u, var_v)
+        want_u = flagged[var_u[flagged] >= 0.3 * top[flagged]]
+        want_v = flagged[var_v[flagged] >= 0.3 * top[flagged]]
+        cnt = np.bincount(cell, minlength=nsu * nsv)
+        # a span is split only where it holds enough points for the extra control points
+        score_u = np.full(nsu, -np.inf)
+        score_v = np.full(nsv, -np.inf)
+        np.maximum.at(score_u, want_u // nsv, stat[want_u])
+        np.maximum.at(score_v, want_v % nsv, stat[want_v])
+        col_pts = cnt.reshape(nsu, nsv).sum(axis=1)
+        row_pts = cnt.reshape(nsu, nsv).sum(axis=0)
+        score_u[col_pts < 2 * nv] = -np.inf  # a u knot adds nv control points
+        score_v[row_pts < 2 * nu] = -np.inf  # a v knot adds nu
+        room_u, room_v = max_ctrl[0] - nu, max_ctrl[1] - nv
+        su_idx = np.argsort(-score_u)[: max(room_u, 0)]
+        su_idx = su_idx[np.isfinite(score_u[su_idx])]
+        sv_idx = np.argsort(-score_v)[: max(room_v, 0)]
+        sv_idx = sv_idx[np.isfinite(score_v[sv_idx])]
+        if su_idx.size == 0 and sv_idx.size == 0:
+            stop = "control-net limit" if (room_u <= 0 or room_v <= 0) else "no improvement"
+            break
+        new_u = 0.5 * (ku[p + su_idx] + ku[p + su_idx + 1])
+        new_v = 0.5 * (kv[q + sv_idx] + kv[q + sv_idx + 1])
+        if base is not None:
+            from cadbridge.nurbs.ops import refine_surface
+
+            base = refine_surface(base, new_u, new_v)
+            ku, kv = base.knots_u.copy(), base.knots_v.copy()
+        else:
+            ku = np.sort(np.concatenate([ku, new_u]))
+            kv = np.sort(np.concatenate([kv, new_v]))
+        if robust is not None:  # restart from Huber on the refined net (see module doc)
+            rob_w = _robust_weights(signed, "huber", 0.5 * tolerance)
+        if level == max_levels - 1:
+            stop = "no improvement"
+    if stop == "tolerance" and history and history[-1]["worst_cell"] > thresh:
+        stop = "no improvement"
+    final_w = rob_w if robust is not None else np.ones(n)
+    return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), stop, float(tolerance), sigma, history)
