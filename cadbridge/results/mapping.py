@@ -1,0 +1,465 @@
+"""Nodal results mapped onto the exact CAD faces, once (Hawkins 1989, ch. 4).
+
+`map_results(mesh, values, model)` inverts every node once to its face and (u, v)
+(`cadbridge.normals.cad.cad_normals`: global box search + Newton, the farthest nodes named
+when the mesh is off the CAD), gives every element the (u, v) of its corners on the
+element's own face (a corner whose node projected onto a neighbouring face is projected
+again onto the element's face: nodes on a shared face edge have a (u, v) on both faces),
+and splits the elements into parameter-space triangles ("sub-triangles"):
+
+- triangles stay as they are; quadrilaterals are split at their centre, whose value is the
+  mean of the corner values (Hawkins' element "center value", Fig. 4.1 / 5.7);
+- seams (a closed direction of a face, `closed_directions`): element corners are unwrapped
+  to one side of the seam and triangles crossing it are cut at the seam line, the far part
+  moved back by one period, so every sub-triangle lies in the face's domain (Hawkins §4.4,
+  §4.6); seam nodes keep both parameter values, one per side;
+- poles (a collapsed side of the domain): a pole corner's position along the pole line is
+  undefined, so the corner becomes two vertices on the pole line under its two neighbours
+  (the element becomes a quadrilateral in (u, v), split at its centre), which covers the
+  parameter domain up to the pole exactly (Hawkins Fig. 5.8).
+
+Inside a sub-triangle the field and the (u, v) are both linear in the barycentric
+coordinates; a point of the result is S(u, v) on the exact surface. The exact area of every
+sub-triangle, the integral of |Su x Sv| over its (u, v) triangle (conical Gauss product
+rule), is computed here once, so re-levelling only clips the triangles that levels cross.
+
+The returned `ResultMapping` re-contours (`.contour(levels)`) without repeating any of this.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cadbridge.mesh.mesh import Mesh
+from cadbridge.model import Model
+from cadbridge.nurbs.project import closed_directions, project_to_surface
+
+__all__ = ["ResultMapping", "map_results", "triangle_rule", "surface_area_of_triangles", "face_topology"]
+
+_SNAP = 1e-12  # parameters this close (x domain length) to a domain bound are put on it
+
+
+def triangle_rule(n: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Conical Gauss product rule on the reference triangle: barycentric points (n^2, 3) and
+    weights (n^2,) summing to 1 (exact for polynomials of degree 2n - 1)."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    x = 0.5 * (x + 1.0)
+    w = 0.5 * w
+    a, b = np.meshgrid(x, x, indexing="ij")  # Duffy: s = a, t = b (1 - a)
+    wa, wb = np.meshgrid(w, w, indexing="ij")
+    s = a.ravel()
+    t = (b * (1.0 - a)).ravel()
+    ww = (wa * wb * (1.0 - a)).ravel() * 2.0
+    return np.column_stack([1.0 - s - t, s, t]), ww
+
+
+def surface_area_of_triangles(surface, uv: np.ndarray, n: int = 4) -> np.ndarray:
+    """Exact-surface area of (T, 3, 2) parameter triangles: the integral of |Su x Sv| over
+    each, by the conical Gauss rule of order ``n``. (T,) in model units squared."""
+    uv = np.asarray(uv, dtype=float)
+    if len(uv) == 0:
+        return np.zeros(0)
+    bary, w = triangle_rule(n)
+    pts = np.einsum("qk,tkd->tqd", bary, uv).reshape(-1, 2)
+    u0, u1, v0, v1 = surface.domain
+    d = surface.derivatives(np.clip(pts[:, 0], u0, u1), np.clip(pts[:, 1], v0, v1), order=1)
+    jac = np.linalg.norm(np.cross(d[:, 1, 0], d[:, 0, 1]), axis=1).reshape(len(uv), -1)
+    e1 = uv[:, 1] - uv[:, 0]
+    e2 = uv[:, 2] - uv[:, 0]
+    a_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    return a_uv * (jac @ w)
+
+
+@dataclass(frozen=True)
+class FaceTopology:
+    """Closed directions and collapsed domain sides of one face.
+
+    closed  (closed_u, closed_v)
+    poles   {(axis, value)}: the domain side ``axis`` = value (axis 0: u = value, a line
+            along v) collapses to one point
+    """
+
+    closed: tuple[bool, bool]
+    poles: tuple[tuple[int, float], ...]
+
+
+def face_topology(surface, n: int = 33, rel_tol: float = 1e-10) -> FaceTopology:
+    """Seams (`closed_directions`) and poles (a domain side whose points coincide within
+    ``rel_tol`` x surface size) of ``surface``."""
+    closed = closed_directions(surface)
+    u0, u1, v0, v1 = surface.domain
+    b = surface.bbox()
+    tol = rel_tol * max(float(np.linalg.norm(b[1] - b[0])), 1e-300)
+    t = np.linspace(0.0, 1.0, n)
+    poles = []
+    for axis, val in ((0, u0), (0, u1), (1, v0), (1, v1)):
+        if axis == 0:
+            p = surface.evaluate(np.full(n, val), v0 + (v1 - v0) * t)
+        else:
+            p = surface.evaluate(u0 + (u1 - u0) * t, np.full(n, val))
+        if float(np.max(np.ptp(p, axis=0))) <= tol:
+            poles.append((axis, float(val)))
+    return FaceTopology((bool(closed[0]), bool(closed[1])), tuple(poles))
+
+
+@dataclass
+class ResultMapping:
+    """Nodal field on the exact CAD: everything the contours and bands need, computed once.
+
+    model        the `Model`
+    nodes        (N, 3) result mesh nodes
+    values       (N,) the field at the nodes
+    field_name   its name; ``source`` how nodal values were obtained (`NodalField.source`)
+    face, u, v   (N,) each node's face and parameters (the nearest face)
+    distance     (N,) node-to-CAD distance
+    element_face (E,) the face each element lies on (all cell blocks in order)
+    corner_uv    list per cell block of (E_b, k, 2): element corners' (u, v) on the element's
+                 face, seam-unwrapped (seam nodes have one value per side here)
+    seam, pole   (N,) bool: node on a seam / at a pole of its element faces
+    tri_face     (T,) face of each sub-triangle; tri_uv (T, 3, 2) counter-clockwise in
+                 (u, v); tri_f (T, 3) field; tri_key (T, 3) int64 vertex keys (node index,
+                 N + element for centres, more for seam cuts) that identify the same point
+                 of the mesh across elements, faces and seams; tri_area (T,) exact area
+    topology     per face `FaceTopology`
+    timings      seconds per stage of the mapping
+    """
+
+    model: Model
+    nodes: np.ndarray
+    values: np.ndarray
+    field_name: str
+    source: str
+    face: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    distance: np.ndarray
+    element_face: np.ndarray
+    corner_uv: list[np.ndarray]
+    seam: np.ndarray
+    pole: np.ndarray
+    tri_face: np.ndarray
+    tri_uv: np.ndarray
+    tri_f: np.ndarray
+    tri_key: np.ndarray
+    tri_area: np.ndarray
+    topology: list[FaceTopology]
+    n_keys: int
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def size(self) -> float:
+        return self.model.size()
+
+    def levels(self, levels: int | list[float] = 8, vmin: float | None = None, vmax: float | None = None) -> np.ndarray:
+        """Contour levels: ``levels`` equal bands between vmin and vmax (default the data range),
+        or the given increasing values. (L,)"""
+        from cadbridge.results.contours import make_levels
+
+        return make_levels(self.values, levels, vmin, vmax)
+
+    def face_area(self) -> np.ndarray:
+        """Exact area covered by the mapped elements per face, (F,)."""
+        return np.bincount(self.tri_face, weights=self.tri_area, minlength=len(self.model.faces))
+
+    def contour(self, levels: int | list[float] = 8, vmin: float | None = None, vmax: float | None = None,
+                *, chord_tol: float | None = None):
+        """Contour lines and bands at these levels (`cadbridge.results.contours.Contours`);
+        the inversion is not repeated."""
+        from cadbridge.results.contours import contour
+
+        return contour(self, self.levels(levels, vmin, vmax), chord_tol=chord_tol)
+
+
+def _snap(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    tol = _SNAP * (hi - lo)
+    x = np.where(np.abs(x - lo) <= tol, lo, x)
+    return np.where(np.abs(x - hi) <= tol, hi, x)
+
+
+def _corner_params(mesh: Mesh, model: Model, face: np.ndarray, u: np.ndarray, v: np.ndarray,
+                   element_face: np.ndarray) -> list[np.ndarray]:
+    """(E_b, k, 2) corner (u, v) on each element's face; foreign corners projected once per
+    (node, face) pair onto that face's surface."""
+    blocks = [np.asarray(b.data) for b in mesh.cells]
+    out = []
+    pairs_n, pairs_f = [], []
+    off = 0
+    for c in blocks:
+        ef = element_face[off : off + len(c)]
+        uv = np.stack([u[c], v[c]], axis=-1)
+        foreign = face[c] != ef[:, None]
+        pairs_n.append(c[foreign])
+        pairs_f.append(np.broadcast_to(ef[:, None], c.shape)[foreign])
+        out.append(uv)
+        off += len(c)
+    pn = np.concatenate(pairs_n) if pairs_n else np.zeros(0, dtype=np.int64)
+    pf = np.concatenate(pairs_f) if pairs_f else np.zeros(0, dtype=np.int64)
+    if len(pn):
+        codes = pf.astype(np.int64) * len(face) + pn
+        uniq, inv = np.unique(codes, return_inverse=True)
+        un, uf = uniq % len(face), uniq // len(face)
+        uu = np.empty(len(uniq))
+        vv = np.empty(len(uniq))
+        for f in np.unique(uf):
+            sel = np.flatnonzero(uf == f)
+            sp = project_to_surface(model.faces[int(f)].surface, mesh.nodes[un[sel]])
+            uu[sel], vv[sel] = sp.u, sp.v
+        k = 0
+        off = 0
+        for c, uv in zip(blocks, out):
+            ef = element_face[off : off + len(c)]
+            foreign = face[c] != ef[:, None]
+            m = int(foreign.sum())
+            sel = inv[k : k + m]
+            uv[foreign] = np.column_stack([uu[sel], vv[sel]])
+            k += m
+            off += len(c)
+    return out
+
+
+def _unwrap(uv: np.ndarray, ef: np.ndarray, model: Model, topo: list[FaceTopology], pole_mask: np.ndarray) -> None:
+    """In place: shift corner parameters of closed directions by whole periods so each element
+    is compact (within half a period of its first non-pole corner), and whole elements lying
+    beyond a seam back into the domain."""
+    for f in np.unique(ef):
+        t = topo[f]
+        if not any(t.closed):
+            continue
+        sel = np.flatnonzero(ef == f)
+        dom = model.faces[f].surface.domain
+        for axis in (0, 1):
+            if not t.closed[axis]:
+                continue
+            lo, hi = dom[2 * axis], dom[2 * axis + 1]
+            per = hi - lo
+            x = uv[sel, :, axis]
+            pm = pole_mask[sel]
+            first = np.argmax(~pm, axis=1)
+            ref = x[np.arange(len(sel)), first]
+            x = x + per * np.round((ref[:, None] - x) / per)
+            big = np.where(pm, -np.inf, x).max(axis=1)
+            small = np.where(pm, np.inf, x).min(axis=1)
+            eps = 1e-12 * per
+            x = x - per * (small >= hi - eps)[:, None] + per * (big <= lo + eps)[:, None]
+            uv[sel, :, axis] = x
+
+
+def map_results(mesh: Mesh, values, model: Model, *, field_name: str = "field", source: str = "point data",
+                tolerance: float | None = None, quadrature: int = 4, progress=None) -> ResultMapping:
+    """Map nodal ``values`` (N,) on ``mesh`` onto the faces of ``model`` (see the module text).
+
+    tolerance   node-to-CAD distance above which the mesh counts as off the CAD (default
+                1e-4 x model size): `cadbridge.normals.cad.ProjectionError` names the
+                farthest nodes.
+    quadrature  order n of the conical Gauss rule (n^2 points) for the exact areas.
+    """
+    from cadbridge.normals.cad import cad_normals
+
+    t0 = time.perf_counter()
+    vals = np.asarray(values, dtype=float).reshape(-1)
+    if len(vals) != mesh.n_nodes:
+        raise ValueError(f"{len(vals)} values for {mesh.n_nodes} nodes")
+    if not np.all(np.isfinite(vals)):
+        raise ValueError(f"values are not finite at nodes {np.flatnonzero(~np.isfinite(vals))[:5].tolist()}")
+    if progress is not None:
+        progress.stage(f"inverting {mesh.n_nodes} nodes onto {len(model.faces)} faces")
+    cn = cad_normals(mesh, model, tolerance=tolerance, orient=True)
+    mesh = cn.mesh if cn.mesh is not None else mesh
+    timings = {"inversion": time.perf_counter() - t0}
+    t1 = time.perf_counter()
+    face, u, v = cn.face.astype(np.int64), np.asarray(cn.u, float), np.asarray(cn.v, float)
+    element_face = np.concatenate(cn.element_face).astype(np.int64)
+    if np.any(element_face < 0):
+        bad = np.flatnonzero(element_face < 0)
+        raise ValueError(f"{bad.size} elements could not be placed on a face (first: {bad[:5].tolist()})")
+    topo = [face_topology(f.surface) for f in model.faces]
+    corner_uv = _corner_params(mesh, model, face, u, v, element_face)
+
+    n = mesh.n_nodes
+    nodes = np.asarray(mesh.nodes, dtype=float)
+    seam = np.zeros(n, dtype=bool)
+    pole = np.zeros(n, dtype=bool)
+    tris_uv, tris_f, tris_key, tris_face = [], [], [], []
+    special = []  # (element index, face, corner keys, corner uv, corner f, pole mask)
+    off = 0
+    for blk, uv in zip(mesh.cells, corner_uv):
+        c = np.asarray(blk.data)
+        ef = element_face[off : off + len(c)]
+        # snap to the domain bounds, mark pole corners
+        pm = np.zeros(c.shape, dtype=bool)
+        for f in np.unique(ef):
+            sel = np.flatnonzero(ef == f)
+            dom = model.faces[f].surface.domain
+            for axis in (0, 1):
+                uv[sel, :, axis] = _snap(uv[sel, :, axis], dom[2 * axis], dom[2 * axis + 1])
+                if topo[f].closed[axis]:
+                    x = uv[sel, :, axis]
+                    on = (x == dom[2 * axis]) | (x == dom[2 * axis + 1])
+                    seam[c[sel][on]] = True
+            for axis, val in topo[f].poles:
+                pm[sel] |= uv[sel, :, axis] == val
+        pole[c[pm]] = True
+        _unwrap(uv, ef, model, topo, pm)
+        fv = vals[c]
+        has_pole = pm.any(axis=1)
+        reg = np.flatnonzero(~has_pole)
+        eidx = off + np.arange(len(c))
+        if c.shape[1] == 3:
+            tris_uv.append(uv[reg])
+            tris_f.append(fv[reg])
+            tris_key.append(c[reg].astype(np.int64))
+            tris_face.append(ef[reg])
+        else:
+            cu = uv[reg].mean(axis=1)
+            cf = fv[reg].mean(axis=1)
+            ck = n + eidx[reg]
+            for k in range(4):
+                k1 = (k + 1) % 4
+                tris_uv.append(np.stack([cu, uv[reg, k], uv[reg, k1]], axis=1))
+                tris_f.append(np.column_stack([cf, fv[reg, k], fv[reg, k1]]))
+                tris_key.append(np.column_stack([ck, c[reg, k], c[reg, k1]]).astype(np.int64))
+                tris_face.append(ef[reg])
+        for e in np.flatnonzero(has_pole):
+            special.append((off + e, int(ef[e]), c[e], uv[e], fv[e], pm[e]))
+        off += len(c)
+
+    # elements with a pole corner: the corner doubled under its neighbours, centre split
+    for e, f, keys, uv, fv, pm in special:
+        k = len(keys)
+        axis = next(a for a, val in topo[f].poles if np.any(uv[pm, a] == val))
+        pu, pf, pk = [], [], []
+        for i in range(k):
+            if pm[i]:
+                for j in ((i - 1) % k, (i + 1) % k):
+                    if pm[j]:
+                        continue
+                    q = uv[i].copy()
+                    q[1 - axis] = uv[j, 1 - axis]
+                    if j == (i - 1) % k or not pu or not np.array_equal(pu[-1], q):
+                        pu.append(q)
+                        pf.append(fv[i])
+                        pk.append(keys[i])
+            else:
+                pu.append(uv[i])
+                pf.append(fv[i])
+                pk.append(keys[i])
+        pu, pf, pk = np.array(pu), np.array(pf), np.array(pk, dtype=np.int64)
+        if len(pu) < 3:
+            continue  # an element with all corners at the pole covers nothing
+        if len(pu) == 3:
+            tris_uv.append(pu[None])
+            tris_f.append(pf[None])
+            tris_key.append(pk[None])
+            tris_face.append(np.array([f]))
+            continue
+        cu, cf = pu.mean(axis=0), pf.mean()
+        for i in range(len(pu)):
+            i1 = (i + 1) % len(pu)
+            tris_uv.append(np.array([[cu, pu[i], pu[i1]]]))
+            tris_f.append(np.array([[cf, pf[i], pf[i1]]]))
+            tris_key.append(np.array([[n + e, pk[i], pk[i1]]], dtype=np.int64))
+            tris_face.append(np.array([f]))
+
+    t_uv = np.concatenate(tris_uv).astype(float)
+    t_f = np.concatenate(tris_f).astype(float)
+    t_key = np.concatenate(tris_key)
+    t_face = np.concatenate(tris_face).astype(np.int64)
+    n_keys = n + len(element_face)
+    t_uv, t_f, t_key, t_face, n_keys = _cut_seams(t_uv, t_f, t_key, t_face, model, topo, n_keys)
+
+    # counter-clockwise in (u, v)
+    e1 = t_uv[:, 1] - t_uv[:, 0]
+    e2 = t_uv[:, 2] - t_uv[:, 0]
+    cw = (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0
+    for a in (t_uv, t_f, t_key):
+        a[cw, 1], a[cw, 2] = a[cw, 2].copy(), a[cw, 1].copy()
+    timings["sub-triangles"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    if progress is not None:
+        progress.stage(f"exact areas of {len(t_face)} parameter triangles")
+    area = np.zeros(len(t_face))
+    order = np.argsort(t_face, kind="stable")
+    cuts = np.flatnonzero(np.diff(t_face[order])) + 1
+    for grp in np.split(order, cuts):
+        if len(grp):
+            area[grp] = surface_area_of_triangles(model.faces[int(t_face[grp[0]])].surface, t_uv[grp], quadrature)
+    timings["areas"] = time.perf_counter() - t2
+    return ResultMapping(model=model, nodes=nodes, values=vals, field_name=field_name, source=source, face=face, u=u,
+                         v=v, distance=np.asarray(cn.distance, float), element_face=element_face, corner_uv=corner_uv,
+                         seam=seam, pole=pole, tri_face=t_face, tri_uv=t_uv, tri_f=t_f, tri_key=t_key, tri_area=area,
+                         topology=topo, n_keys=n_keys, timings=timings)
+
+
+def _clip_side(poly: list, axis: int, c: float, keep_below: bool, cut_keys: dict, n_keys: list) -> list:
+    """Sutherland-Hodgman clip of a polygon [(uv, f, key), ...] by the line x_axis = c."""
+    out = []
+    m = len(poly)
+    for i in range(m):
+        a, b = poly[i], poly[(i + 1) % m]
+        ina = a[0][axis] <= c if keep_below else a[0][axis] >= c
+        inb = b[0][axis] <= c if keep_below else b[0][axis] >= c
+        if ina:
+            out.append(a)
+        if ina != inb:
+            p, q = (a, b) if a[2] < b[2] else (b, a)  # canonical order: same cut on both sides
+            t = (c - p[0][axis]) / (q[0][axis] - p[0][axis])
+            uv = p[0] + t * (q[0] - p[0])
+            uv[axis] = c
+            key = cut_keys.get((p[2], q[2]))
+            if key is None:
+                key = cut_keys[(p[2], q[2])] = n_keys[0]
+                n_keys[0] += 1
+            out.append((uv, p[1] + t * (q[1] - p[1]), key))
+    return out
+
+
+def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology], n_keys: int):
+    """Cut sub-triangles that reach beyond a seam at the seam line; the far part moves back by
+    one period. New vertices get keys per cut mesh edge (the same on both sides)."""
+    extra_uv, extra_f, extra_key, extra_face = [], [], [], []
+    drop = np.zeros(len(t_face), dtype=bool)
+    cut_keys: dict = {}
+    nk = [n_keys]
+    for f in np.unique(t_face):
+        t = topo[f]
+        if not any(t.closed):
+            continue
+        dom = model.faces[f].surface.domain
+        sel = np.flatnonzero(t_face == f)
+        for axis in (0, 1):
+            if not t.closed[axis]:
+                continue
+            lo, hi = dom[2 * axis], dom[2 * axis + 1]
+            eps = 1e-12 * (hi - lo)
+            x = t_uv[sel, :, axis]
+            out = sel[(x.max(axis=1) > hi + eps) | (x.min(axis=1) < lo - eps)]
+            drop[out] = True
+            for ti in out:
+                poly = [(t_uv[ti, k].copy(), t_f[ti, k], int(t_key[ti, k])) for k in range(3)]
+                pieces = []
+                if t_uv[ti, :, axis].max() > hi + eps:
+                    pieces.append((_clip_side(poly, axis, hi, True, cut_keys, nk), 0.0))
+                    pieces.append((_clip_side(poly, axis, hi, False, cut_keys, nk), -(hi - lo)))
+                else:
+                    pieces.append((_clip_side(poly, axis, lo, False, cut_keys, nk), 0.0))
+                    pieces.append((_clip_side(poly, axis, lo, True, cut_keys, nk), hi - lo))
+                for pc, shift in pieces:
+                    if len(pc) < 3:
+                        continue
+                    for j in range(1, len(pc) - 1):
+                        tri = [pc[0], pc[j], pc[j + 1]]
+                        uvs = np.array([p[0] for p in tri])
+                        uvs[:, axis] = _snap(uvs[:, axis] + shift, lo, hi)
+                        extra_uv.append(uvs)
+                        extra_f.append([p[1] for p in tri])
+                        extra_key.append([p[2] for p in tri])
+                        extra_face.append(f)
+    if not extra_face:
+        return t_uv, t_f, t_key, t_face, n_keys
+    keep = ~drop
+    return (np.concatenate([t_uv[keep], np.array(extra_uv)]), np.concatenate([t_f[keep], np.array(extra_f)]),
+            np.concatenate([t_key[keep], np.array(extra_key, dtype=np.int64)]),
+            np.concatenate([t_face[keep], np.array(extra_face, dtype=np.int64)]), nk[0])
