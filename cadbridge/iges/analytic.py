@@ -1054,7 +1054,9 @@ def invert_edges(surface: NurbsSurface, pieces: list[NurbsCurve], rel_gap: float
     diagonal (along a degenerate edge of S: a pole), the straight (u, v) line between the two
     is inserted (it maps to that one point). Returns the (u, v) pieces. Raises ValueError
     when a piece cannot be projected or the loop winds around a closed direction."""
-    from cadbridge.nurbs.project import FAILED, closed_directions, project_to_surface
+    from cadbridge.iges.edgefeet import edge_feet
+    from cadbridge.iges.trimcheck import PackedCurves
+    from cadbridge.nurbs.project import surface_samples
 
     if not pieces:
         raise ValueError("empty trim loop")
@@ -1062,18 +1064,20 @@ def invert_edges(surface: NurbsSurface, pieces: list[NurbsCurve], rel_gap: float
     diag = float(np.hypot(u1 - u0, v1 - v0))
     box = surface.bbox()
     size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
-    closed = closed_directions(surface)
-    period = (u1 - u0 if closed[0] else 0.0, v1 - v0 if closed[1] else 0.0)
+    samples = surface_samples(surface)  # cached per surface; its closed directions are `closed_directions`
+    period = (u1 - u0 if samples.closed_u else 0.0, v1 - v0 if samples.closed_v else 0.0)
     pole_tol = 1e-9 * size / max(diag, 1e-300)
-    ts = [c.sample_parameters(MIN_PER_SPAN) for c in pieces]
-    pts = [_eval(c, t) for c, t in zip(pieces, ts)]
-    allp = np.vstack(pts)
-    res = project_to_surface(surface, allp)
-    if np.any(res.status == FAILED):
-        raise ValueError(f"{int(np.sum(res.status == FAILED))} points of the model-space edges could not be "
+    packed = PackedCurves(pieces)  # all pieces sampled and evaluated in one compiled call each
+    ci, tt = packed.sample(MIN_PER_SPAN)
+    allp = packed.evaluate(ci, tt, 0)[:, 0]
+    starts = np.searchsorted(ci, np.arange(len(pieces) + 1))
+    uv, failed = edge_feet(surface, allp, tt, starts, pole_tol)  # global feet (continued along each piece)
+    if np.any(failed):
+        raise ValueError(f"{int(np.sum(failed))} points of the model-space edges could not be "
                          "projected onto the surface")
-    uv = np.column_stack([res.u, res.v])
-    cuts = np.cumsum([len(t) for t in ts])[:-1]
+    cuts = starts[1:-1]
+    ts = np.split(tt, cuts)
+    pts = np.split(allp, cuts)
     d = surface.derivatives(uv[:, 0], uv[:, 1], order=1)
     # poles: fill an undefined parameter from the nearest defined sample of the same piece
     for k, dk in ((0, d[:, 1, 0]), (1, d[:, 0, 1])):

@@ -1202,8 +1202,10 @@ class Builder:
             self.note(f"B-rep loop without parameter-space curves: model-space edges not invertible ({exc})", de)
             return None
         u0, u1, v0, v1 = surface.domain
-        a = curves[0].evaluate([curves[0].domain[0]])[0]
-        b = curves[-1].evaluate([curves[-1].domain[1]])[0]
+        # ends of the loop: an inverted piece's reference table holds the feet of its end
+        # points (what its evaluation converges to from there); a bridge line is evaluated
+        a = curves[0].nat_ref[0] if hasattr(curves[0], "nat_ref") else curves[0].evaluate([curves[0].domain[0]])[0]
+        b = curves[-1].nat_ref[-1] if hasattr(curves[-1], "nat_ref") else curves[-1].evaluate([curves[-1].domain[1]])[0]
         gap = float(np.linalg.norm(a - b))
         if not gap <= 1e-6 * np.hypot(u1 - u0, v1 - v0):
             self.note(f"B-rep loop without parameter-space curves: its model-space edges do not close on the "
