@@ -23,6 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from cadbridge.results.mapping import surface_area_of_triangles
 
@@ -76,12 +79,14 @@ class BandRegion:
 
     band, face   indices; outer (n, 2) counter-clockwise loop (first point not repeated);
     holes        list of (m, 2) clockwise loops inside it
+    area         exact area: the sum of the band's pieces inside the region
     """
 
     band: int
     face: int
     outer: np.ndarray
     holes: list[np.ndarray]
+    area: float = 0.0
 
 
 @dataclass
@@ -105,6 +110,7 @@ class Bands:
     pieces_face: np.ndarray
     pieces_poly: np.ndarray
     pieces_count: np.ndarray
+    pieces_area: np.ndarray
     mapping: object = field(repr=False, default=None)
 
     @property
@@ -153,10 +159,22 @@ class Bands:
         ea, eb = np.concatenate(ea), np.concatenate(eb)
         eband, eface = np.concatenate(eband), np.concatenate(eface)
         del T
-        # vertex ids from exact (face, u, v)
+        # vertex ids: the same (face, u, v) up to 1e-11 of the face's domain (vertices moved
+        # back through a seam by one period differ from their neighbours' in the last bits)
         allv = np.concatenate([np.column_stack([eface, ea]), np.column_stack([eface, eb])])
         uniq, inv = np.unique(allv, axis=0, return_inverse=True)
         inv = inv.reshape(-1)
+        dom = np.array([f.surface.domain for f in m.model.faces])[uniq[:, 0].astype(np.int64)]
+        span = np.maximum(np.stack([dom[:, 1] - dom[:, 0], dom[:, 3] - dom[:, 2]], axis=1), 1e-300)
+        norm = (uniq[:, 1:] - dom[:, [0, 2]]) / span
+        norm[:, 0] += 4.0 * uniq[:, 0]  # faces never merge
+        pairs = cKDTree(norm).query_pairs(1e-11, output_type="ndarray")
+        if len(pairs):
+            g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(uniq), len(uniq)))
+            _, rep = connected_components(g, directed=False)
+            first = np.full(rep.max() + 1, -1)
+            first[rep[::-1]] = np.arange(len(rep))[::-1]
+            inv = first[rep][inv]
         ia, ib = inv[: len(ea)], inv[len(ea):]
         nv = np.int64(len(uniq))
         keep = ia != ib
@@ -210,8 +228,35 @@ class Bands:
                             best, best_a = r, a
                 if best is not None:
                     best.holes.append(h)
+            self._region_areas(regs)
             regions += regs
         return regions
+
+
+    def _region_areas(self, regs: list[BandRegion]) -> None:
+        """Each region's area: the band's polygons on its face whose centroid lies in it (the
+        loops are exactly these polygons' outline, so the polygon test is exact here)."""
+        from cadbridge.model import points_in_polygon
+
+        if not regs:
+            return
+        b, f = regs[0].band, regs[0].face
+        if len(regs) == 1:
+            regs[0].area = float(self.face_area[b, f])
+            return
+        m = self.mapping
+        sel = np.flatnonzero((self.whole == b) & (m.tri_face == f))
+        ps = np.flatnonzero((self.pieces_band == b) & (self.pieces_face == f))
+        cen = np.concatenate([m.tri_uv[sel].mean(axis=1),
+                              np.array([self.pieces_poly[i, : self.pieces_count[i], :2].mean(axis=0) for i in ps]).reshape(-1, 2)])
+        area = np.concatenate([m.tri_area[sel], self.pieces_area[ps]])
+        taken = np.zeros(len(cen), dtype=bool)
+        for r in regs:
+            inside = points_in_polygon(cen, r.outer) & ~taken
+            for h in r.holes:
+                inside &= ~points_in_polygon(cen, h)
+            taken |= inside
+            r.area = float(area[inside].sum())
 
 
 def _signed_area(loop: np.ndarray) -> float:
@@ -291,4 +336,4 @@ def band_areas(mapping, levels: np.ndarray, quadrature: int = 4) -> Bands:
     keep = pc >= 3
     return Bands(levels=levels, lower=lower, upper=upper, area=face_area.sum(axis=1), face_area=face_area,
                  whole=whole, pieces_band=band[keep], pieces_face=pface[keep], pieces_poly=pieces[keep],
-                 pieces_count=pc[keep], mapping=mapping)
+                 pieces_count=pc[keep], pieces_area=parea[keep], mapping=mapping)

@@ -56,21 +56,51 @@ def triangle_rule(n: int = 4) -> tuple[np.ndarray, np.ndarray]:
     return np.column_stack([1.0 - s - t, s, t]), ww
 
 
+def _split_at_line(uv: np.ndarray, owner: np.ndarray, axis: int, k: float) -> tuple[np.ndarray, np.ndarray]:
+    """Triangles (T, 3, 2) that a line x_axis = k crosses are cut into three triangles (the
+    two sides, each fanned); the others stay. ``owner`` (T,) follows the pieces."""
+    x = uv[:, :, axis]
+    cross = (x.min(axis=1) < k) & (x.max(axis=1) > k)
+    if not np.any(cross):
+        return uv, owner
+    tri = uv[cross]
+    # the vertex alone on its side: rotate it to position 0
+    side = tri[:, :, axis] > k
+    lone = np.where(side.sum(axis=1) == 1, np.argmax(side, axis=1), np.argmax(~side, axis=1))
+    r = np.arange(len(tri))
+    a, b, c = tri[r, lone], tri[r, (lone + 1) % 3], tri[r, (lone + 2) % 3]
+    tab = ((k - a[:, axis]) / (b[:, axis] - a[:, axis]))[:, None]
+    tac = ((k - a[:, axis]) / (c[:, axis] - a[:, axis]))[:, None]
+    pab, pac = a + tab * (b - a), a + tac * (c - a)
+    pab[:, axis] = k
+    pac[:, axis] = k
+    new = np.concatenate([np.stack([a, pab, pac], 1), np.stack([pab, b, c], 1), np.stack([pab, c, pac], 1)])
+    own = np.concatenate([owner[cross]] * 3)
+    return np.concatenate([uv[~cross], new]), np.concatenate([owner[~cross], own])
+
+
 def surface_area_of_triangles(surface, uv: np.ndarray, n: int = 4) -> np.ndarray:
     """Exact-surface area of (T, 3, 2) parameter triangles: the integral of |Su x Sv| over
-    each, by the conical Gauss rule of order ``n``. (T,) in model units squared."""
+    each, by the conical Gauss rule of order ``n`` on the pieces the surface's interior knot
+    lines cut them into (the integrand is smooth within a knot span only). (T,) in model
+    units squared."""
     uv = np.asarray(uv, dtype=float)
     if len(uv) == 0:
         return np.zeros(0)
+    n_tri = len(uv)
+    owner = np.arange(n_tri)
+    u0, u1, v0, v1 = surface.domain
+    for axis, knots, lo, hi in ((0, surface.knots_u, u0, u1), (1, surface.knots_v, v0, v1)):
+        for k in np.unique(knots[(knots > lo) & (knots < hi)]):
+            uv, owner = _split_at_line(uv, owner, axis, float(k))
     bary, w = triangle_rule(n)
     pts = np.einsum("qk,tkd->tqd", bary, uv).reshape(-1, 2)
-    u0, u1, v0, v1 = surface.domain
     d = surface.derivatives(np.clip(pts[:, 0], u0, u1), np.clip(pts[:, 1], v0, v1), order=1)
     jac = np.linalg.norm(np.cross(d[:, 1, 0], d[:, 0, 1]), axis=1).reshape(len(uv), -1)
     e1 = uv[:, 1] - uv[:, 0]
     e2 = uv[:, 2] - uv[:, 0]
     a_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    return a_uv * (jac @ w)
+    return np.bincount(owner, weights=a_uv * (jac @ w), minlength=n_tri)
 
 
 @dataclass(frozen=True)
