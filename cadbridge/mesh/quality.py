@@ -29,7 +29,7 @@ import numpy as np
 
 __all__ = ["ANGLE_BIN", "SIZE_BIN", "BitReference", "MeshQuality", "bit_reference", "mesh_quality", "q_index"]
 
-ANGLE_BIN = 5.0  # degrees
+ANGLE_BIN = 10.0  # degrees
 SIZE_BIN = 0.1  # fraction of A_BIT
 
 
