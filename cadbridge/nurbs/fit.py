@@ -414,7 +414,7 @@ def fit_surface(
     knots: tuple[np.ndarray, np.ndarray] | None = None,
     initial_spans: tuple[int, int] | None = None,
     max_ctrl: tuple[int, int] = (60, 60),
-    smoothing: float = 1e-9,
+    smoothing: float = 1e-10,
     robust: str | None = "tukey",
     correct_parameters: bool = True,
     refine: bool = True,
@@ -423,6 +423,7 @@ def fit_surface(
     noise: float | None = None,
     point_weights=None,
     max_levels: int = 12,
+    robust_iterations: int = 6,
     progress=None,
 ) -> SurfaceFit:
     """Fit one NURBS surface to points with start parameters, refining knots to a tolerance.
@@ -437,7 +438,8 @@ def fit_surface(
     (knots inserted into it carry the weights along; its control points are not used);
     domain: (u0, u1, v0, v1) of the fit (default the box of the parameters); noise: sigma of
     the data (default `estimate_noise`); point_weights (N,) >= 0; progress: object with
-    ``stage(text)`` (cadbridge.cli.Progress).
+    ``stage(text)`` (cadbridge.cli.Progress); robust_iterations: further reweighting solves on
+    the final net (stops when no weight changes by 1e-3).
     """
     x = np.asarray(points, dtype=float)
     if x.ndim != 2 or x.shape[1] != 3:
@@ -505,14 +507,17 @@ def fit_surface(
     def make_surface(ku, kv, cp, cw):
         return NurbsSurface(p, q, ku, kv, cp, cw if base is not None else None)
 
-    def correct(surf, u, v):
-        """Foot parameters, distances and signed distances of all points on surf."""
+    def correct(surf, u, v, movable=None):
+        """Foot parameters, distances and signed distances of all points on surf; only the
+        ``movable`` points (N,) bool get corrected parameters."""
         if correct_parameters:
             from cadbridge.nurbs.project import FAILED, project_to_surface
 
             res = project_to_surface(surf, x, uv0=np.column_stack([u, v]), tol=1e-10, max_iter=12,
                                      global_check=False)
             ok = res.status != FAILED
+            if movable is not None:
+                ok &= movable
             u = np.where(ok, res.u, u)
             v = np.where(ok, res.v, v)
         foot = surf.evaluate(u, v)
@@ -528,35 +533,77 @@ def fit_surface(
     rob_w = np.ones(n)
     best_worst = np.inf
     stale = 0
-    for level in range(max_levels):
+    state = {}
+
+    def solve(ku, kv, rob_w, u, v, text):
         nu, nv = len(ku) - p - 1, len(kv) - q - 1
-        cw = base.weights if base is not None else np.ones((nu, nv))
-        gram = bending_matrix(ku, p, kv, q) if smoothing > 0 else None
+        if state.get("knots") is not (ku, kv):
+            state["gram"] = bending_matrix(ku, p, kv, q) if smoothing > 0 else None
+            state["knots"] = (ku, kv)
+        cw = base.weights if base is not None else None
+        stage(f"{nu}x{nv} control points: {text}")
+        cp = solve_control_points(u, v, x, pw_user * rob_w, ku, p, kv, q, ctrl_weights=cw, smoothing=smoothing,
+                                  gram=state["gram"])
+        surf = make_surface(ku, kv, cp, cw)
+        # a point the reweighting distrusts keeps its parameters: an outlier that slid onto the
+        # bump it pulled would look like an inlier and keep the bump (no correction before the
+        # first weights exist, for the same reason)
+        if robust is not None and not state.get("weighted"):
+            state["weighted"] = True
+            return (surf,) + correct(surf, u, v, np.zeros(n, dtype=bool))
+        return (surf,) + correct(surf, u, v, None if robust is None else rob_w >= 0.5)
+
+    def finish_robust(ku, kv, rob_w, u, v, surf, dist, signed):
+        """IRLS on the final net: Huber until the weights settle, then Tukey (module doc)."""
+        kinds = ["huber"] * robust_iterations + (["tukey"] * robust_iterations if robust == "tukey" else [])
+        phase = None
+        for it, kind in enumerate(kinds):
+            if kind != phase:
+                phase, settled = kind, False
+            elif settled:
+                continue
+            new_w = _robust_weights(signed, kind, tolerance)
+            settled = np.max(np.abs(new_w - rob_w)) < 1e-3 and it > 0
+            rob_w = new_w
+            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"robust iteration {it + 1} ({kind})")
+        return rob_w, u, v, surf, dist, signed
+
+    for level in range(max_levels + 1):
         n_iter = 1 if robust is None else 2
         for it in range(n_iter):
-            stage(f"level {level + 1}: {nu}x{nv} control points, solve {it + 1}/{n_iter}")
-            cp = solve_control_points(u, v, x, pw_user * rob_w, ku, p, kv, q,
-                                      ctrl_weights=cw if base is not None else None, smoothing=smoothing, gram=gram)
-            surf = make_surface(ku, kv, cp, cw)
-            u, v, dist, signed = correct(surf, u, v)
+            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"level {level + 1}, solve {it + 1}/{n_iter}")
             if robust is not None:
-                rob_w = _robust_weights(signed, robust, 0.5 * tolerance)
-        # knot spans of each point and the cell statistic
+                rob_w = _robust_weights(signed, "huber", tolerance)
+        nu, nv = len(ku) - p - 1, len(kv) - q - 1
+        # cell (knot span pair) of each point and its deviation statistic; isolated outliers
+        # (beyond Tukey's cut at the current MAD, never within 4.685 tol) do not ask for knots
         iu = find_span(ku, p, u) - p
         iv = find_span(kv, q, v) - q
         nsu, nsv = len(ku) - 2 * p - 1, len(kv) - 2 * q - 1
-        # span indices over the distinct spans (all spans are non-empty: insertion keeps them so)
         cell = iu * nsv + iv
-        stat = _cell_statistic(cell, dist, q_stat, nsu * nsv)
+        keep = _robust_weights(signed, "tukey", tolerance) > 0 if robust is not None else np.ones(n, bool)
+        stat = _cell_statistic(cell[keep], dist[keep], q_stat, nsu * nsv)
+        flagged = np.nonzero(stat > thresh)[0]
+        if (flagged.size == 0 or not refine or level == max_levels) and robust is not None and not state.get("done"):
+            rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
+            state["done"] = True
+            iu = find_span(ku, p, u) - p
+            iv = find_span(kv, q, v) - q
+            cell = iu * nsv + iv
+            keep = rob_w > 0
+            stat = _cell_statistic(cell[keep], dist[keep], q_stat, nsu * nsv)
+            flagged = np.nonzero(stat > thresh)[0]
         worst = float(stat.max())
         history.append(dict(ctrl=(nu, nv), max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
-                            worst_cell=worst, outliers=int(np.count_nonzero(rob_w <= 0))))
-        flagged = np.nonzero(stat > thresh)[0]
+                            worst_cell=worst, outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
         if not refine:
             stop = "tolerance" if flagged.size == 0 else "fixed knots"
             break
         if flagged.size == 0:
             stop = "tolerance"
+            break
+        if level == max_levels:
+            stop = "no improvement"
             break
         if worst < 0.98 * best_worst:
             best_worst, stale = worst, 0
@@ -570,21 +617,18 @@ def fit_surface(
         lo_v, hi_v = kv[q + iv], kv[q + iv + 1]
         bu = np.clip(((u - lo_u) / np.maximum(hi_u - lo_u, 1e-300) * 4).astype(np.int64), 0, 3)
         bv = np.clip(((v - lo_v) / np.maximum(hi_v - lo_v, 1e-300) * 4).astype(np.int64), 0, 3)
-        var_u = _variation(cell, bu, signed, nsu * nsv)
-        var_v = _variation(cell, bv, signed, nsu * nsv)
+        var_u = _variation(cell[keep], bu[keep], signed[keep], nsu * nsv)
+        var_v = _variation(cell[keep], bv[keep], signed[keep], nsu * nsv)
         top = np.maximum(var_u, var_v)
         want_u = flagged[var_u[flagged] >= 0.3 * top[flagged]]
         want_v = flagged[var_v[flagged] >= 0.3 * top[flagged]]
-        cnt = np.bincount(cell, minlength=nsu * nsv)
-        # a span is split only where it holds enough points for the extra control points
+        cnt = np.bincount(cell, minlength=nsu * nsv).reshape(nsu, nsv)
         score_u = np.full(nsu, -np.inf)
         score_v = np.full(nsv, -np.inf)
         np.maximum.at(score_u, want_u // nsv, stat[want_u])
         np.maximum.at(score_v, want_v % nsv, stat[want_v])
-        col_pts = cnt.reshape(nsu, nsv).sum(axis=1)
-        row_pts = cnt.reshape(nsu, nsv).sum(axis=0)
-        score_u[col_pts < 2 * nv] = -np.inf  # a u knot adds nv control points
-        score_v[row_pts < 2 * nu] = -np.inf  # a v knot adds nu
+        score_u[cnt.sum(axis=1) < 2 * nv] = -np.inf  # a u knot adds nv control points: enough data for them
+        score_v[cnt.sum(axis=0) < 2 * nu] = -np.inf  # a v knot adds nu
         room_u, room_v = max_ctrl[0] - nu, max_ctrl[1] - nv
         su_idx = np.argsort(-score_u)[: max(room_u, 0)]
         su_idx = su_idx[np.isfinite(score_u[su_idx])]
@@ -592,6 +636,10 @@ def fit_surface(
         sv_idx = sv_idx[np.isfinite(score_v[sv_idx])]
         if su_idx.size == 0 and sv_idx.size == 0:
             stop = "control-net limit" if (room_u <= 0 or room_v <= 0) else "no improvement"
+            if robust is not None and not state.get("done"):
+                rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
+                history[-1].update(max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
+                                   outliers=int(np.count_nonzero(rob_w <= 0)))
             break
         new_u = 0.5 * (ku[p + su_idx] + ku[p + su_idx + 1])
         new_v = 0.5 * (kv[q + sv_idx] + kv[q + sv_idx + 1])
@@ -603,11 +651,6 @@ def fit_surface(
         else:
             ku = np.sort(np.concatenate([ku, new_u]))
             kv = np.sort(np.concatenate([kv, new_v]))
-        if robust is not None:  # restart from Huber on the refined net (see module doc)
-            rob_w = _robust_weights(signed, "huber", 0.5 * tolerance)
-        if level == max_levels - 1:
-            stop = "no improvement"
-    if stop == "tolerance" and history and history[-1]["worst_cell"] > thresh:
-        stop = "no improvement"
+        state["done"] = False
     final_w = rob_w if robust is not None else np.ones(n)
     return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), stop, float(tolerance), sigma, history)
