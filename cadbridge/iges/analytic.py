@@ -49,7 +49,7 @@ from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["ArcMap", "Frame", "InvertedCurve", "MappedCurve", "ParamMap", "SurfaceInvertedCurve", "ax2_x_direction",
-           "invert_edges", "sample_chain", "HERMITE_REL_TOL"]
+           "evaluate_inverted", "invert_edges", "sample_chain", "HERMITE_REL_TOL"]
 
 HERMITE_REL_TOL = 1e-10  # `to_nurbs` default: cubic deviation relative to the curve's (u, v) box
 MIN_PER_SPAN = 16  # samples per knot span of the sampled curve at least
@@ -910,26 +910,14 @@ class SurfaceInvertedCurve(InvertedCurve):
         self.pole_tol = float(pole_tol)
 
     def _natural(self, t) -> np.ndarray:
-        from cadbridge.nurbs.project import FAILED, project_to_surface
-
         t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
+        seed, pts = self._seed_points(t)
+        return _inverted_feet(self.surface, pts, seed, self.period, self.pole_tol)
+
+    def _seed_points(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Seeds (N, 2) interpolated in the reference table and the edge's points C(t) (N, 3)."""
         seed = np.column_stack([np.interp(t, self.t_ref, self.nat_ref[:, k]) for k in (0, 1)])
-        u0, u1, v0, v1 = self.surface.domain
-        lo, hi = np.array([u0, v0]), np.array([u1, v1])
-        start = seed.copy()
-        for k in (0, 1):
-            if self.period[k] > 0:
-                start[:, k] = lo[k] + np.mod(start[:, k] - lo[k], self.period[k])
-        start = np.clip(start, lo, hi)
-        pts = _eval(self.base, t)
-        res = project_to_surface(self.surface, pts, uv0=start, global_check=False)
-        uv = np.column_stack([res.u, res.v])
-        bad = res.status == FAILED
-        if bad.any():  # Newton from the table stalled: the global projection
-            g = project_to_surface(self.surface, pts[bad])
-            uv[bad] = np.column_stack([g.u, g.v])
-        uv = _polish(self.surface, uv, pts)
-        return _fix_uv(self.surface, uv, seed, self.period, self.pole_tol)
+        return seed, _eval(self.base, t)
 
     def derivatives(self, t, order: int = 1) -> np.ndarray:
         """Derivatives of the foot uv(t) up to ``order`` (<= 2): t (N,) -> (N, order+1, 2).
@@ -985,6 +973,47 @@ class SurfaceInvertedCurve(InvertedCurve):
             rhs[held] = 0.0
             out[:, 2] = np.linalg.solve(h, rhs[..., None])[..., 0]
         return out
+
+
+def _inverted_feet(surface: NurbsSurface, pts: np.ndarray, seed: np.ndarray, period: tuple[float, float],
+                   pole_tol: float) -> np.ndarray:
+    """Feet (N, 2) of ``pts`` (N, 3) on ``surface`` from ``seed`` (N, 2): Newton from the seed
+    (wrapped / clamped into the domain; the global projection where it stalls), `_polish`ed,
+    made continuous with the seed (`_fix_uv`). Point by point: a batch of many curves' points
+    gives what each curve's own call gives."""
+    from cadbridge.nurbs.project import FAILED, project_to_surface
+
+    u0, u1, v0, v1 = surface.domain
+    lo, hi = np.array([u0, v0]), np.array([u1, v1])
+    start = seed.copy()
+    for k in (0, 1):
+        if period[k] > 0:
+            start[:, k] = lo[k] + np.mod(start[:, k] - lo[k], period[k])
+    start = np.clip(start, lo, hi)
+    res = project_to_surface(surface, pts, uv0=start, global_check=False)
+    uv = np.column_stack([res.u, res.v])
+    bad = res.status == FAILED
+    if bad.any():  # Newton from the table stalled: the global projection
+        g = project_to_surface(surface, pts[bad])
+        uv[bad] = np.column_stack([g.u, g.v])
+    uv = _polish(surface, uv, pts)
+    return _fix_uv(surface, uv, seed, period, pole_tol)
+
+
+def evaluate_inverted(curves: list[SurfaceInvertedCurve], ts: list[np.ndarray]) -> list[np.ndarray]:
+    """``[c.evaluate(t) for c, t in zip(curves, ts)]`` with one Newton / polish pass per
+    surface (curves of one loop share it): (N_k, 2) each."""
+    out: list = [None] * len(curves)
+    groups: dict[tuple, list[int]] = {}
+    for k, c in enumerate(curves):
+        groups.setdefault((id(c.surface), c.period, c.pole_tol), []).append(k)
+    for (_, period, pole_tol), idx in groups.items():
+        parts = [curves[k]._seed_points(np.atleast_1d(np.asarray(ts[k], dtype=float)).ravel()) for k in idx]
+        uv = _inverted_feet(curves[idx[0]].surface, np.concatenate([p for _, p in parts]),
+                            np.concatenate([s for s, _ in parts]), period, pole_tol)
+        for k, piece in zip(idx, np.split(uv, np.cumsum([len(s) for s, _ in parts])[:-1])):
+            out[k] = piece
+    return out
 
 
 def _polish(surface: NurbsSurface, uv: np.ndarray, pts: np.ndarray, steps: int = 2) -> np.ndarray:

@@ -199,8 +199,13 @@ def loop_deltas(items: list[tuple]) -> np.ndarray:
         ci, tt = pu.sample(SAMPLES_PER_SPAN)
         uv_rows.append(pu.evaluate(ci, tt, 0)[:, 0, :2])
         loop_rows.append(np.asarray(uvc_loop, dtype=np.int64)[ci])
-    for i, l, c in other:
-        uv = c.evaluate(getattr(c, "base", c).sample_parameters(SAMPLES_PER_SPAN))
+    from cadbridge.iges.analytic import SurfaceInvertedCurve, evaluate_inverted  # lazy: analytic uses this module
+
+    inv = [k for k, (_, _, c) in enumerate(other) if isinstance(c, SurfaceInvertedCurve)]
+    inv_uv = dict(zip(inv, evaluate_inverted([other[k][2] for k in inv],  # one pass per surface
+                                             [other[k][2].base.sample_parameters(SAMPLES_PER_SPAN) for k in inv])))
+    for k, (i, l, c) in enumerate(other):
+        uv = inv_uv[k] if k in inv_uv else c.evaluate(getattr(c, "base", c).sample_parameters(SAMPLES_PER_SPAN))
         uv_rows.append(uv)
         loop_rows.append(np.full(len(uv), l, dtype=np.int64))
     uv = np.concatenate(uv_rows)
