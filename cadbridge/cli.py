@@ -190,6 +190,11 @@ def cmd_mesh(args: argparse.Namespace) -> int:
     from cadbridge.creases import crease_lines
     from cadbridge.iges import read_iges
 
+    if getattr(args, "shape_tolerance", None) is not None:  # sized and refined for a Nagata tolerance
+        from cadbridge.refine import mesh_command
+
+        with Progress("cadbridge mesh") as progress:
+            return mesh_command(args, progress, _say)
     creases = crease_lines(read_iges(args.cad))  # C0 knot lines inside faces become mesh edges
     mesh = mesh_cad(
         args.cad,
@@ -284,8 +289,10 @@ def cmd_convert(args: argparse.Namespace) -> int:
             args.cad, args.output, element=args.element, size=args.size, structured=args.structured,
             radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
             curvature_elements=args.curvature_elements, method=args.method, grid=args.grid, flip=args.flip, tolerance=args.tolerance, progress=progress,
-            allow_worse=args.allow_worse,
+            allow_worse=args.allow_worse, shape_tolerance=args.shape_tolerance, min_size=args.min_size,
         )
+    if getattr(result, "adaptive", None) is not None:
+        _say(result.adaptive.summary())
     _say(result.summary())
     return EXIT_OK
 
@@ -313,6 +320,11 @@ def _add_mesh_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--curvature-elements", type=int, default=12,
                    help="elements per full turn of the surface normal, from the CAD curvature (default 12: "
                         "30 degrees per element, 3 across a quarter fillet as in the thesis; 0 = off)")
+    p.add_argument("--shape-tolerance", type=float, default=None, metavar="T",
+                   help="size and refine the mesh until the Nagata surface (exact normals) is within T of the CAD "
+                        "(model units; --size is then the largest element; docs/adaptive_meshing.md)")
+    p.add_argument("--min-size", type=float, default=None,
+                   help="size floor of --shape-tolerance refinement (default model size / 1000)")
 
 
 def _add_normal_options(p: argparse.ArgumentParser, default: str = "cad") -> None:

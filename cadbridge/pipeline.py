@@ -695,8 +695,15 @@ def convert(
     progress=None,
     allow_worse: bool = False,
     curvature_elements: int = 12,
+    shape_tolerance: float | None = None,
+    min_size: float | None = None,
 ) -> RunResult:
     """`cadbridge convert`: mesh the CAD with gmsh, exact normals, Nagata, tool files, report.
+
+    ``shape_tolerance``: the mesh is sized and refined until the Nagata surface is within it
+    (`cadbridge.refine.refine_mesh`, ``size`` the largest element, ``min_size`` the floor);
+    the adaptive report goes with the outputs, and a tolerance not met raises
+    `ToolQualityError` naming the elements after the best mesh's outputs are written.
 
     Crease lines inside faces (`cadbridge.creases.crease_lines`) become mesh edges.
     ``curvature_elements`` (gmsh ``Mesh.MeshSizeFromCurvature``): elements per full turn of
@@ -716,11 +723,19 @@ def convert(
     creases = crease_lines(model)  # C0 knot lines where the normal jumps: mesh edges go there
     progress.stage(f"meshing {Path(cad).name} with gmsh"
                    + (f" ({len(creases)} crease lines inside faces become mesh edges)" if creases else ""))
-    mesh = mesh_cad(cad, element=element, size=size, structured=structured,
-                    radius_divisions=radius_divisions, length_divisions=length_divisions,
-                    curvature_elements=curvature_elements, embed_curves=[c.curve for c in creases])
-    mesh.name = Path(cad).stem
     projector = CadProjector(model, progress)
+    adaptive = None
+    if shape_tolerance is not None:  # sized and refined for a Nagata shape tolerance
+        from cadbridge.refine import refine_mesh
+
+        adaptive = refine_mesh(cad, shape_tolerance, element=element, max_size=size, min_size=min_size,
+                               model=model, projector=projector, progress=progress)
+        mesh = adaptive.mesh
+    else:
+        mesh = mesh_cad(cad, element=element, size=size, structured=structured,
+                        radius_divisions=radius_divisions, length_divisions=length_divisions,
+                        curvature_elements=curvature_elements, embed_curves=[c.curve for c in creases])
+    mesh.name = Path(cad).stem
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
                              orient=True, meshed_per_face=True)
     check_tools(tools, allow_worse)
@@ -731,4 +746,10 @@ def convert(
         for t in tools:
             progress.stage(f"{t.name}: writing tool file and report")
             result.files += write_tool_outputs(t, tmp, model.units.name, cad, True, projector)
+        if adaptive is not None:
+            result.files += adaptive.write_report(tmp, model, projector)
+    if adaptive is not None:
+        result.adaptive = adaptive  # cadbridge.refine.AdaptiveResult (the CLI prints its summary)
+        if not adaptive.met:
+            raise ToolQualityError(adaptive.failure_message())
     return result

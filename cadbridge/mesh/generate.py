@@ -236,8 +236,11 @@ def _structured_counts(
     divisions: int | None,
     radius_divisions: int,
     length_divisions: int | None,
+    curve_count=None,
 ) -> dict[int, int]:
-    """Curve tag -> number of elements (segments), one count per union-find class."""
+    """Curve tag -> number of elements (segments), one count per union-find class.
+    ``curve_count(tag) -> float`` (elements a curve needs, e.g. from a size field) gives
+    every class the largest need of its curves instead of rules 1-4 of the module docs."""
     parent: dict[int, int] = {}
 
     def find(a: int) -> int:
@@ -268,7 +271,9 @@ def _structured_counts(
     counts: dict[int, int] = {}
     for root, cs in members.items():
         r = role.get(root, set())
-        if "radius" in r:
+        if curve_count is not None:
+            n = max(1, math.ceil(max(curve_count(c) for c in cs) - 1e-9))
+        elif "radius" in r:
             if "length" in r:
                 warnings.warn(
                     f"curves {sorted(cs)} are across the radius of one fillet and along another; "
@@ -304,6 +309,8 @@ def mesh_cad(
     parametric: bool = True,
     verbose: bool = False,
     embed_curves: Sequence = (),
+    size_callback=None,
+    curve_size=None,
 ) -> Mesh:
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
@@ -333,6 +340,13 @@ def mesh_cad(
         fragmented with the surfaces it lies on (OCC general fuse), which splits those faces
         along it; pieces of a curve that lie on no face are removed. Raises `MeshError` if a
         curve lies on no surface.
+    size_callback : ``f(dim, tag, x, y, z, lc) -> size`` given to
+        ``gmsh.model.mesh.setSizeCallback`` (e.g. `cadbridge.mesh.sizing.SizeField`); the
+        size gmsh uses is what it returns (``lc`` is the size from the other rules).
+    curve_size : with ``structured``, ``f(points (M, 3), curvature (M,)) -> sizes (M,)``:
+        each class of structured curves gets the largest number of elements any of its
+        curves needs, the integral of ds / f along the curve (its own curvature given, so
+        a straight side gets few elements and an arc many).
 
     Returns a `Mesh` with one triangle and/or one quad block (in that order), element
     orientation as gmsh gives it (following each OCC face's orientation), unused nodes
@@ -355,7 +369,7 @@ def mesh_cad(
               radius_divisions=radius_divisions, length_divisions=length_divisions,
               fillet_max_radius=fillet_max_radius, sew=sew, sew_tolerance=sew_tolerance,
               curvature_elements=curvature_elements, target_unit=target_unit, parametric=parametric,
-              embed_curves=list(embed_curves))
+              embed_curves=list(embed_curves), size_callback=size_callback, curve_size=curve_size)
     try:
         return _mesh_once(path, verbose, heal=False, **kw)
     except MeshError as first:
@@ -436,11 +450,14 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         "Mesh.SubdivisionAlgorithm": 0,
     }
     _apply(sess, mopts)
+    if kw["size_callback"] is not None:
+        g.model.mesh.setSizeCallback(kw["size_callback"])
     if kw["structured"]:
         faces, shapes = _classify(g, kw["fillet_max_radius"])
         counts = _structured_counts(
             faces, shapes, size=size, divisions=kw["divisions"],
             radius_divisions=kw["radius_divisions"], length_divisions=kw["length_divisions"],
+            curve_count=None if kw["curve_size"] is None else (lambda c: _curve_need(g, c, kw["curve_size"])),
         )
         for c, n in counts.items():
             g.model.mesh.setTransfiniteCurve(c, n + 1)
@@ -464,6 +481,17 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         if len(mesh.triangles):
             raise MeshError(f"{path}: gmsh left {len(mesh.triangles)} triangles in quad mode")
     return mesh
+
+
+def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
+    """Elements curve ``c`` needs under ``curve_size``: sum of ds / h over its polygon."""
+    lo, hi = g.model.getParametrizationBounds(1, c)
+    ts = np.linspace(lo[0], hi[0], samples)
+    x = np.asarray(g.model.getValue(1, c, ts), dtype=float).reshape(-1, 3)
+    k = np.abs(np.asarray(g.model.getCurvature(1, c, ts), dtype=float))
+    ds = np.linalg.norm(np.diff(x, axis=0), axis=1)
+    h = np.asarray(curve_size(0.5 * (x[1:] + x[:-1]), np.maximum(k[1:], k[:-1])), dtype=float)
+    return float(np.sum(ds / h))
 
 
 def _embed_curves(g, curves: list, path: Path) -> None:
