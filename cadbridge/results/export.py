@@ -308,7 +308,7 @@ def write_png(path, contours, *, title: str | None = None, elev: float = 28.0, a
     fig = Figure(figsize=(10, 6.5), dpi=160, layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(projection="3d")
-    ax.add_collection3d(Poly3DCollection(xyz, facecolors=fc, edgecolors="none", linewidths=0))
+    ax.add_collection3d(Poly3DCollection(xyz, facecolors=fc, edgecolors=fc, linewidths=0.25))
     L = contours.lines
     segs = []
     for i in range(len(L)):
@@ -325,6 +325,11 @@ def write_png(path, contours, *, title: str | None = None, elev: float = 28.0, a
     ax.set_box_aspect(np.maximum(2 * half, 1e-3 * max(2 * half.max(), 1e-300)))
     del ctr
     ax.view_init(elev=elev, azim=azim)
+    from matplotlib.ticker import MaxNLocator
+
+    for axis, name in ((ax.xaxis, "x"), (ax.yaxis, "y"), (ax.zaxis, "z")):
+        axis.set_major_locator(MaxNLocator(4))
+        axis.pane.set_alpha(0.15)
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_zlabel("z")

@@ -79,6 +79,16 @@ def _split_at_line(uv: np.ndarray, owner: np.ndarray, axis: int, k: float) -> tu
     return np.concatenate([uv[~cross], new]), np.concatenate([owner[~cross], own])
 
 
+def _affine(surface) -> bool:
+    """Whether S is an affine map of (u, v): bilinear, polynomial, one span each way, with a
+    parallelogram control net (then Su and Sv are constant)."""
+    if surface.rational or surface.degree_u != 1 or surface.degree_v != 1 or surface.shape != (2, 2):
+        return False
+    p = surface.control_points
+    d = p[0, 0] + p[1, 1] - p[1, 0] - p[0, 1]
+    return bool(np.linalg.norm(d) <= 1e-14 * max(float(np.ptp(p.reshape(-1, 3), axis=0).max()), 1e-300))
+
+
 def surface_area_of_triangles(surface, uv: np.ndarray, n: int = 4) -> np.ndarray:
     """Exact-surface area of (T, 3, 2) parameter triangles: the integral of |Su x Sv| over
     each, by the conical Gauss rule of order ``n`` on the pieces the surface's interior knot
@@ -88,6 +98,11 @@ def surface_area_of_triangles(surface, uv: np.ndarray, n: int = 4) -> np.ndarray
     if len(uv) == 0:
         return np.zeros(0)
     n_tri = len(uv)
+    e1 = uv[:, 1] - uv[:, 0]
+    e2 = uv[:, 2] - uv[:, 0]
+    if _affine(surface):  # a parallelogram: |Su x Sv| is constant, the rule is exact
+        d = surface.derivatives(uv[:1, 0, 0], uv[:1, 0, 1], order=1)[0]
+        return 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) * float(np.linalg.norm(np.cross(d[1, 0], d[0, 1])))
     owner = np.arange(n_tri)
     u0, u1, v0, v1 = surface.domain
     for axis, knots, lo, hi in ((0, surface.knots_u, u0, u1), (1, surface.knots_v, v0, v1)):
@@ -96,7 +111,11 @@ def surface_area_of_triangles(surface, uv: np.ndarray, n: int = 4) -> np.ndarray
     bary, w = triangle_rule(n)
     pts = np.einsum("qk,tkd->tqd", bary, uv).reshape(-1, 2)
     d = surface.derivatives(np.clip(pts[:, 0], u0, u1), np.clip(pts[:, 1], v0, v1), order=1)
-    jac = np.linalg.norm(np.cross(d[:, 1, 0], d[:, 0, 1]), axis=1).reshape(len(uv), -1)
+    su, sv = d[:, 1, 0], d[:, 0, 1]
+    cx = su[:, 1] * sv[:, 2] - su[:, 2] * sv[:, 1]
+    cy = su[:, 2] * sv[:, 0] - su[:, 0] * sv[:, 2]
+    cz = su[:, 0] * sv[:, 1] - su[:, 1] * sv[:, 0]
+    jac = np.sqrt(cx * cx + cy * cy + cz * cz).reshape(len(uv), -1)
     e1 = uv[:, 1] - uv[:, 0]
     e2 = uv[:, 2] - uv[:, 0]
     a_uv = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
