@@ -272,6 +272,21 @@ def _inside_samples(face: Face, uv: np.ndarray, bu: np.ndarray, bv: np.ndarray, 
     return inside
 
 
+def _cell_centres(face: Face, bu: np.ndarray, bv: np.ndarray, state: np.ndarray) -> np.ndarray:
+    """Surface points (K, 3) at the centres of the sub-patch cells whose centre lies inside the
+    face: extra index samples where the start-value grid is coarse (a large plane has a 5 x 5
+    grid, so a point on it was nearer the dense grid of a neighbouring fillet: the wrong first
+    face, a loose bound and wasted Newton restarts on that neighbour)."""
+    ci, cj = np.nonzero(state > 0)
+    cu = 0.5 * (bu[ci] + bu[ci + 1])
+    cv = 0.5 * (bv[cj] + bv[cj + 1])
+    ok = state[ci, cj] == 1
+    edge = np.flatnonzero(~ok)
+    if len(edge):
+        ok[edge] = face.contains(cu[edge], cv[edge])
+    return face.surface.evaluate(cu[ok], cv[ok]) if np.any(ok) else np.zeros((0, 3))
+
+
 @dataclass
 class SearchIndex:
     """Precomputed search structures of a model (reusable across calls; `index_for` caches
@@ -312,13 +327,15 @@ def build_search_index(model: Model) -> SearchIndex:
             b, bu, bv, state = _face_cells(face)
             smp = surface_samples(face.surface)
             inside = _inside_samples(face, smp.uv, bu, bv, state)
+            cpts = _cell_centres(face, bu, bv, state)
         except Exception as exc:  # noqa: BLE001 - re-raised with the face named
             raise ValueError(f"search index: face {k} (DE {face.de}): {exc}") from exc
         los.append(b[:, 0])
         his.append(b[:, 1])
         fids.append(np.full(len(b), k))
         spts.append(smp.points[inside])
-        sfid.append(np.full(int(inside.sum()), k))
+        spts.append(cpts)
+        sfid.append(np.full(int(inside.sum()) + len(cpts), k))
     lo, hi = np.concatenate(los), np.concatenate(his)
     face_of_box = np.concatenate(fids)
     centre = 0.5 * (lo + hi)

@@ -29,6 +29,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 from cadbridge.nurbs.curve import NurbsCurve
 
 __all__ = ["LoopBoundary", "loop_contains", "polygon_contains", "polygon_distance", "project_to_trims", "trim_contains"]
@@ -38,6 +39,61 @@ _MAX_ROUNDS = 24  # halvings of an edge at most (2^-24 of a span)
 _BAND_TARGET = 2e-4  # chord bound aimed at, x loop size (smaller bands -> fewer exact checks)
 _EDGE_TARGET = 1.0 / 32  # longest edge, x loop size (keeps grid cells near 1 edge each)
 _GENERIC_SAFETY = 2.0  # factor on the sampled chord estimate of curves without a control net
+
+
+# ---------------------------------------------------------------------------------------
+# curve derivatives (compiled for NURBS curves: the trim loops' Newton steps call them often)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _curve_ders_kernel(pw, knots, p, rational, t, d, out):  # pragma: no cover - compiled
+    """`NurbsCurve.derivatives` point by point: A2.1 / A2.3 (`find_span_one`,
+    `ders_basis_one`), the homogeneous sums, then the quotient rule of P&T A4.2.
+    pw (n, dim+1) homogeneous net, t (N,), out (N, d+1, dim)."""
+    n_ctrl = pw.shape[0]
+    dim = pw.shape[1] - 1
+    ndu = np.empty((p + 1, p + 1))
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    a = np.empty((2, p + 1))
+    nd = np.empty((d + 1, p + 1))
+    aw = np.empty((d + 1, dim + 1))
+    for i in range(t.shape[0]):
+        x = t[i]
+        span = find_span_one(knots, p, n_ctrl, x)
+        ders_basis_one(span, x, p, knots, d, ndu, left, right, a, nd)
+        for k in range(d + 1):
+            for c in range(dim + 1):
+                acc = 0.0
+                for j in range(p + 1):
+                    acc += nd[k, j] * pw[span - p + j, c]
+                aw[k, c] = acc
+        if not rational:
+            for k in range(d + 1):
+                for c in range(dim):
+                    out[i, k, c] = aw[k, c]
+            continue
+        w0 = aw[0, dim]
+        for k in range(d + 1):
+            for c in range(dim):
+                val = aw[k, c]
+                b = 1.0  # binomial C(k, j)
+                for j in range(1, k + 1):
+                    b = b * (k - j + 1) / j
+                    val -= b * aw[j, dim] * out[i, k - j, c]
+                out[i, k, c] = val / w0
+
+
+def _curve_ders(c, t, order: int) -> np.ndarray:
+    """d^k c / dt^k for k <= order at t (N,): (N, order+1, dim); compiled for a `NurbsCurve`,
+    its own ``derivatives`` for other curves (e.g. exactly mapped analytic trims)."""
+    if not isinstance(c, NurbsCurve):
+        return c.derivatives(t, order)
+    t = np.ascontiguousarray(np.atleast_1d(np.asarray(t, dtype=float)).ravel())
+    out = np.empty((t.size, order + 1, c.dim))
+    if t.size:
+        _curve_ders_kernel(c._pw, c.knots, c.degree, c.rational, t, int(order), out)
+    return out
 
 
 # ---------------------------------------------------------------------------------------
@@ -66,7 +122,7 @@ def _bezier_bounds(c: NurbsCurve, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray
         return np.zeros(len(ta)), np.ones(len(ta), dtype=bool)
     pw = np.ascontiguousarray(c._pw[:, [0, 1, -1]])
     hom = NurbsCurve._trusted(p, c.knots, pw, np.ones(len(pw)), c.domain, False)
-    d = hom.derivatives(ta, order=p)  # (M, p+1, 3)
+    d = _curve_ders(hom, ta, p)  # (M, p+1, 3)
     j = np.arange(p + 1)
     fact = np.array([float(np.prod(np.arange(1, k + 1))) for k in j])
     h = (tb - ta)[:, None] ** j / fact
@@ -288,7 +344,7 @@ class LoopBoundary:
         if not self.curves:
             raise ValueError("LoopBoundary: a trim loop needs at least one curve")
         ts = [np.asarray(c.sample_parameters(_START_PER_SPAN), dtype=float) for c in self.curves]
-        ps = [np.asarray(c.evaluate(t), dtype=float)[:, :2] for c, t in zip(self.curves, ts)]
+        ps = [np.asarray(_curve_ders(c, t, 0)[:, 0], dtype=float)[:, :2] for c, t in zip(self.curves, ts)]
         allp = np.concatenate(ps)
         if not np.all(np.isfinite(allp)):
             raise ValueError("LoopBoundary: a trim curve evaluates to non-finite (u, v)")
@@ -306,7 +362,7 @@ class LoopBoundary:
                 if r == _MAX_ROUNDS or not bad.any():
                     break
                 t = np.sort(np.concatenate([t, 0.5 * (e0[bad] + e1[bad])]))
-                p = np.asarray(c.evaluate(t), dtype=float)[:, :2]
+                p = np.asarray(_curve_ders(c, t, 0)[:, 0], dtype=float)[:, :2]
             if not np.all(np.isfinite(bd)):
                 raise ValueError(f"LoopBoundary: curve {k} ({c!r}) has no finite chord bound after {_MAX_ROUNDS} halvings")
             a.append(p[:-1]), b.append(p[1:]), band.append(bd + 1e-14 * self.size * (bd > 0))
@@ -381,7 +437,7 @@ def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
     for _ in range(max_iter):
         if not len(act):
             break
-        dv = c.derivatives(t[act], 1)[:, :, :2]
+        dv = _curve_ders(c, t[act], 1)[:, :, :2]
         g = np.einsum("ij,ij->i", dv[:, 0] - a[act], dirn[act]) - sp[act]
         gp = np.einsum("ij,ij->i", dv[:, 1], dirn[act])
         lo[act] = np.where(g < 0, t[act], lo[act])
@@ -394,12 +450,12 @@ def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
                 | (np.abs(tn - t[act]) * np.abs(gp) <= eps[act]))
         t[act] = np.where(done, t[act], tn)
         act = act[~done]
-    f = np.einsum("ij,ij->i", c.evaluate(t)[:, :2] - a, nrm)
+    f = np.einsum("ij,ij->i", _curve_ders(c, t, 0)[:, 0, :2] - a, nrm)
     lens = mid & (npp * f > 0) & (np.abs(npp) < np.abs(f))
     # distance to the arc: Newton on (C - p).C' from the chord's abscissa (or the near end)
     act = np.arange(len(t))
     for _ in range(8):
-        dv = c.derivatives(t[act], 2)[:, :, :2]
+        dv = _curve_ders(c, t[act], 2)[:, :, :2]
         r = dv[:, 0] - p[act]
         g = np.einsum("ij,ij->i", r, dv[:, 1])
         c11 = np.einsum("ij,ij->i", dv[:, 1], dv[:, 1])
@@ -411,7 +467,7 @@ def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
         act = act[moved]
         if not len(act):
             break
-    dist = np.linalg.norm(c.evaluate(t)[:, :2] - p, axis=1)
+    dist = np.linalg.norm(_curve_ders(c, t, 0)[:, 0, :2] - p, axis=1)
     dist = np.minimum(dist, np.minimum(np.linalg.norm(a - p, axis=1), np.linalg.norm(b - p, axis=1)))
     return lens, dist
 
@@ -523,7 +579,7 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     u0, u1, v0, v1 = surf.domain
 
     def on_surface(curve, t, order):
-        c = curve.derivatives(t, order=2)  # (N, 3, 2): uv, uv', uv''
+        c = _curve_ders(curve, t, 2)  # (N, 3, 2): uv, uv', uv''
         uu = np.clip(c[:, 0, 0], u0, u1)
         vv = np.clip(c[:, 0, 1], v0, v1)
         d = surf.derivatives(uu, vv, order=order)

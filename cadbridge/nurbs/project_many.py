@@ -42,6 +42,10 @@ from cadbridge.nurbs.surface import NurbsSurface
 __all__ = ["SurfacePack", "project_to_surfaces"]
 
 _TASK = 256  # pairs per parallel task at most
+# feet nearer their point than this x surface size get no restarts (global / edge check): a
+# nearer foot could gain at most that distance, below every tolerance downstream (1e-9 x size),
+# and a second foot so near would need the surface to come within 2e-10 x size of itself
+_ON_SURFACE = 1e-10
 _PARALLEL_MIN = 4096  # fewer pairs: serial
 
 
@@ -341,9 +345,11 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     uv = pack.suv[ik[:, 0]]
     res = run(uv[:, 0], uv[:, 1])
 
-    # global check: restarts from other discrete local minima of the sampled distance
+    # global check: restarts from other discrete local minima of the sampled distance; not
+    # for feet within _ON_SURFACE x size of their point (a restart could gain at most that)
     d = np.where(res.status == FAILED, np.inf, res.distance)
     d = np.where(np.isfinite(d), d, np.inf)
+    d_seed = np.where(d <= _ON_SURFACE * pack.size[sid], np.nan, d)  # NaN: no sample is within the radius
     rows_all, seeds_all = [], []
     for a, b in zip(starts, stops):
         s = int(sid[a])
@@ -352,7 +358,8 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         if ks < 2:
             continue
         o = pack.s_off[s]
-        rows, sidx = _global_seeds(d[a:b], np.ascontiguousarray(dk[a:b, :ks]), np.ascontiguousarray(ik[a:b, :ks] - o), smp.spacing, smp.points, p[a:b],
+        rows, sidx = _global_seeds(d_seed[a:b], np.ascontiguousarray(dk[a:b, :ks]),
+                                   np.ascontiguousarray(ik[a:b, :ks] - o), smp.spacing, smp.points, p[a:b],
                                    res.u[a:b], res.v[a:b], smp.us, smp.vs, smp.closed_u, smp.closed_v, _CHECK_SEEDS)
         if len(rows):
             rows_all.append(rows + a)
@@ -365,7 +372,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
 
     # edge check: feet clamped to a domain edge restart half / one cell inside and from the
     # nearby samples within sqrt(d^2 + (2h)^2)
-    rows = np.flatnonzero(res.status == ON_BOUNDARY)
+    rows = np.flatnonzero((res.status == ON_BOUNDARY) & (res.distance > _ON_SURFACE * pack.size[sid]))
     if len(rows):
         su = np.empty((2, len(rows)))
         sv = np.empty((2, len(rows)))
