@@ -9,9 +9,10 @@ over the control points P (the weights of a rational fit are fixed, so S is line
 normal equations (A^T W A + lam G) P = A^T W X are assembled directly in banded form by a numba
 kernel (a point touches (p+1)^2 (q+1)^2 entries) and solved as a scipy.sparse system (SuperLU);
 G = D2u (x) Mv + 2 D1u (x) D1v + Mu (x) D2v from exact 1D Gram matrices of basis derivatives
-(Gauss-Legendre per knot span). lam = smoothing * sum(w) * L^4 / A with L the longest side and A
-the area of the parameter domain, so the user weight is dimensionless and independent of the
-units of the coordinates and parameters.
+(Gauss-Legendre per knot span). lam = smoothing * trace(A^T W A) / trace(G): the user weight is
+the ratio of the two terms' traces, dimensionless, independent of the units of coordinates and
+parameters, and it keeps its meaning as knots are inserted (G grows like 1 / span^3; a weight
+tied to the domain size instead biased a refined die radius by 0.02 mm).
 
 Around the solve (`fit_surface`):
 
@@ -237,8 +238,7 @@ def solve_control_points(u, v, points, weights, knots_u, p: int, knots_v, q: int
     if smoothing > 0.0:
         if gram is None:
             gram = bending_matrix(ku, p, kv, q)
-        lu_, lv_ = ku[-1] - ku[0], kv[-1] - kv[0]
-        lam = smoothing * float(np.sum(weights)) * max(lu_, lv_) ** 4 / (lu_ * lv_)
+        lam = smoothing * float(mat.diagonal().sum()) / max(float(gram.diagonal().sum()), 1e-300)
         mat = mat + lam * gram
     else:
         diag = mat.diagonal()
@@ -414,7 +414,7 @@ def fit_surface(
     knots: tuple[np.ndarray, np.ndarray] | None = None,
     initial_spans: tuple[int, int] | None = None,
     max_ctrl: tuple[int, int] = (60, 60),
-    smoothing: float = 1e-10,
+    smoothing: float = 1e-6,
     robust: str | None = "tukey",
     correct_parameters: bool = True,
     refine: bool = True,
@@ -423,7 +423,8 @@ def fit_surface(
     noise: float | None = None,
     point_weights=None,
     max_levels: int = 12,
-    robust_iterations: int = 6,
+    robust_iterations: int = 4,
+    max_points_per_level: int = 200000,
     progress=None,
 ) -> SurfaceFit:
     """Fit one NURBS surface to points with start parameters, refining knots to a tolerance.
@@ -439,7 +440,9 @@ def fit_surface(
     domain: (u0, u1, v0, v1) of the fit (default the box of the parameters); noise: sigma of
     the data (default `estimate_noise`); point_weights (N,) >= 0; progress: object with
     ``stage(text)`` (cadbridge.cli.Progress); robust_iterations: further reweighting solves on
-    the final net (stops when no weight changes by 1e-3).
+    the final net (stops when no weight changes by 1e-3); max_points_per_level: more points
+    than this choose their knots on a random subset of this size, then the final net is solved
+    on all of them.
     """
     x = np.asarray(points, dtype=float)
     if x.ndim != 2 or x.shape[1] != 3:
@@ -507,20 +510,29 @@ def fit_surface(
     def make_surface(ku, kv, cp, cw):
         return NurbsSurface(p, q, ku, kv, cp, cw if base is not None else None)
 
+    near = 10.0 * tolerance + 5.0 * sigma  # parameters are corrected only on a fit this close
+
     def correct(surf, u, v, movable=None):
-        """Foot parameters, distances and signed distances of all points on surf; only the
-        ``movable`` points (N,) bool get corrected parameters."""
+        """Foot parameters, distances and signed distances of all points on surf. Only points
+        within ``near`` of the fit (and ``movable``, (N,) bool) get corrected parameters: on a
+        coarse fit that cuts a corner, projection would slide the points along it and spoil a
+        good base parametrisation."""
+        foot = surf.evaluate(u, v)
+        dist = np.linalg.norm(x - foot, axis=1)
         if correct_parameters:
             from cadbridge.nurbs.project import FAILED, project_to_surface
 
-            res = project_to_surface(surf, x, uv0=np.column_stack([u, v]), tol=1e-10, max_iter=12,
-                                     global_check=False)
-            ok = res.status != FAILED
+            sel = dist <= near
             if movable is not None:
-                ok &= movable
-            u = np.where(ok, res.u, u)
-            v = np.where(ok, res.v, v)
-        foot = surf.evaluate(u, v)
+                sel &= movable
+            idx = np.nonzero(sel)[0]
+            if idx.size:
+                res = project_to_surface(surf, x[idx], uv0=np.column_stack([u[idx], v[idx]]), tol=1e-10,
+                                         max_iter=12, global_check=False)
+                ok = (res.status != FAILED) & (res.distance <= dist[idx])
+                u, v = u.copy(), v.copy()
+                u[idx[ok]], v[idx[ok]] = res.u[ok], res.v[ok]
+                foot[idx[ok]] = res.foot[ok]
         r = x - foot
         nrm = surf.normal(u, v)
         signed = np.einsum("ij,ij->i", r, nrm)
@@ -567,6 +579,40 @@ def fit_surface(
             rob_w = new_w
             surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"robust iteration {it + 1} ({kind})")
         return rob_w, u, v, surf, dist, signed
+
+    if refine and n > max_points_per_level:
+        # knots from a random subset (a net of at most max_ctrl needs far fewer points than a
+        # dense scan has), then the final net solved on all points: parameters of all points
+        # corrected onto the subset's fit, weights from their residuals, two more solves
+        rng = np.random.default_rng(0)
+        sub = np.sort(rng.choice(n, size=max_points_per_level, replace=False))
+        f0 = fit_surface(x[sub], u[sub], v[sub], degree=(p, q), tolerance=tolerance, knots=(ku, kv),
+                         max_ctrl=max_ctrl, smoothing=smoothing, robust=robust, correct_parameters=correct_parameters,
+                         refine=True, rational_base=rational_base, domain=dom, noise=sigma,
+                         point_weights=pw_user[sub], max_levels=max_levels, robust_iterations=robust_iterations,
+                         max_points_per_level=max_points_per_level, progress=progress)
+        ku, kv = f0.surface.knots_u, f0.surface.knots_v
+        if base is not None:
+            from cadbridge.nurbs.ops import refine_surface
+
+            extra_u = [t for t in ku[p + 1 : -p - 1] if t not in base.knots_u]
+            extra_v = [t for t in kv[q + 1 : -q - 1] if t not in base.knots_v]
+            base = refine_surface(base, extra_u, extra_v)
+        u[sub], v[sub] = f0.u, f0.v
+        state["weighted"] = True
+        u, v, dist, signed = correct(f0.surface, u, v)
+        history = [dict(h, subset=len(sub)) for h in f0.history]
+        for it in range(2 if robust is not None else 1):
+            if robust is not None:
+                rob_w = _robust_weights(signed, robust, tolerance)
+            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"all {n} points, solve {it + 1}")
+        if robust is not None:
+            rob_w = _robust_weights(signed, robust, tolerance)
+        history.append(dict(ctrl=surf.shape, max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
+                            worst_cell=float("nan"), outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
+        final_w = rob_w if robust is not None else np.ones(n)
+        return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), f0.stop, float(tolerance), sigma,
+                          history)
 
     for level in range(max_levels + 1):
         n_iter = 1 if robust is None else 2
@@ -636,10 +682,6 @@ def fit_surface(
         sv_idx = sv_idx[np.isfinite(score_v[sv_idx])]
         if su_idx.size == 0 and sv_idx.size == 0:
             stop = "control-net limit" if (room_u <= 0 or room_v <= 0) else "no improvement"
-            if robust is not None and not state.get("done"):
-                rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
-                history[-1].update(max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
-                                   outliers=int(np.count_nonzero(rob_w <= 0)))
             break
         new_u = 0.5 * (ku[p + su_idx] + ku[p + su_idx + 1])
         new_v = 0.5 * (kv[q + sv_idx] + kv[q + sv_idx + 1])
@@ -652,5 +694,9 @@ def fit_surface(
             ku = np.sort(np.concatenate([ku, new_u]))
             kv = np.sort(np.concatenate([kv, new_v]))
         state["done"] = False
+    if robust is not None and not state.get("done"):
+        rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
+        history[-1].update(max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
+                           outliers=int(np.count_nonzero(rob_w <= 0)))
     final_w = rob_w if robust is not None else np.ones(n)
     return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), stop, float(tolerance), sigma, history)
