@@ -63,6 +63,7 @@ class QitOptions:
     match_tol: float | None = None
     max_depth: int = 14
     edge_flips: bool = True
+    chord_polish: bool = True
 
 
 @dataclass
@@ -117,11 +118,14 @@ class _Surf:
         return np.linalg.norm(d[:, 1, 0] * nu[:, :1] + d[:, 0, 1] * nu[:, 1:], axis=1)
 
 
-def _trap_error(f_a, f_b, ddf_a, ddf_b, dl):
+def _trap_error(f_a, f_b, ddf_a, ddf_b, dl, ddf_m=None):
     """Trapezoid length (eq. 11) and its error in percent (eqs. 12-13), alpha at the end
-    with the larger |f''|."""
+    (or the midpoint, ``ddf_m``) with the largest |f''|."""
     length = 0.5 * (f_a + f_b) * dl
-    err = np.maximum(np.abs(ddf_a), np.abs(ddf_b)) * dl**3 / 12.0
+    big = np.maximum(np.abs(ddf_a), np.abs(ddf_b))
+    if ddf_m is not None:
+        big = np.maximum(big, np.abs(ddf_m))
+    err = big * dl**3 / 12.0
     return length, 100.0 * err / np.where(length > 0, length, np.inf)
 
 
@@ -190,7 +194,9 @@ def _dc_mesh(surface, curve: NurbsCurve, tol: float, max_depth: int):
     for _ in range(max_depth + 8):
         d = _edge_derivs(surface, curve, t)
         f, ddf = _norm_derivs(d[:, 1], d[:, 2], d[:, 3])
-        length, ep = _trap_error(f[:-1], f[1:], ddf[:-1], ddf[1:], np.diff(t))
+        dm = _edge_derivs(surface, curve, 0.5 * (t[:-1] + t[1:]))
+        _, ddm = _norm_derivs(dm[:, 1], dm[:, 2], dm[:, 3])
+        length, ep = _trap_error(f[:-1], f[1:], ddf[:-1], ddf[1:], np.diff(t), ddm)
         bad = (ep > tol) & (np.diff(t) > 1e-12 * span)
         if not bad.any():
             break
@@ -273,20 +279,22 @@ class _DSMesh:
         """Max trapezoid error (percent) over the 6 paths of each leaf, and the min relative
         Jacobian |Su x Sv| / (|Su||Sv|) at its corners."""
         n = len(leaves)
-        cu = leaves[:, [0, 1, 0, 1]]
-        cv = leaves[:, [2, 2, 3, 3]]  # corners 00, 10, 01, 11
-        d = s.derivatives(cu.ravel(), cv.ravel(), order=3).reshape(n, 4, 4, 4, 3)
+        um, vm = 0.5 * (leaves[:, 0] + leaves[:, 1]), 0.5 * (leaves[:, 2] + leaves[:, 3])
+        # corners 00, 10, 01, 11, then the path midpoints: sides v0, v1, u0, u1 and centre
+        cu = np.column_stack([leaves[:, [0, 1, 0, 1]], um, um, leaves[:, 0], leaves[:, 1], um])
+        cv = np.column_stack([leaves[:, [2, 2, 3, 3]], leaves[:, 2], leaves[:, 3], vm, vm, vm])
+        d = s.derivatives(cu.ravel(), cv.ravel(), order=3).reshape(n, 9, 4, 4, 3)
         su, sv = d[:, :, 1, 0], d[:, :, 0, 1]
         cr = np.linalg.norm(np.cross(su, sv), axis=2)
-        jac = cr / np.maximum(np.linalg.norm(su, axis=2) * np.linalg.norm(sv, axis=2), 1e-300)
+        jac = cr[:, :4] / np.maximum(np.linalg.norm(su, axis=2) * np.linalg.norm(sv, axis=2), 1e-300)[:, :4]
         err = np.zeros(n)
-        for a, b in ((0, 1), (2, 3), (0, 2), (1, 3), (0, 3), (1, 2)):
+        for a, b, mid in ((0, 1, 4), (2, 3, 5), (0, 2, 6), (1, 3, 7), (0, 3, 8), (1, 2, 8)):
             du = cu[:, b] - cu[:, a]
             dv = cv[:, b] - cv[:, a]
             dl = np.hypot(du, dv)
             n1, n2 = (du / dl)[:, None], (dv / dl)[:, None]
             ff, dd = [], []
-            for c in (a, b):
+            for c in (a, b, mid):
                 g1 = d[:, c, 1, 0] * n1 + d[:, c, 0, 1] * n2
                 g2 = d[:, c, 2, 0] * n1**2 + 2 * d[:, c, 1, 1] * n1 * n2 + d[:, c, 0, 2] * n2**2
                 g3 = (d[:, c, 3, 0] * n1**3 + 3 * d[:, c, 2, 1] * n1**2 * n2 + 3 * d[:, c, 1, 2] * n1 * n2**2
@@ -294,7 +302,7 @@ class _DSMesh:
                 f, ddf = _norm_derivs(g1, g2, g3)
                 ff.append(f)
                 dd.append(ddf)
-            _, ep = _trap_error(ff[0], ff[1], dd[0], dd[1], dl)
+            _, ep = _trap_error(ff[0], ff[1], dd[0], dd[1], dl, dd[2])
             err = np.maximum(err, ep)
         return err, jac.min(axis=1)
 
@@ -538,7 +546,42 @@ def _run_aip(lat: _Lattice, surf, ds, jobs, opt) -> list[np.ndarray]:
     uva = np.array([lat.uv[lat.index[a]] for a, _, _ in jobs])
     uvb = np.array([lat.uv[lat.index[b]] for _, b, _ in jobs])
     par = np.array([_setup(lat, a, b, c) for a, b, c in jobs])
-    return list(_aip(surf, ds, uva, uvb, par[:, 0], par[:, 1], par[:, 2], par[:, 3], par[:, 4], opt))
+    uv = _aip(surf, ds, uva, uvb, par[:, 0], par[:, 1], par[:, 2], par[:, 3], par[:, 4], opt)
+    if opt.chord_polish:
+        uv = _chord_polish(surf, uva, uvb, par[:, 0], par[:, 1], uv)
+    return list(uv)
+
+
+def _chord_polish(surf: _Surf, uva, uvb, ra, rb, uv, iters: int = 8):
+    """Beyond the paper: Newton from the AIP point to the exact intersection of the two
+    spheres |x - x_a| = ra, |x - x_b| = rb on the surface, so that triangle sides (chords) are
+    R, not the lengths of the straight parameter paths (which bend in 3D where the
+    parametrisation is uneven, shortening the chords). Points that do not converge keep
+    the AIP result."""
+    ok = np.all(np.isfinite(uv), axis=1)
+    if not ok.any():
+        return uv
+    c = uv[ok].copy()
+    xa, _, _ = surf.d1(uva[ok])
+    xb, _, _ = surf.d1(uvb[ok])
+    ra, rb = ra[ok], rb[ok]
+    for _ in range(iters):
+        x, su, sv = surf.d1(c)
+        da, db = x - xa, x - xb
+        f = np.column_stack([np.einsum("ij,ij->i", da, da) - ra**2, np.einsum("ij,ij->i", db, db) - rb**2])
+        j11, j12 = 2 * np.einsum("ij,ij->i", da, su), 2 * np.einsum("ij,ij->i", da, sv)
+        j21, j22 = 2 * np.einsum("ij,ij->i", db, su), 2 * np.einsum("ij,ij->i", db, sv)
+        det = j11 * j22 - j12 * j21
+        det = np.where(np.abs(det) > 0, det, np.inf)
+        c = c - np.column_stack([(j22 * f[:, 0] - j12 * f[:, 1]) / det, (-j21 * f[:, 0] + j11 * f[:, 1]) / det])
+    x, _, _ = surf.d1(c)
+    err = np.maximum(np.abs(np.linalg.norm(x - xa, axis=1) - ra) / ra, np.abs(np.linalg.norm(x - xb, axis=1) - rb) / rb)
+    moved = np.linalg.norm(c - uv[ok], axis=1) / np.maximum(np.linalg.norm(uv[ok] - uva[ok], axis=1), 1e-300)
+    good = np.isfinite(err) & (err < 1e-6) & (moved < 0.25)
+    out = uv.copy()
+    idx = np.flatnonzero(ok)[good]
+    out[idx] = c[good]
+    return out
 
 
 def _surface_vertices(surf: _Surf, ds: _DSMesh, region: np.ndarray, centre: np.ndarray, opt: QitOptions,
@@ -549,6 +592,18 @@ def _surface_vertices(surf: _Surf, ds: _DSMesh, region: np.ndarray, centre: np.n
     lat = _Lattice(R)
     lat.add((0, 0), centre)
     e = _epp(surf, ds, centre[None], np.zeros(1), np.array([R]))[0]
+    if opt.chord_polish:  # chord |x2 - x1| = R along the same parameter ray (secant steps)
+        x1 = surf.d1(centre[None])[0][0]
+        t0, t1 = 0.0, e[0] - centre[0]
+        f = lambda t: np.linalg.norm(surf.d1(np.array([[centre[0] + t, centre[1]]]))[0][0] - x1) - R  # noqa: E731
+        f0, f1 = -R, f(t1)
+        for _ in range(30):
+            if abs(f1) <= 1e-12 * R or f1 == f0:
+                break
+            t0, t1, f0 = t1, t1 - f1 * (t1 - t0) / (f1 - f0), f1
+            f1 = f(t1)
+        if abs(f1) <= 1e-9 * R:
+            e = np.array([centre[0] + t1, centre[1]])
     lat.add((1, 0), e)
     ring1 = _ring(1)
     for n in range(1, 6):
@@ -638,6 +693,12 @@ def _constrained_delaunay(pts: np.ndarray, constraints: list[tuple[int, int]], l
     """Triangles (CCW) of the points inside the constraint loops: scipy Delaunay, each
     missing constraint recovered by flipping the edges that cross it (Sloan 1993), then the
     regions outside the loops removed by an even-odd flood fill from the hull."""
+    # four frame points far outside: no real point is on the convex hull, where collinear
+    # edge vertices (a straight edge) would give Qhull flat triangles
+    n_real = len(pts)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    mid, ext = 0.5 * (lo + hi), 2.0 * float(np.max(hi - lo)) + 1.0
+    pts = np.concatenate([pts, mid + ext * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])])
     tri = Delaunay(pts)
     tris = [list(t) for t in tri.simplices]
     for t in tris:
@@ -699,16 +760,10 @@ def _constrained_delaunay(pts: np.ndarray, constraints: list[tuple[int, int]], l
         nbr.append(row)
     from collections import deque
 
-    hull = [i for i in range(n) if any(o < 0 and not c for o, c in nbr[i])]
-    hull_c = [i for i in range(n) if any(o < 0 and c for o, c in nbr[i])]
     dq = deque()
-    for i in hull:
+    for i in np.flatnonzero((tris_a >= n_real).any(axis=1)):  # the frame is outside
         level[i] = 0
         dq.append(i)
-    for i in hull_c:
-        if level[i] < 0:
-            level[i] = 1
-            dq.appendleft(i) if False else dq.append(i)
     while dq:
         i = dq.popleft()
         for o, c in nbr[i]:
