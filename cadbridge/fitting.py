@@ -150,7 +150,23 @@ def plane_base(points: np.ndarray) -> Parametrisation:
     if len(s) < 2 or s[1] <= 1e-9 * scale:
         raise FitInputError("the points are collinear (they lie on one line): a surface needs points spanning an area")
     d = x - c
-    return Parametrisation(d @ vt[0], d @ vt[1], np.abs(d @ vt[2]), None, "best-fit plane")
+    a, b = d @ vt[0], d @ vt[1]
+    # in-plane axes along the minimum-area rectangle of the points (rotating calipers over the
+    # convex hull's edges): the fit's rectangular domain then wastes least area without data
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = np.column_stack([a, b])[ConvexHull(np.column_stack([a, b])).vertices]
+        e = np.diff(np.vstack([hull, hull[:1]]), axis=0)
+        ang = np.arctan2(e[:, 1], e[:, 0])
+        cs, sn = np.cos(ang), np.sin(ang)
+        ra = hull[:, 0][None, :] * cs[:, None] + hull[:, 1][None, :] * sn[:, None]
+        rb = -hull[:, 0][None, :] * sn[:, None] + hull[:, 1][None, :] * cs[:, None]
+        k = int(np.argmin(np.ptp(ra, axis=1) * np.ptp(rb, axis=1)))
+        a, b = a * cs[k] + b * sn[k], -a * sn[k] + b * cs[k]
+    except (QhullError, ValueError):
+        pass
+    return Parametrisation(a, b, np.abs(d @ vt[2]), None, "best-fit plane")
 
 
 def _edge(s: NurbsSurface, which: str, n: int = 9) -> np.ndarray:
@@ -419,7 +435,7 @@ class FitReport:
                     max_deviation_inliers=d_in, rms_deviation_inliers=rms_in,
                     p99_deviation=float(np.quantile(f.distance, 0.99)),
                     outliers_down_weighted=int(np.count_nonzero(f.outliers)),
-                    partly_down_weighted=int(np.count_nonzero((f.weight > 0) & (f.weight < 1))),
+                    partly_down_weighted=int(np.count_nonzero((f.weight > 0) & (f.weight < 0.5))),
                     beyond_tolerance_inliers=beyond, trimmed=self.face.trims is not None,
                     levels=[dict(h, ctrl=list(h["ctrl"])) for h in f.history], seconds=self.seconds)
 
@@ -440,7 +456,7 @@ class FitReport:
             f"inliers       max {d['max_deviation_inliers']:.6g}, RMS {d['rms_deviation_inliers']:.6g}; "
             f"{d['beyond_tolerance_inliers']} beyond the tolerance {d['tolerance']:g}",
             f"noise sigma   {d['noise_sigma']:.3g} (estimated from the data unless given)",
-            f"outliers      {d['outliers_down_weighted']} down-weighted to 0, {d['partly_down_weighted']} partly",
+            f"outliers      {d['outliers_down_weighted']} down-weighted to 0, {d['partly_down_weighted']} below half weight",
             f"time          {d['seconds']:.1f} s",
         ]
         return "\n".join(lines)
