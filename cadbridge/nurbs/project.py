@@ -583,21 +583,25 @@ def _wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, error_model="numpy")
 def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                  max_iter, start, stop):  # pragma: no cover - compiled
+                  max_iter, start, stop, tu, tv, ru, rv, same):  # pragma: no cover - compiled
     """The projected Newton iterations of `_newton` (module docstring), point by point:
     updates u, v (N,) and iters (N,) in place. Same tests and steps as the former vectorised
     loop: convergence first, then the lazy line search (halve the previous step when |r|^2
     grew beyond round-off), then the full-Jacobian step (Gauss-Newton where not positive
-    definite; 1D Newton on an edge iso-curve where one variable is clamped)."""
+    definite; 1D Newton on an edge iso-curve where one variable is clamped).
+
+    Restarts (ru >= 0): an iterate after the start that comes within (ru, rv) of the known
+    foot (tu, tv) of its point is heading back to that foot: it stops there with same[t] True
+    (the restart cannot be nearer)."""
     tiny = 1e-300
     pu = u1 - u0
     pv = v1 - v0
     ndu_u = np.empty((p + 1, p + 1))
     ndu_v = np.empty((q + 1, q + 1))
-    lu = np.empty(p + 1)
-    ru = np.empty(p + 1)
-    lv = np.empty(q + 1)
-    rv = np.empty(q + 1)
+    lu_ = np.empty(p + 1)
+    ru_ = np.empty(p + 1)
+    lv_ = np.empty(q + 1)
+    rv_ = np.empty(q + 1)
     au = np.empty((2, p + 1))
     av = np.empty((2, q + 1))
     bu = np.empty((3, p + 1))
@@ -616,7 +620,10 @@ def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2
         hit_v = False
         it = 0
         for _ in range(max_iter):
-            _ders2_one(pw, ku, kv, p, q, rational, uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+            if ru >= 0.0 and it > 0 and abs(uu - tu[t]) <= ru and abs(vv - tv[t]) <= rv:
+                same[t] = True
+                break
+            _ders2_one(pw, ku, kv, p, q, rational, uu, vv, ndu_u, ndu_v, lu_, ru_, lv_, rv_, au, av, bu, bv, aw, der)
             it += 1
             rx, ry, rz = der[0, 0, 0] - px, der[0, 0, 1] - py, der[0, 0, 2] - pz
             sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
@@ -724,7 +731,7 @@ _NEWTON_PARALLEL_MIN = 16384  # fewer points: serial (thread start-up costs more
 def _newton_serial(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
                    max_iter):  # pragma: no cover - compiled
     _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                  max_iter, 0, pts.shape[0])
+                  max_iter, 0, pts.shape[0], u, v, -1.0, -1.0, np.zeros(0, dtype=np.bool_))
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -733,7 +740,8 @@ def _newton_parallel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, e
     n = pts.shape[0]
     for blk in numba.prange((n + _NEWTON_BLOCK - 1) // _NEWTON_BLOCK):
         _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                      max_iter, blk * _NEWTON_BLOCK, min(n, (blk + 1) * _NEWTON_BLOCK))
+                      max_iter, blk * _NEWTON_BLOCK, min(n, (blk + 1) * _NEWTON_BLOCK), u, v, -1.0, -1.0,
+                      np.zeros(0, dtype=np.bool_))
 
 
 def _newton(

@@ -46,6 +46,10 @@ _TASK = 256  # pairs per parallel task at most
 # nearer foot could gain at most that distance, below every tolerance downstream (1e-9 x size),
 # and a second foot so near would need the surface to come within 2e-10 x size of itself
 _ON_SURFACE = 1e-10
+# a restart whose iterate comes within this fraction of a sample-grid cell (in u and in v) of
+# the foot already found for its point stops: Newton is then converging onto that same foot
+# (quadratically, from well inside its basin), so the restart cannot be nearer
+_SAME_FOOT = 1e-3
 _PARALLEL_MIN = 4096  # fewer pairs: serial
 
 
@@ -82,6 +86,12 @@ class SurfacePack:
         self.spts = self.spts.reshape(-1, 3)
         self.suv = np.ascontiguousarray(np.concatenate([m.uv for m in self.samples]) if s else np.zeros((0, 2)))
         self.spacing = np.ascontiguousarray(np.concatenate([m.spacing for m in self.samples]) if s else np.zeros(0))
+        # restarts stop within this (u, v) reach of the known foot: _SAME_FOOT of a grid cell
+        cells = np.array([[(x.domain[1] - x.domain[0]) / max(len(m.us) - 1, 1),
+                           (x.domain[3] - x.domain[2]) / max(len(m.vs) - 1, 1)]
+                          for x, m in zip(self.surfaces, self.samples)], dtype=float).reshape(s, 2)
+        self.reach = np.ascontiguousarray(_SAME_FOOT * cells)
+        self.no_reach = np.full((s, 2), -1.0)
 
     def kernel_args(self) -> tuple:
         return (self.pw, self.pw_off, self.ku, self.ku_off, self.kv, self.kv_off, self.deg, self.shape,
@@ -98,8 +108,9 @@ def _surface(pw, pw_off, ku, ku_off, kv, kv_off, shape, s):  # pragma: no cover 
 
 @numba.njit(cache=True, error_model="numpy")
 def _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
-                 pts, noise, u, v, iters, max_iter, a, b):  # pragma: no cover - compiled
-    """`_newton_range` on pairs a..b-1 (one surface, sid[a])."""
+                 pts, noise, u, v, iters, max_iter, a, b, tu, tv, reach, same):  # pragma: no cover - compiled
+    """`_newton_range` on pairs a..b-1 (one surface, sid[a]); restarts (reach[s, 0] >= 0) stop
+    within reach of the known foot (tu, tv)."""
     s = sid[a]
     net, kku, kkv = _surface(pw, pw_off, ku, ku_off, kv, kv_off, shape, s)
     u0, u1, v0, v1 = domain[s, 0], domain[s, 1], domain[s, 2], domain[s, 3]
@@ -108,7 +119,7 @@ def _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domai
         u[t] = _wrap_clamp(u[t], u0, u1, cu)
         v[t] = _wrap_clamp(v[t], v0, v1, cv)
     _newton_range(net, kku, kkv, deg[s, 0], deg[s, 1], rational[s], u0, u1, v0, v1, cu, cv, eps1[s], tol,
-                  pts, noise, u, v, iters, max_iter, a, b)
+                  pts, noise, u, v, iters, max_iter, a, b, tu, tv, reach[s, 0], reach[s, 1], same)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -173,12 +184,12 @@ def _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, dom
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def _run_tasks(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
-               pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop
-               ):  # pragma: no cover - compiled
+               pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop, tu, tv,
+               reach, same):  # pragma: no cover - compiled
     for k in numba.prange(tstart.shape[0]):
         if kind == 0:
             _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
-                         pts, noise, u, v, iters, max_iter, tstart[k], tstop[k])
+                         pts, noise, u, v, iters, max_iter, tstart[k], tstop[k], tu, tv, reach, same)
         else:
             _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
                            tol, pts, noise, u, v, foot, dist, normal, status, degen, tstart[k], tstop[k])
@@ -186,12 +197,12 @@ def _run_tasks(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, d
 
 @numba.njit(cache=True, error_model="numpy")
 def _run_tasks_serial(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
-                      tol, pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop
-                      ):  # pragma: no cover - compiled
+                      tol, pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop, tu, tv,
+                      reach, same):  # pragma: no cover - compiled
     for k in range(tstart.shape[0]):
         if kind == 0:
             _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
-                         pts, noise, u, v, iters, max_iter, tstart[k], tstop[k])
+                         pts, noise, u, v, iters, max_iter, tstart[k], tstop[k], tu, tv, reach, same)
         else:
             _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
                            tol, pts, noise, u, v, foot, dist, normal, status, degen, tstart[k], tstop[k])
@@ -252,23 +263,33 @@ class _Run:
         self.noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + pack.size[sid]) if n else np.zeros(0)
         self.tasks = _tasks(sid)
 
-    def __call__(self, u: np.ndarray, v: np.ndarray) -> SurfaceProjection:
+    def __call__(self, u: np.ndarray, v: np.ndarray, known: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> tuple[SurfaceProjection, np.ndarray]:
+        """Newton from (u, v), classified; known: the feet (tu, tv) already found for these
+        pairs (restarts). Returns the projection and same (N,) bool: the restart was converging
+        onto its known foot and stopped (not a foot; never better)."""
         n = len(self.pts)
         u = np.ascontiguousarray(u, dtype=float).copy()
         v = np.ascontiguousarray(v, dtype=float).copy()
         iters = np.zeros(n, dtype=np.int32)
         foot, normal = np.empty((n, 3)), np.empty((n, 3))
         dist, status, degen = np.empty(n), np.empty(n, dtype=np.int8), np.zeros(n, dtype=np.bool_)
+        same = np.zeros(n, dtype=np.bool_)
+        if known is None:
+            tu, tv, reach = u, v, self.pack.no_reach
+        else:
+            tu, tv = np.ascontiguousarray(known[0], dtype=float), np.ascontiguousarray(known[1], dtype=float)
+            reach = self.pack.reach
         if n:
             run = _run_tasks if n >= _PARALLEL_MIN else _run_tasks_serial
             for kind in (0, 1):
                 run(kind, *self.pack.kernel_args(), self.sid, self.eps1, self.tol, self.pts, self.noise, u, v, iters,
-                    int(self.max_iter), foot, dist, normal, status, degen, *self.tasks)
+                    int(self.max_iter), foot, dist, normal, status, degen, *self.tasks, tu, tv, reach, same)
             bad = np.flatnonzero(degen & (status != FAILED))
             for s in np.unique(self.sid[bad]):  # poles, collapsed edges: the limit normal
                 sel = bad[self.sid[bad] == s]
                 normal[sel] = self.pack.surfaces[s].normal(u[sel], v[sel])
-        return SurfaceProjection(u, v, foot, dist, normal, status, iters)
+        return SurfaceProjection(u, v, foot, dist, normal, status, iters), same
 
 
 def _replace(res: SurfaceProjection, tgt: np.ndarray, extra: SurfaceProjection, better: np.ndarray) -> None:
@@ -343,7 +364,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         kk[a:b] = ks
     run = _Run(pack, sid, p, tol, max_iter)
     uv = pack.suv[ik[:, 0]]
-    res = run(uv[:, 0], uv[:, 1])
+    res, _ = run(uv[:, 0], uv[:, 1])
 
     # global check: restarts from other discrete local minima of the sampled distance; not
     # for feet within _ON_SURFACE x size of their point (a restart could gain at most that)
@@ -367,8 +388,8 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     if rows_all:
         rows = np.concatenate(rows_all)
         uv = pack.suv[np.concatenate(seeds_all)]
-        extra = _Run(pack, sid[rows], p[rows], tol, max_iter)(uv[:, 0], uv[:, 1])
-        _replace(res, rows, extra, (extra.status != FAILED) & (extra.distance < d[rows]))
+        extra, same = _Run(pack, sid[rows], p[rows], tol, max_iter)(uv[:, 0], uv[:, 1], (res.u[rows], res.v[rows]))
+        _replace(res, rows, extra, ~same & (extra.status != FAILED) & (extra.distance < d[rows]))
 
     # edge check: feet clamped to a domain edge restart half / one cell inside and from the
     # nearby samples within sqrt(d^2 + (2h)^2)
@@ -397,8 +418,8 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         order = np.argsort(owner, kind="stable")  # by owner = by surface (sid sorted), same per-pair order
         owner = owner[order]
         eu, ev = np.concatenate(starts_u)[order], np.concatenate(starts_v)[order]
-        extra = _Run(pack, sid[owner], p[owner], tol, max_iter)(eu, ev)
+        extra, same = _Run(pack, sid[owner], p[owner], tol, max_iter)(eu, ev, (res.u[owner], res.v[owner]))
         dd = res.distance[owner]
-        better = (extra.status != FAILED) & (extra.distance < dd - 1e-3 * tol * pack.size[sid[owner]])
+        better = ~same & (extra.status != FAILED) & (extra.distance < dd - 1e-3 * tol * pack.size[sid[owner]])
         _replace(res, owner, extra, better)
     return res
