@@ -6,8 +6,9 @@ file's trim delta), so their feet follow each other too. Instead of a global pro
 every sample (`project_to_surface`: KD-tree seed, Newton, then restarts from other local
 minima of the sampled distance and from inside a domain edge), only the two ends of each
 piece are projected globally (the anchors); the samples in between are reached by
-continuation: Newton (the projected Newton of `nurbs.project`, compiled, Neto 2010 app. B
-eqs. 32-36) from the previous foot extrapolated along the piece, one or two iterations each.
+continuation: Newton on the foot condition (Neto 2010 app. B eqs. 32-36; the surface
+derivatives of `nurbs.project`'s compiled evaluator) from the previous foot extrapolated
+along the piece, one or two iterations each, in one compiled pass over all samples.
 
 The continued feet are checked before they are used; a piece fails the check, and all its
 samples get the global projection as before, when
@@ -29,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from cadbridge.nurbs.project import FAILED, _newton_range, project_to_surface, surface_samples
+from cadbridge.nurbs.project import FAILED, _ders2_one, project_to_surface, surface_samples
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["edge_feet", "FAR_REL"]
@@ -40,40 +41,123 @@ MAX_ITER = 30
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, t, noise, starts, u, v, iters,
-           max_iter):  # pragma: no cover - compiled
+def _wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
+    if closed:
+        return lo + (x - lo) % (hi - lo)
+    return min(max(x, lo), hi)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, t, noise, starts, u, v, max_iter,
+           far, off_tol, pole_tol, dist, ok):  # pragma: no cover - compiled
     """Continuation along each piece k (samples starts[k] .. starts[k+1]-1; u, v given at the
-    first sample): the seed of sample i is the foot of i-1 extrapolated linearly in t from
-    i-2 and i-1 (periodic differences taken modulo the period, then wrapped / clamped into
-    the domain), then `_newton_range` on that one sample. Updates u, v, iters in place."""
+    first sample, a global foot). The seed of sample i is the foot of i-1 extrapolated
+    linearly in t from i-2 and i-1 (periodic differences taken modulo the period), wrapped /
+    clamped into the domain; then Newton on f = Su.r, g = Sv.r (r = S - P; full Hessian
+    where positive definite, else Gauss-Newton; a parameter clamped at a domain edge whose
+    gradient points outwards is held and the other one solved alone), convergence as in
+    `nurbs.project` (|r| <= eps1, zero cosines <= eps2, or a step <= eps1), at most
+    ``max_iter`` steps. Writes u, v (N,), dist (N,) = |r| at the foot and ok (N,): converged,
+    finite, dist <= far and each parameter's tangential offset |S_a . r| / |S_a| <= off_tol +
+    noise unless held or at a pole (|S_a| <= pole_tol). Scratch allocated once."""
     pu = u1 - u0
     pv = v1 - v0
+    tiny = 1e-300
+    ndu_u = np.empty((p + 1, p + 1))
+    ndu_v = np.empty((q + 1, q + 1))
+    lu = np.empty(p + 1)
+    ru = np.empty(p + 1)
+    lv = np.empty(q + 1)
+    rv = np.empty(q + 1)
+    au = np.empty((2, p + 1))
+    av = np.empty((2, q + 1))
+    bu = np.empty((3, p + 1))
+    bv = np.empty((3, q + 1))
+    aw = np.empty((3, 3, 4))
+    der = np.empty((3, 3, 3))
     for k in range(len(starts) - 1):
-        a, b = starts[k], starts[k + 1]
-        for i in range(a + 1, b):
-            su, sv = u[i - 1], v[i - 1]
-            if i - 2 >= a and t[i - 1] > t[i - 2]:
-                du = u[i - 1] - u[i - 2]
-                dv = v[i - 1] - v[i - 2]
+        a0, b0 = starts[k], starts[k + 1]
+        for i in range(a0, b0):
+            uu, vv = u[i], v[i]
+            if i > a0:  # the seed: extrapolated from the previous feet
+                uu, vv = u[i - 1], v[i - 1]
+                if i - 2 >= a0 and t[i - 1] > t[i - 2]:
+                    du = u[i - 1] - u[i - 2]
+                    dv = v[i - 1] - v[i - 2]
+                    if cu:
+                        du -= pu * np.rint(du / pu)
+                    if cv:
+                        dv -= pv * np.rint(dv / pv)
+                    s = (t[i] - t[i - 1]) / (t[i - 1] - t[i - 2])
+                    uu += du * s
+                    vv += dv * s
+                uu = _wrap_clamp(uu, u0, u1, cu)
+                vv = _wrap_clamp(vv, v0, v1, cv)
+            px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
+            small = False
+            conv = False
+            lr = np.inf
+            f = g = lsu = lsv = 0.0
+            act_u = act_v = False
+            for it in range(max_iter + 1):
+                _ders2_one(pw, ku, kv, p, q, rational, uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+                rx, ry, rz = der[0, 0, 0] - px, der[0, 0, 1] - py, der[0, 0, 2] - pz
+                sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
+                svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]
+                f = sux * rx + suy * ry + suz * rz
+                g = svx * rx + svy * ry + svz * rz
+                guu = sux * sux + suy * suy + suz * suz
+                gvv = svx * svx + svy * svy + svz * svz
+                lsu = np.sqrt(guu)
+                lsv = np.sqrt(gvv)
+                lr = np.sqrt(rx * rx + ry * ry + rz * rz)
+                act_u = (not cu) and ((uu <= u0 and f > 0) or (uu >= u1 and f < 0))
+                act_v = (not cv) and ((vv <= v0 and g > 0) or (vv >= v1 and g < 0))
+                cos_u = abs(f) / max(lsu * lr, tiny)
+                cos_v = abs(g) / max(lsv * lr, tiny)
+                conv = small or (lr <= eps1) or ((cos_u <= eps2 or act_u) and (cos_v <= eps2 or act_v))
+                if conv or it == max_iter:
+                    break
+                guv = sux * svx + suy * svy + suz * svz
+                ha = guu + rx * der[2, 0, 0] + ry * der[2, 0, 1] + rz * der[2, 0, 2]
+                hb = guv + rx * der[1, 1, 0] + ry * der[1, 1, 1] + rz * der[1, 1, 2]
+                hc = gvv + rx * der[0, 2, 0] + ry * der[0, 2, 1] + rz * der[0, 2, 2]
+                lam = 1e-12 * (guu + gvv) + tiny
+                if not ((ha > 0) and (hc > 0) and (ha * hc - hb * hb > 1e-12 * abs(ha * hc))):
+                    ha, hb, hc = guu + lam, guv, gvv + lam  # Gauss-Newton
+                if act_u and act_v:
+                    break
+                elif act_v:
+                    du, dv = -f / ha, 0.0
+                elif act_u:
+                    du, dv = 0.0, -g / hc
+                else:
+                    det = ha * hc - hb * hb
+                    du = (-hc * f + hb * g) / det
+                    dv = (hb * f - ha * g) / det
+                if not (np.isfinite(du) and np.isfinite(dv)):
+                    break
+                un = _wrap_clamp(uu + du, u0, u1, cu)
+                vn = _wrap_clamp(vv + dv, v0, v1, cv)
+                ddu = un - uu
+                ddv = vn - vv
                 if cu:
-                    du -= pu * np.rint(du / pu)
+                    ddu -= pu * np.rint(ddu / pu)
                 if cv:
-                    dv -= pv * np.rint(dv / pv)
-                s = (t[i] - t[i - 1]) / (t[i - 1] - t[i - 2])
-                su += du * s
-                sv += dv * s
-            if cu:
-                su = u0 + (su - u0) % pu
-            else:
-                su = min(max(su, u0), u1)
-            if cv:
-                sv = v0 + (sv - v0) % pv
-            else:
-                sv = min(max(sv, v0), v1)
-            u[i] = su
-            v[i] = sv
-            _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                          max_iter, i, i + 1)
+                    ddv -= pv * np.rint(ddv / pv)
+                sx = ddu * sux + ddv * svx
+                sy = ddu * suy + ddv * svy
+                sz = ddu * suz + ddv * svz
+                small = np.sqrt(sx * sx + sy * sy + sz * sz) <= eps1
+                uu, vv = un, vn
+            u[i] = uu
+            v[i] = vv
+            dist[i] = lr
+            good = conv and np.isfinite(lr) and lr <= far
+            tol_i = off_tol + noise[i]
+            good = good and (act_u or lsu <= pole_tol or abs(f) / max(lsu, tiny) <= tol_i)
+            good = good and (act_v or lsv <= pole_tol or abs(g) / max(lsv, tiny) <= tol_i)
+            ok[i] = good
 
 
 def edge_feet(surface: NurbsSurface, pts: np.ndarray, t: np.ndarray, starts: np.ndarray,
@@ -101,23 +185,13 @@ def edge_feet(surface: NurbsSurface, pts: np.ndarray, t: np.ndarray, starts: np.
     v = np.empty(n)
     pos = np.searchsorted(anchors, first)
     u[first], v[first] = g.u[pos], g.v[pos]
-    iters = np.zeros(n, dtype=np.int32)
     noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + size)
+    dist = np.empty(n)
+    ok = np.empty(n, dtype=np.bool_)
     _march(surface._pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v, surface.rational,
-           u0, u1, v0, v1, samples.closed_u, samples.closed_v, TOL * size, TOL, pts, t, noise, starts, u, v, iters,
-           MAX_ITER)
-    # ---------------------------------------------------------------- checks (module docstring)
-    d = surface.derivatives(u, v, order=1)
-    r = d[:, 0, 0] - pts
-    dist = np.sqrt(np.einsum("ij,ij->i", r, r))
-    bad = ~np.isfinite(dist) | (dist > FAR_REL * size)
-    for k, s_k, x, lo, hi, closed in ((0, d[:, 1, 0], u, u0, u1, samples.closed_u),
-                                      (1, d[:, 0, 1], v, v0, v1, samples.closed_v)):
-        f = np.einsum("ij,ij->i", s_k, r)
-        ls = np.sqrt(np.einsum("ij,ij->i", s_k, s_k))
-        held = np.zeros(n, dtype=bool) if closed else ((x <= lo) & (f > 0)) | ((x >= hi) & (f < 0))
-        off = np.abs(f) / np.maximum(ls, 1e-300)
-        bad |= ~(held | (ls <= pole_tol) | (off <= 1e3 * TOL * size + noise))
+           u0, u1, v0, v1, samples.closed_u, samples.closed_v, TOL * size, TOL, pts, t, noise, starts, u, v,
+           MAX_ITER, FAR_REL * size, 1e3 * TOL * size, pole_tol, dist, ok)
+    bad = ~ok
     pos_last = np.searchsorted(anchors, last)
     gd = np.where(g.status[pos_last] == FAILED, np.inf, g.distance[pos_last])
     left = dist[last] > gd + 1e-9 * size  # the continuation is not on the global branch at the end
@@ -126,6 +200,7 @@ def edge_feet(surface: NurbsSurface, pts: np.ndarray, t: np.ndarray, starts: np.
     uv = np.column_stack([u, v])
     # both ends keep their global feet (the continued last one agrees in distance): a vertex on
     # a domain edge is then exactly on it, as the projection's clamp puts it
+    uv[first] = np.column_stack([g.u[pos], g.v[pos]])
     uv[last] = np.column_stack([g.u[pos_last], g.v[pos_last]])
     failed = np.zeros(n, dtype=bool)
     if np.any(piece_bad):
