@@ -215,13 +215,22 @@ def shape_check(tools: list, model, projector, grid: int) -> tuple[dict, dict[st
              "rms_normal_error": float(np.sqrt(np.mean(n ** 2)))}, per)
 
 
-def _element_sizes(mesh: Mesh) -> np.ndarray:
-    """Longest edge of every element (E,), blocks in order."""
-    out = []
-    for b in mesh.cells:
-        x = mesh.nodes[np.asarray(b.data)]
-        out.append(np.max(np.linalg.norm(x - np.roll(x, -1, axis=1), axis=2), axis=1))
-    return np.concatenate(out) if out else np.zeros(0)
+def _element_sizes(nm) -> np.ndarray:
+    """Size (E,) of every element of the `NagataMesh` ``nm`` in the sense of the error law:
+    the length of its most curved edge (largest |c|, the coefficient of Nagata eq. 1), which
+    is the edge across the radius of a fillet quad; the longest edge where all are straight."""
+    out = np.zeros(nm.n_elements)
+    for conn, ec, glob, k in ((nm.tri_elements, nm.tri_edge_coefficients, nm.tri_global, 3),
+                              (nm.quad_elements, nm.quad_edge_coefficients, nm.quad_global, 4)):
+        if len(conn) == 0:
+            continue
+        x = nm.nodes[conn]
+        length = np.linalg.norm(np.roll(x, -1, axis=1) - x, axis=2)  # (E, k): edge i from corner i to i+1
+        cm = np.linalg.norm(ec, axis=2)  # (E, k), same local edge order (TRI_EDGES / QUAD_EDGES)
+        curved = cm.max(axis=1) > 1e-9 * length.max(axis=1)
+        pick = np.where(curved, length[np.arange(len(conn)), np.argmax(cm, axis=1)], length.max(axis=1))
+        out[glob] = pick
+    return out
 
 
 def _centroids(mesh: Mesh) -> np.ndarray:
@@ -378,7 +387,7 @@ def refine_mesh(
         def mark(t, elems, e, factor_cap):
             """Refinement marks at the elements' corners and centroids; floor elements noted."""
             nonlocal floor_p
-            hs = _element_sizes(t.mesh)[elems]
+            hs = _element_sizes(t.nagata)[elems]
             cen = _centroids(t.mesh)[elems]
             h_now = np.minimum(hs, field_(cen))
             f = np.clip(0.9 * (t_loop / np.maximum(e, 1e-300)) ** 0.25, 0.3, factor_cap)

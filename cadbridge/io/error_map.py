@@ -16,10 +16,12 @@ __all__ = ["plot_error_map"]
 
 def plot_error_map(path: str | os.PathLike, vertices: np.ndarray, triangles: np.ndarray, values: np.ndarray, *,
                    title: str, label: str, tolerance: float | None = None, edges: np.ndarray | None = None,
-                   figsize: tuple[float, float] = (9, 6), dpi: float = 150) -> None:
+                   figsize: tuple[float, float] = (12, 6), dpi: float = 150) -> None:
     """Triangles (T, 3) over vertices (V, 3) coloured by the mean |value| (V,) of their
     corners; ``tolerance`` caps the colour scale at max(tolerance, max) and marks it on the
-    colour bar; ``edges`` (K, 2, 3) optional line segments (the mesh edges) drawn on top."""
+    colour bar; ``edges`` (K, 2, 3) optional line segments (the mesh edges) drawn on top.
+    Two views: the whole tool in true proportions, and the region around the worst triangle
+    (a small radius is invisible at the scale of a die)."""
     from matplotlib import cm, colors
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -35,29 +37,43 @@ def plot_error_map(path: str | os.PathLike, vertices: np.ndarray, triangles: np.
         raise ValueError("plot_error_map: values must be finite")
     fig = Figure(figsize=figsize, dpi=dpi, layout="constrained")
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot(projection="3d")
     top = max(float(val.max()), tolerance or 0.0, 1e-300)
     norm = colors.Normalize(0.0, top)
-    cmap = cm.get_cmap("viridis") if hasattr(cm, "get_cmap") else colors.Colormap("viridis")
+    from matplotlib import colormaps
+
+    cmap = colormaps["viridis"]
     face = val[t].mean(axis=1)
-    pc = Poly3DCollection(v[t], facecolors=cmap(norm(face)), edgecolors="none", linewidths=0)
-    ax.add_collection3d(pc)
-    if edges is not None and len(edges):
-        ax.add_collection3d(Line3DCollection(np.asarray(edges, dtype=float), colors="k", linewidths=0.3))
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    c, r = 0.5 * (lo + hi), 0.5 * float(np.max(hi - lo))
-    ax.set_xlim(c[0] - r, c[0] + r)
-    ax.set_ylim(c[1] - r, c[1] + r)
-    ax.set_zlim(c[2] - r, c[2] + r)
-    ax.set_xlabel("x")
-    ax.set_ylabel("y")
-    ax.set_zlabel("z")
-    ax.set_title(title)
+    # left: the whole tool in true proportions; right: around its worst triangle
+    worst = int(np.argmax(face))
+    wc = v[t[worst]].mean(axis=0)
+    span = 6.0 * float(np.max(np.linalg.norm(v[t[worst]] - wc, axis=1))) + 1e-300
+    near = np.all(np.abs(v[t] - wc).max(axis=2) <= span, axis=1)
+    for k, (sel, name) in enumerate(((np.ones(len(t), bool), "whole tool"), (near, "around the largest error"))):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        ax.add_collection3d(Poly3DCollection(v[t[sel]], facecolors=cmap(norm(face[sel])), edgecolors="none",
+                                             linewidths=0))
+        pts = v[t[sel]].reshape(-1, 3)
+        if edges is not None and len(edges):
+            e = np.asarray(edges, dtype=float)
+            if k == 1:
+                e = e[np.all(np.abs(e - wc).max(axis=2) <= span, axis=1)]
+            ax.add_collection3d(Line3DCollection(e, colors="k", linewidths=0.4))
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        ext = np.maximum(hi - lo, 1e-3 * float(np.max(hi - lo)))
+        ax.set_xlim(lo[0], lo[0] + ext[0])
+        ax.set_ylim(lo[1], lo[1] + ext[1])
+        ax.set_zlim(lo[2], lo[2] + ext[2])
+        ax.set_box_aspect(tuple(ext / ext.max()))
+        ax.set_xlabel("x")
+        ax.set_ylabel("y")
+        ax.set_zlabel("z")
+        ax.set_title(name, fontsize=9)
+    fig.suptitle(title)
     sm = cm.ScalarMappable(norm=norm, cmap=cmap)
-    cb = fig.colorbar(sm, ax=ax, shrink=0.7, label=label)
+    cb = fig.colorbar(sm, ax=fig.axes, shrink=0.6, label=label)
     if tolerance:
         cb.ax.axhline(tolerance, color="r", linewidth=2)
-        cb.ax.text(1.05, tolerance / top, "tolerance", color="r", transform=cb.ax.transAxes, va="center",
-                   fontsize=8)
+        cb.ax.text(-0.2, tolerance / top, "tolerance", color="r", transform=cb.ax.transAxes, va="center",
+                   ha="right", fontsize=8)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=fig.dpi)
