@@ -205,6 +205,7 @@ def cmd_mesh(args: argparse.Namespace) -> int:
         length_divisions=args.length_divisions,
         curvature_elements=args.curvature_elements,
         embed_curves=[c.curve for c in creases],
+        mesher=args.mesher,
     )
     write_mesh(mesh, args.output)
     n_el = sum(len(b.data) for b in mesh.cells)
@@ -290,6 +291,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
             radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
             curvature_elements=args.curvature_elements, method=args.method, grid=args.grid, flip=args.flip, tolerance=args.tolerance, progress=progress,
             allow_worse=args.allow_worse, shape_tolerance=args.shape_tolerance, min_size=args.min_size,
+            mesher=args.mesher,
         )
     if getattr(result, "adaptive", None) is not None:
         _say(result.adaptive.summary())
@@ -302,7 +304,8 @@ def cmd_ushape(args: argparse.Namespace) -> int:
     from cadbridge.ushape.benchmark import run_ushape
 
     with Progress("cadbridge ushape") as progress:
-        summary = run_ushape(args.output, grid=args.grid, fine_size=args.fine_size, progress=progress)
+        summary = run_ushape(args.output, grid=args.grid, fine_size=args.fine_size, progress=progress,
+                             mesher=args.mesher)
     _say(summary.table())
     _say("")
     _say("\n".join(summary.findings("die")))
@@ -311,7 +314,14 @@ def cmd_ushape(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- parser
+def _add_mesher_option(p: argparse.ArgumentParser, what: str = "the mesh") -> None:
+    p.add_argument("--mesher", choices=["gmsh", "qit"], default="gmsh",
+                   help=f"mesher of {what}: gmsh (default) or qit, the quasi-isotropic triangulation directly on "
+                        "the NURBS faces (triangles, --size = target edge length; docs/qit.md)")
+
+
 def _add_mesh_options(p: argparse.ArgumentParser) -> None:
+    _add_mesher_option(p)
     p.add_argument("--element", choices=["tri", "quad"], default="quad", help="element type (default quad)")
     p.add_argument("--size", type=float, default=None, help="target element size in model units")
     p.add_argument("--structured", action="store_true", help="structured (transfinite) mesh on four-sided faces")
@@ -412,6 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--grid", type=int, default=20, help="grid divisions per patch")
     p.add_argument("--fine-size", type=float, default=4.0, help="element size of the unstructured triangle variant (mm)")
+    _add_mesher_option(p, "the unstructured triangle variant")
     p.set_defaults(func=cmd_ushape)
 
     import importlib

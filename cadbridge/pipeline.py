@@ -697,8 +697,10 @@ def convert(
     curvature_elements: int = 12,
     shape_tolerance: float | None = None,
     min_size: float | None = None,
+    mesher: str = "gmsh",
 ) -> RunResult:
-    """`cadbridge convert`: mesh the CAD with gmsh, exact normals, Nagata, tool files, report.
+    """`cadbridge convert`: mesh the CAD with gmsh (or ``mesher="qit"``, `cadbridge.mesh.qit`),
+    exact normals, Nagata, tool files, report.
 
     ``shape_tolerance``: the mesh is sized and refined until the Nagata surface is within it
     (`cadbridge.refine.refine_mesh`, ``size`` the largest element, ``min_size`` the floor);
@@ -721,7 +723,7 @@ def convert(
     from cadbridge.creases import crease_lines
 
     creases = crease_lines(model)  # C0 knot lines where the normal jumps: mesh edges go there
-    progress.stage(f"meshing {Path(cad).name} with gmsh"
+    progress.stage(f"meshing {Path(cad).name} with {mesher}"
                    + (f" ({len(creases)} crease lines inside faces become mesh edges)" if creases else ""))
     projector = CadProjector(model, progress)
     adaptive = None
@@ -734,7 +736,8 @@ def convert(
     else:
         mesh = mesh_cad(cad, element=element, size=size, structured=structured,
                         radius_divisions=radius_divisions, length_divisions=length_divisions,
-                        curvature_elements=curvature_elements, embed_curves=[c.curve for c in creases])
+                        curvature_elements=curvature_elements, embed_curves=[c.curve for c in creases],
+                        mesher=mesher)
     mesh.name = Path(cad).stem
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
                              orient=True, meshed_per_face=True)

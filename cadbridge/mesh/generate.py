@@ -311,6 +311,7 @@ def mesh_cad(
     embed_curves: Sequence = (),
     size_callback=None,
     curve_size=None,
+    mesher: str = "gmsh",
 ) -> Mesh:
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
@@ -352,7 +353,16 @@ def mesh_cad(
     orientation as gmsh gives it (following each OCC face's orientation), unused nodes
     dropped, ``cell_data["element_entity"]`` and (if ``parametric``) the node data above.
     Raises `MeshError` naming the file on import / meshing failure.
+    mesher : "gmsh" (default) or "qit": the quasi-isotropic triangulation of
+        `cadbridge.mesh.qit` (IGES only; ``size`` is its target edge length R; the gmsh
+        options do not apply).
     """
+    if mesher == "qit":
+        from cadbridge.mesh.qit import mesh_cad_qit
+
+        return mesh_cad_qit(path, size=size, element=element, structured=structured, embed_curves=embed_curves)
+    if mesher != "gmsh":
+        raise MeshError(f"mesher must be 'gmsh' or 'qit', got {mesher!r}")
     path = Path(path)
     if element not in ("tri", "quad"):
         raise MeshError(f"element must be 'tri' or 'quad', got {element!r}")

@@ -1070,11 +1070,18 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
         mid = 0.5 * (seg_a + seg_b)
         half = 0.5 * np.linalg.norm(seg_b - seg_a, axis=1).max()
         tree = cKDTree(mid)
-        for k in np.flatnonzero(inside):
-            cand = tree.query_ball_point(x[k], dx_th + half)
-            if cand:
-                c = np.array(cand)
-                dist[k] = _dist_to_polyline_pairs(x[k], seg_a[c], seg_b[c])
+        k_in = np.flatnonzero(inside)
+        kk = min(16, len(mid))
+        dm, nn = tree.query(x[k_in], k=kk)
+        dm, nn = dm.reshape(len(k_in), kk), nn.reshape(len(k_in), kk)
+        p = x[k_in][:, None]
+        a, ab = seg_a[nn], seg_b[nn] - seg_a[nn]
+        t = np.clip(np.einsum("kij,kij->ki", p - a, ab) / np.maximum(np.einsum("kij,kij->ki", ab, ab), 1e-300), 0, 1)
+        dist[k_in] = np.linalg.norm(p - (a + t[..., None] * ab), axis=2).min(axis=1)
+        # a segment within dx_th may be farther than the kk-th midpoint only if that one is near
+        for k in k_in[dm[:, -1] < dx_th + half] if kk < len(mid) else []:
+            c = np.array(tree.query_ball_point(x[k], dx_th + half))
+            dist[k] = _dist_to_polyline_pairs(x[k], seg_a[c], seg_b[c])
     si = inside & (dist >= dx_th)
     rep.so = int((~inside).sum())
     rep.se = int((inside & ~si).sum())
@@ -1083,17 +1090,7 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
     # vertices in (u, v) scaled by the mean |Su|, |Sv| (isotropic enough for interpolation)
     d = s.derivatives(uv[:, 0].clip(surf.lo[0], surf.hi[0]), uv[:, 1].clip(surf.lo[1], surf.hi[1]), order=1)
     scale = np.array([np.linalg.norm(d[:, 1, 0], axis=1).mean(), np.linalg.norm(d[:, 0, 1], axis=1).mean()])
-    dt = Delaunay(uv * scale)
-    q = e_uv * scale
-    simp = dt.find_simplex(q)
-    out = simp < 0
-    if out.any():
-        nearest = cKDTree(uv * scale).query(q[out])[1]
-        simp[out] = dt.vertex_to_simplex[nearest]
-    tr = dt.transform[simp]
-    b = np.einsum("kij,kj->ki", tr[:, :2], q - tr[:, 2])
-    bary = np.column_stack([b, 1 - b.sum(axis=1)])
-    e_pr = np.einsum("ki,kij->kj", bary, pr[dt.simplices[simp]])
+    e_pr = _interpolate_pattern(uv * scale, pr, e_uv * scale)
     # constrained Delaunay in pattern space
     si_idx = np.flatnonzero(si)
     pts = np.concatenate([pr[si_idx], e_pr])
@@ -1127,8 +1124,70 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
     return gid[local]
 
 
+def _interpolate_pattern(p: np.ndarray, r: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Eqs. 19-20: pattern coordinates at points q (E, 2) by area coordinates in the Delaunay
+    triangle (of the points p (N, 2) with pattern coordinates r (N, 2)) containing q; a point
+    outside the hull takes the nearest-vertex triangle whose area coordinates are least
+    negative (linear extrapolation). Candidates are the triangles around the 3 nearest
+    vertices, so no point-location walk is needed."""
+    dt = Delaunay(p)
+    simp = dt.simplices
+    inc_t = np.repeat(np.arange(len(simp)), 3)
+    inc_v = simp.ravel()
+    order = np.argsort(inc_v, kind="stable")
+    inc_v, inc_t = inc_v[order], inc_t[order]
+    start = np.searchsorted(inc_v, np.arange(len(p) + 1))
+    _, near = cKDTree(p).query(q, k=min(3, len(p)))
+    near = np.atleast_2d(near).reshape(len(q), -1)
+    cand = [np.unique(np.concatenate([inc_t[start[v]:start[v + 1]] for v in row])) for row in near]
+    width = max(len(c) for c in cand)
+    ct = np.array([np.pad(c, (0, width - len(c)), mode="edge") for c in cand])  # (E, W)
+    a, b, c = p[simp[ct, 0]], p[simp[ct, 1]], p[simp[ct, 2]]  # (E, W, 2)
+    v0, v1, v2 = b - a, c - a, q[:, None] - a
+    den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
+    den = np.where(np.abs(den) > 0, den, np.inf)
+    l1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
+    l2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
+    lam = np.stack([1 - l1 - l2, l1, l2], axis=-1)  # (E, W, 3)
+    best = np.argmax(lam.min(axis=-1), axis=1)
+    rows = np.arange(len(q))
+    tri = ct[rows, best]
+    return np.einsum("ki,kij->kj", lam[rows, best], r[simp[tri]])
+
+
 def _dist_to_polyline_pairs(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
     ab = b - a
     ll = np.einsum("ij,ij->i", ab, ab)
     t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.where(ll > 0, ll, 1.0), 0.0, 1.0)
     return float(np.linalg.norm(p - (a + t[:, None] * ab), axis=1).min())
+
+
+def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", structured: bool = False,
+                 embed_curves=(), options: QitOptions | None = None, progress=None) -> Mesh:
+    """`cadbridge.mesh.generate.mesh_cad` with ``mesher="qit"``: read the IGES file and mesh
+    all its faces with QIT (default size: bounding-box diagonal / 20, as gmsh's default).
+    Raises `MeshError` (one line) for what QIT does not do: quads, structured meshes,
+    crease lines inside faces (``embed_curves``)."""
+    from pathlib import Path
+
+    from cadbridge.iges import IgesError, read_iges
+
+    path = Path(path)
+    if element != "tri":
+        raise MeshError("QIT makes triangles only: use --element tri with --mesher qit")
+    if structured:
+        raise MeshError("QIT makes unstructured meshes: --structured needs --mesher gmsh")
+    if not path.is_file():
+        raise MeshError(f"{path}: no such file")
+    try:
+        model = read_iges(path)
+    except IgesError as exc:
+        raise MeshError(str(exc)) from exc
+    if embed_curves:
+        raise MeshError(f"{path}: {len(embed_curves)} crease lines inside faces (C0 knots) must become mesh edges; "
+                        "QIT does not embed curves: mesh this file with --mesher gmsh")
+    if size is None:
+        size = model.size() / 20.0
+    mesh = qit_mesh(model, size, options, progress=progress)
+    mesh.name = path.stem
+    return mesh

@@ -246,8 +246,10 @@ def _tool_sources(tool, mesh, cn, on_radius, p, projector, grid):
 
 
 def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 20, fine_size: float = 4.0,
-               progress=None) -> UShapeSummary:
+               progress=None, mesher: str = "gmsh") -> UShapeSummary:
     """Run the benchmark into ``output`` (created; files are moved in only on success).
+
+    mesher: "gmsh" or "qit" for the unstructured triangle variant (``fine_size``).
 
     progress: optional stage reporter (see `cadbridge.pipeline.NoProgress`).
     """
@@ -316,7 +318,7 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
             }
 
             progress.stage(f"{tool}: unstructured triangles ({fine_size} mm), CAD normals")
-            fine = mesh_cad(cad_path, element="tri", size=fine_size)
+            fine = mesh_cad(cad_path, element="tri", size=fine_size, mesher=mesher)
             fine = _flat_normals_toward(fine, blank_z)
             fine.name = f"{tool}_tri"
             write_mesh(fine, tmp / "mesh" / f"{tool}_tri.msh")
