@@ -1,6 +1,6 @@
 """IGES read benchmark (a script, not a test): ``cadbridge.read_iges`` against OpenCASCADE's
 ``IGESControl_Reader.ReadFile`` + ``TransferRoots`` + ``OneShape`` on every file of
-``../shared/iges_real`` and ``iges_samples/production_die_nurbs.igs`` (plus any ``--file``),
+``../shared/iges_real`` and ``iges_samples/production_die_{nurbs,analytic}.igs`` (plus any ``--file``),
 best of ``--repeat`` for each, measured in the same run and reported as ratios (OCC time /
 cadbridge time; >= 1 means cadbridge reads at least as fast). The two readers are timed
 alternately (one cadbridge read, one OCC read, ``--repeat`` times), so a change of load on a
@@ -41,9 +41,10 @@ SAMPLES = ROOT / "iges_samples"
 
 def files(extra: list[str]) -> list[Path]:
     out = sorted(REAL.glob("*.ig*")) if REAL.is_dir() else []
-    die = SAMPLES / "production_die_nurbs.igs"
-    if die.exists():
-        out.append(die)
+    for mode in ("nurbs", "analytic"):  # both modes of the generated die (git-ignored; `make_samples.py`)
+        die = SAMPLES / f"production_die_{mode}.igs"
+        if die.exists():
+            out.append(die)
     return out + [Path(p) for p in extra]
 
 
