@@ -21,6 +21,7 @@ loop that contains them). These loops are the trim curves of the IGES bands.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -96,7 +97,8 @@ class Bands:
     levels        (L,); lower, upper (L + 1,) band limits (-inf / +inf for the open bands)
     area          (L + 1,) exact area per band (model units squared)
     face_area     (L + 1, F) per band and face
-    pieces_*      the clipped pieces: band, face (P,), polygon (P, 5, 3) [u, v, f], count (P,)
+    pieces_*      the clipped pieces: band, face, sub-triangle, exact area (P,); their polygons
+                  pieces_poly (P, 5, 3) [u, v, f] with pieces_count (P,) vertices (on demand)
     whole         (T,) band of each sub-triangle lying in one band, -1 where clipped
     """
 
@@ -108,10 +110,25 @@ class Bands:
     whole: np.ndarray
     pieces_band: np.ndarray
     pieces_face: np.ndarray
-    pieces_poly: np.ndarray
-    pieces_count: np.ndarray
+    pieces_tri: np.ndarray
     pieces_area: np.ndarray
+    bmin: np.ndarray = field(repr=False, default=None)
+    bmax: np.ndarray = field(repr=False, default=None)
     mapping: object = field(repr=False, default=None)
+
+    @cached_property
+    def _polygons(self) -> tuple[np.ndarray, np.ndarray]:
+        """All pieces' polygons (P, 5, 3) and counts, clipped on first use."""
+        t, b = self.pieces_tri, self.pieces_band
+        return _pieces(self.mapping, t, b, self.lower, self.upper, b > self.bmin[t], b < self.bmax[t])
+
+    @property
+    def pieces_poly(self) -> np.ndarray:
+        return self._polygons[0]
+
+    @property
+    def pieces_count(self) -> np.ndarray:
+        return self._polygons[1]
 
     @property
     def present(self) -> np.ndarray:
@@ -247,8 +264,10 @@ class Bands:
         m = self.mapping
         sel = np.flatnonzero((self.whole == b) & (m.tri_face == f))
         ps = np.flatnonzero((self.pieces_band == b) & (self.pieces_face == f))
-        cen = np.concatenate([m.tri_uv[sel].mean(axis=1),
-                              np.array([self.pieces_poly[i, : self.pieces_count[i], :2].mean(axis=0) for i in ps]).reshape(-1, 2)])
+        pp, pc = self.pieces_poly[ps, :, :2], self.pieces_count[ps]
+        valid = np.arange(pp.shape[1])[None, :] < pc[:, None]
+        pcen = (pp * valid[:, :, None]).sum(axis=1) / np.maximum(pc, 1)[:, None]
+        cen = np.concatenate([m.tri_uv[sel].mean(axis=1), pcen])
         area = np.concatenate([m.tri_area[sel], self.pieces_area[ps]])
         taken = np.zeros(len(cen), dtype=bool)
         for r in regs:
@@ -288,52 +307,85 @@ def _simplify(loop: np.ndarray, rel: float = 1e-13) -> np.ndarray:
     return loop[~straight]
 
 
-def band_areas(mapping, levels: np.ndarray, quadrature: int = 4) -> Bands:
-    """Bands of ``mapping`` at ``levels`` with exact areas (see the module text)."""
+def _pieces(mapping, tri: np.ndarray, band: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+            clip_lo: np.ndarray, clip_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Polygons (P, 5, 3) [u, v, f] and vertex counts of sub-triangles ``tri`` clipped to their
+    ``band``; only rows flagged ``clip_lo`` / ``clip_hi`` meet that bound."""
+    poly = np.zeros((len(tri), 5, 3))
+    poly[:, :3, :2] = mapping.tri_uv[tri]
+    poly[:, :3, 2] = mapping.tri_f[tri]
+    pc = np.full(len(tri), 3, dtype=np.int64)
+    for flag, bound, above in ((clip_lo, lower, True), (clip_hi, upper, False)):
+        r = np.flatnonzero(flag)
+        if len(r):
+            width = int(pc[r].max())
+            out, n = _clip(poly[r, :width], pc[r], bound[band[r]], above)
+            poly[r, : out.shape[1]] = out[:, :5]
+            pc[r] = n
+    return poly, pc
+
+
+def _fan_areas(mapping, poly: np.ndarray, pc: np.ndarray, face: np.ndarray, quadrature: int) -> np.ndarray:
+    """Exact area of convex (u, v) polygons (fan triangles from vertex 0), (P,)."""
+    area = np.zeros(len(poly))
+    uvs, owner = [], []
+    for j in range(1, 4):
+        r = np.flatnonzero(pc > j + 1)
+        uvs.append(np.stack([poly[r, 0, :2], poly[r, j, :2], poly[r, j + 1, :2]], axis=1))
+        owner.append(r)
+    uv, owner = np.concatenate(uvs), np.concatenate(owner)
+    fr = face[owner]
+    order = np.argsort(fr, kind="stable")
+    cuts = np.flatnonzero(np.diff(fr[order])) + 1
+    for grp in np.split(order, cuts):
+        if len(grp):
+            a = surface_area_of_triangles(mapping.model.faces[int(fr[grp[0]])].surface, uv[grp], quadrature)
+            area += np.bincount(owner[grp], weights=a, minlength=len(poly))
+    return area
+
+
+def band_areas(mapping, levels: np.ndarray, quadrature: int = 4, ranks: tuple[np.ndarray, np.ndarray] | None = None
+               ) -> Bands:
+    """Bands of ``mapping`` at ``levels`` with exact areas (see the module text).
+
+    Per crossed sub-triangle, the pieces below its highest band are clipped and integrated;
+    the piece in the highest band is the triangle's exact area minus theirs (its polygon is
+    clipped only when the regions are asked for). ranks: `level_ranks` if already computed."""
     levels = np.asarray(levels, dtype=float)
     L = len(levels)
     F = len(mapping.model.faces)
     lower = np.concatenate([[-np.inf], levels])
     upper = np.concatenate([levels, [np.inf]])
-    vb = band_index(mapping.tri_f, levels)  # (T, 3)
-    bmin, bmax = vb.min(axis=1), vb.max(axis=1)
+    if ranks is None:
+        from cadbridge.results.contours import level_ranks
+
+        ranks = level_ranks(mapping, levels)
+    # band_index is monotone: the bands of a triangle's extreme values bound its bands; a
+    # value equal to the top level belongs to the top interior band
+    fmin, fmax = mapping.tri_range
+    bmin, bmax = ranks[0].copy(), ranks[1].copy()
+    if L >= 2:
+        bmin[fmin == levels[-1]] = L - 1
+        bmax[fmax == levels[-1]] = L - 1
     one = bmin == bmax
     whole = np.where(one, bmin, -1)
-    face_area = np.zeros((L + 1, F))
-    np.add.at(face_area, (bmin[one], mapping.tri_face[one]), mapping.tri_area[one])
+    face_area = np.bincount(np.where(one, bmin * F + mapping.tri_face, (L + 1) * F), weights=mapping.tri_area,
+                            minlength=(L + 1) * F + 1)[: (L + 1) * F].reshape(L + 1, F)
     # crossed triangles: one piece per band they meet
     ct = np.flatnonzero(~one)
     cnt = bmax[ct] - bmin[ct] + 1
     tri = np.repeat(ct, cnt)
     band = np.repeat(bmin[ct], cnt) + (np.arange(len(tri)) - np.repeat(np.cumsum(cnt) - cnt, cnt))
-    poly = np.zeros((len(tri), 3, 3))
-    poly[:, :, :2] = mapping.tri_uv[tri]
-    poly[:, :, 2] = mapping.tri_f[tri]
-    pc = np.full(len(tri), 3, dtype=np.int64)
-    lo, hi = lower[band], upper[band]
-    # clip below (all rows; infinite bounds keep everything) then above
-    lo_c = np.where(np.isfinite(lo), lo, -np.inf)
-    poly, pc = _clip(poly, pc, lo_c, True)
-    hi_c = np.where(np.isfinite(hi), hi, np.inf)
-    poly, pc = _clip(poly, pc, hi_c, False)
-    pieces = np.zeros((len(tri), 5, 3))
-    pieces[:, : min(5, poly.shape[1])] = poly[:, :5]
     pface = mapping.tri_face[tri]
-    # areas of the pieces: fan triangles
+    top = band == bmax[tri]
+    sub = np.flatnonzero(~top)
+    poly, pc = _pieces(mapping, tri[sub], band[sub], lower, upper, band[sub] > bmin[tri[sub]], np.ones(len(sub), bool))
     parea = np.zeros(len(tri))
-    for j in range(1, 4):
-        r = np.flatnonzero(pc > j + 1)
-        if not len(r):
-            continue
-        uv = np.stack([pieces[r, 0, :2], pieces[r, j, :2], pieces[r, j + 1, :2]], axis=1)
-        fr = pface[r]
-        order = np.argsort(fr, kind="stable")
-        cuts = np.flatnonzero(np.diff(fr[order])) + 1
-        for grp in np.split(order, cuts):
-            if len(grp):
-                parea[r[grp]] += surface_area_of_triangles(mapping.model.faces[int(fr[grp[0]])].surface, uv[grp], quadrature)
-    np.add.at(face_area, (band, pface), parea)
-    keep = pc >= 3
+    parea[sub] = _fan_areas(mapping, poly, pc, pface[sub], quadrature)
+    below = np.bincount(tri[sub], weights=parea[sub], minlength=len(mapping.tri_face))
+    ti = tri[top]
+    parea[top] = np.maximum(mapping.tri_area[ti] - below[ti], 0.0)
+    face_area += np.bincount(band * F + pface, weights=parea, minlength=(L + 1) * F).reshape(L + 1, F)
     return Bands(levels=levels, lower=lower, upper=upper, area=face_area.sum(axis=1), face_area=face_area,
-                 whole=whole, pieces_band=band[keep], pieces_face=pface[keep], pieces_poly=pieces[keep],
-                 pieces_count=pc[keep], pieces_area=parea[keep], mapping=mapping)
+                 whole=whole, pieces_band=band, pieces_face=pface, pieces_tri=tri, pieces_area=parea,
+                 bmin=bmin, bmax=bmax, mapping=mapping)

@@ -23,7 +23,7 @@ import numpy as np
 
 from cadbridge.nurbs.project import project_to_surface
 
-__all__ = ["ContourLines", "Contours", "contour", "contour_lines", "make_levels"]
+__all__ = ["ContourLines", "Contours", "contour", "contour_lines", "level_ranks", "make_levels"]
 
 _EDGES = ((0, 1), (1, 2), (2, 0))
 
@@ -164,12 +164,37 @@ def _chain(a, b, n_pts):  # pragma: no cover - compiled
     return order, flip, line_start[: n_lines + 1], closed[:n_lines]
 
 
-def _level_pairs(tri_f: np.ndarray, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@numba.njit(cache=True)
+def _ranks_kernel(fmin, fmax, levels, lo, hi):  # pragma: no cover - compiled
+    n_lv = len(levels)
+    for i in range(len(fmin)):
+        a, b = fmin[i], fmax[i]
+        k = 0
+        while k < n_lv and levels[k] <= a:
+            k += 1
+        lo[i] = k
+        while k < n_lv and levels[k] <= b:
+            k += 1
+        hi[i] = k
+
+
+def level_ranks(mapping, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per sub-triangle, the number of levels <= its smallest and <= its largest value,
+    (T,) int64 each (``searchsorted(levels, f, side="right")``, one compiled pass): the
+    levels crossing it are those with rank in [lo, hi)."""
+    fmin, fmax = mapping.tri_range
+    lo = np.empty(len(fmin), dtype=np.int64)
+    hi = np.empty(len(fmin), dtype=np.int64)
+    _ranks_kernel(fmin, fmax, np.ascontiguousarray(levels, dtype=float), lo, hi)
+    return lo, hi
+
+
+def _level_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(triangle, level) pairs whose level crosses the triangle: fmin < c <= fmax."""
-    lo = np.searchsorted(levels, tri_f.min(axis=1), side="right")
-    hi = np.searchsorted(levels, tri_f.max(axis=1), side="right")
     cnt = np.maximum(hi - lo, 0)
-    tri = np.repeat(np.arange(len(tri_f)), cnt)
+    crossed = np.flatnonzero(cnt)
+    lo, cnt = lo[crossed], cnt[crossed]
+    tri = np.repeat(crossed, cnt)
     first = np.repeat(lo, cnt)
     step = np.arange(len(tri)) - np.repeat(np.cumsum(cnt) - cnt, cnt)
     return tri, first + step
@@ -183,15 +208,18 @@ def _eval(model, face: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return out
 
 
-def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None, max_sub: int = 64) -> ContourLines:
+def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None, max_sub: int = 64,
+                  ranks: tuple[np.ndarray, np.ndarray] | None = None) -> ContourLines:
     """Contour lines of ``mapping`` at ``levels`` (see the module text). chord_tol: largest
-    chord-to-surface deviation of the polyline pieces (default 1e-5 x model size)."""
+    chord-to-surface deviation of the polyline pieces (default 1e-5 x model size); ranks:
+    `level_ranks` if already computed."""
     levels = np.asarray(levels, dtype=float)
+    lo, hi = level_ranks(mapping, levels) if ranks is None else ranks
     model = mapping.model
     size = mapping.size
     tol = 1e-5 * size if chord_tol is None else float(chord_tol)
     tf, tuv, tkey, tface = mapping.tri_f, mapping.tri_uv, mapping.tri_key, mapping.tri_face
-    tri, lev = _level_pairs(tf, levels)
+    tri, lev = _level_pairs(lo, hi)
     c = levels[lev]
     above = tf[tri] >= c[:, None]  # (P, 3)
     # per pair, the two crossed edges (in edge order); canonical orientation by key
@@ -312,6 +340,8 @@ def contour(mapping, levels: np.ndarray, *, chord_tol: float | None = None) -> C
     from cadbridge.results.bands import band_areas
 
     t0 = time.perf_counter()
-    lines = contour_lines(mapping, levels, chord_tol=chord_tol)
-    bands = band_areas(mapping, levels)
+    levels = np.asarray(levels, dtype=float)
+    ranks = level_ranks(mapping, levels)
+    lines = contour_lines(mapping, levels, chord_tol=chord_tol, ranks=ranks)
+    bands = band_areas(mapping, levels, ranks=ranks)
     return Contours(np.asarray(levels, float), lines, bands, mapping, time.perf_counter() - t0)

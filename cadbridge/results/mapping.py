@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -201,6 +202,13 @@ class ResultMapping:
     @property
     def size(self) -> float:
         return self.model.size()
+
+    @cached_property
+    def tri_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """(T,) smallest and largest field value of each sub-triangle (levels-independent)."""
+        f = self.tri_f
+        return (np.minimum(np.minimum(f[:, 0], f[:, 1]), f[:, 2]),
+                np.maximum(np.maximum(f[:, 0], f[:, 1]), f[:, 2]))
 
     def levels(self, levels: int | list[float] = 8, vmin: float | None = None, vmax: float | None = None) -> np.ndarray:
         """Contour levels: ``levels`` equal bands between vmin and vmax (default the data range),
