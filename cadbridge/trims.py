@@ -31,6 +31,7 @@ from scipy.spatial import cKDTree
 
 from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.project import _ders2_one
 
 __all__ = ["LoopBoundary", "loop_contains", "polygon_contains", "polygon_distance", "project_to_trims", "trim_contains"]
 
@@ -46,11 +47,40 @@ _GENERIC_SAFETY = 2.0  # factor on the sampled chord estimate of curves without 
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _curve_ders_kernel(pw, knots, p, rational, t, d, out):  # pragma: no cover - compiled
-    """`NurbsCurve.derivatives` point by point: A2.1 / A2.3 (`find_span_one`,
-    `ders_basis_one`), the homogeneous sums, then the quotient rule of P&T A4.2.
-    pw (n, dim+1) homogeneous net, t (N,), out (N, d+1, dim)."""
+def _curve_ders_one(pw, knots, p, rational, x, d, ndu, left, right, a, nd, aw, out):  # pragma: no cover - compiled
+    """`NurbsCurve.derivatives` at one parameter x into out (d+1, dim): A2.1 / A2.3
+    (`find_span_one`, `ders_basis_one`), the homogeneous sums, then the quotient rule of P&T
+    A4.2. pw (n, dim+1) homogeneous net; scratch ndu (p+1, p+1), left/right (p+1,),
+    a (2, p+1), nd (d+1, p+1), aw (d+1, dim+1)."""
     n_ctrl = pw.shape[0]
+    dim = pw.shape[1] - 1
+    span = find_span_one(knots, p, n_ctrl, x)
+    ders_basis_one(span, x, p, knots, d, ndu, left, right, a, nd)
+    for k in range(d + 1):
+        for c in range(dim + 1):
+            acc = 0.0
+            for j in range(p + 1):
+                acc += nd[k, j] * pw[span - p + j, c]
+            aw[k, c] = acc
+    if not rational:
+        for k in range(d + 1):
+            for c in range(dim):
+                out[k, c] = aw[k, c]
+        return
+    w0 = aw[0, dim]
+    for k in range(d + 1):
+        for c in range(dim):
+            val = aw[k, c]
+            b = 1.0  # binomial C(k, j)
+            for j in range(1, k + 1):
+                b = b * (k - j + 1) / j
+                val -= b * aw[j, dim] * out[k - j, c]
+            out[k, c] = val / w0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _curve_ders_kernel(pw, knots, p, rational, t, d, out):  # pragma: no cover - compiled
+    """`_curve_ders_one` for every t (N,) into out (N, d+1, dim)."""
     dim = pw.shape[1] - 1
     ndu = np.empty((p + 1, p + 1))
     left = np.empty(p + 1)
@@ -59,29 +89,68 @@ def _curve_ders_kernel(pw, knots, p, rational, t, d, out):  # pragma: no cover -
     nd = np.empty((d + 1, p + 1))
     aw = np.empty((d + 1, dim + 1))
     for i in range(t.shape[0]):
-        x = t[i]
-        span = find_span_one(knots, p, n_ctrl, x)
-        ders_basis_one(span, x, p, knots, d, ndu, left, right, a, nd)
-        for k in range(d + 1):
-            for c in range(dim + 1):
-                acc = 0.0
-                for j in range(p + 1):
-                    acc += nd[k, j] * pw[span - p + j, c]
-                aw[k, c] = acc
-        if not rational:
-            for k in range(d + 1):
-                for c in range(dim):
-                    out[i, k, c] = aw[k, c]
-            continue
-        w0 = aw[0, dim]
-        for k in range(d + 1):
-            for c in range(dim):
-                val = aw[k, c]
-                b = 1.0  # binomial C(k, j)
-                for j in range(1, k + 1):
-                    b = b * (k - j + 1) / j
-                    val -= b * aw[j, dim] * out[i, k - j, c]
-                out[i, k, c] = val / w0
+        _curve_ders_one(pw, knots, p, rational, t[i], d, ndu, left, right, a, nd, aw, out[i])
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, t0, t1, closed, pts,
+                        t, eps1, max_iter):  # pragma: no cover - compiled
+    """The Newton iterations of `project_to_trims` on one NURBS trim curve, point by point
+    (same steps and stopping test as its vectorised loop): f(t) = (C - P).C', C = S(c(t)),
+    f' = C'.C' + (C - P).C'', t wrapped (closed curve) or clamped; updates t (N,) in place."""
+    ndu_u = np.empty((p + 1, p + 1))
+    ndu_v = np.empty((q + 1, q + 1))
+    lu = np.empty(p + 1)
+    ru = np.empty(p + 1)
+    lv = np.empty(q + 1)
+    rv = np.empty(q + 1)
+    au = np.empty((2, p + 1))
+    av = np.empty((2, q + 1))
+    bu = np.empty((3, p + 1))
+    bv = np.empty((3, q + 1))
+    aw = np.empty((3, 3, 4))
+    der = np.empty((3, 3, 3))
+    cndu = np.empty((cdeg + 1, cdeg + 1))
+    cl = np.empty(cdeg + 1)
+    cr = np.empty(cdeg + 1)
+    ca = np.empty((2, cdeg + 1))
+    cnd = np.empty((3, cdeg + 1))
+    caw = np.empty((3, cpw.shape[1]))
+    cd = np.empty((3, cpw.shape[1] - 1))
+    c1 = np.empty(3)
+    c2 = np.empty(3)
+    for i in range(pts.shape[0]):
+        ti = t[i]
+        for _ in range(max_iter):
+            _curve_ders_one(cpw, cknots, cdeg, crat, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
+            uu = min(max(cd[0, 0], u0), u1)
+            vv = min(max(cd[0, 1], v0), v1)
+            _ders2_one(spw, sku, skv, p, q, srat, uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+            up, vp, upp, vpp = cd[1, 0], cd[1, 1], cd[2, 0], cd[2, 1]
+            f = 0.0
+            c11 = 0.0
+            rc2 = 0.0
+            for k in range(3):
+                c1[k] = der[1, 0, k] * up + der[0, 1, k] * vp
+                c2[k] = (der[2, 0, k] * (up * up) + 2.0 * der[1, 1, k] * (up * vp) + der[0, 2, k] * (vp * vp)
+                         + der[1, 0, k] * upp + der[0, 1, k] * vpp)
+                r = der[0, 0, k] - pts[i, k]
+                f += r * c1[k]
+                c11 += c1[k] * c1[k]
+                rc2 += r * c2[k]
+            fp = c11 + rc2
+            if not fp > 0:
+                fp = c11 + 1e-300
+            tn = ti - f / fp
+            if closed:
+                tn = t0 + (tn - t0) % (t1 - t0)
+            else:
+                tn = min(max(tn, t0), t1)
+            step = abs(tn - ti) * np.sqrt(c11)
+            ti = tn
+            if step <= eps1:
+                break
+        t[i] = ti
 
 
 def _curve_ders(c, t, order: int) -> np.ndarray:
@@ -586,18 +655,25 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
         return uu, vv, c, d
 
     curves = [c for loop in loops for c in loop.curves]
-    samples = []
-    for curve in curves:
-        ts = curve.sample_parameters(16)
-        x = on_surface(curve, ts, 0)[3][:, 0, 0]
-        r = 0.55 * float(np.max(np.linalg.norm(np.diff(x, axis=0), axis=1))) if len(x) > 1 else 0.0
-        samples.append((ts, x, r + 1e-12 * size))
-    allx = np.concatenate([s[1] for s in samples])
-    upper, _ = cKDTree(allx).query(pts)
+    key = (id(surf), id(trims), tuple(id(c) for c in curves))
+    hit = face.__dict__.get("_cadbridge_trim_samples")
+    if hit is not None and hit[0] == key:
+        samples, alltree = hit[1], hit[2]
+    else:  # samples of the curves on the surface, kept on the face (reused by later calls)
+        samples = []
+        for curve in curves:
+            ts = curve.sample_parameters(16)
+            x = on_surface(curve, ts, 0)[3][:, 0, 0]
+            r = 0.55 * float(np.max(np.linalg.norm(np.diff(x, axis=0), axis=1))) if len(x) > 1 else 0.0
+            samples.append((ts, x, r + 1e-12 * size, cKDTree(x), x.min(axis=0) - r - 1e-12 * size,
+                            x.max(axis=0) + r + 1e-12 * size))
+        alltree = cKDTree(np.concatenate([s[1] for s in samples]))
+        face.__dict__["_cadbridge_trim_samples"] = (key, samples, alltree)
+    upper, _ = alltree.query(pts)
     upper = upper * (1 + 1e-12) + 1e-12 * size
 
-    for curve, (ts, xs, rad) in zip(curves, samples):
-        cand = np.flatnonzero(_box_distance(pts, xs.min(axis=0) - rad, xs.max(axis=0) + rad) <= upper)
+    for curve, (ts, xs, rad, xtree, xlo, xhi) in zip(curves, samples):
+        cand = np.flatnonzero(_box_distance(pts, xlo, xhi) <= upper)
         if not len(cand):
             continue
         q = pts[cand]
@@ -606,9 +682,15 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
         # a closed curve (a hole's circle as one piece): Newton wraps through its seam instead
         # of stopping at the end it started from
         closed = float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size
-        _, k = cKDTree(xs).query(q)
+        _, k = xtree.query(q)
         t = ts[np.asarray(k)]
         done = np.zeros(m, dtype=bool)
+        if isinstance(curve, NurbsCurve) and curve.dim == 2:  # compiled, same steps
+            t = np.ascontiguousarray(t, dtype=float)
+            _trim_newton_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
+                                u0, u1, v0, v1, curve._pw, curve.knots, curve.degree, curve.rational, float(t0),
+                                float(t1), closed, np.ascontiguousarray(q), t, eps1, int(max_iter))
+            done[:] = True
         for _ in range(max_iter):
             act = np.nonzero(~done)[0]
             if not len(act):
