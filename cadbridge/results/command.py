@@ -91,6 +91,24 @@ def load_mapping(path: Path, model, digest: str):
                          timings=dict(meta["timings"], cached=True), **arrays)
 
 
+def _png_options(args) -> dict:
+    from cadbridge.cli import UsageError
+
+    out = {}
+    try:
+        if args.view:
+            elev, azim = (float(x) for x in args.view.split(","))
+            out.update(elev=elev, azim=azim)
+        if args.zoom:
+            b = [float(x) for x in args.zoom.split(",")]
+            if len(b) != 6 or not all(np.isfinite(b)) or b[1] <= b[0] or b[3] <= b[2] or b[5] <= b[4]:
+                raise ValueError
+            out["box"] = np.array([b[0::2], b[1::2]])
+    except ValueError:
+        raise UsageError("--view takes ELEV,AZIM and --zoom X0,X1,Y0,Y1,Z0,Z1 (each min < max)") from None
+    return out
+
+
 def cmd_map(args: argparse.Namespace) -> int:
     import time
 
@@ -103,6 +121,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     from cadbridge.results.mapping import map_results
 
     levels = parse_levels(args.levels)
+    png_options = _png_options(args)
     if args.min is not None and args.max is not None and not args.max > args.min:
         raise UsageError(f"--max ({args.max:g}) must be greater than --min ({args.min:g})")
     results = Path(args.results)
@@ -139,7 +158,7 @@ def cmd_map(args: argparse.Namespace) -> int:
         progress.stage("writing VTU, IGES, CSV, PNG")
         stem = results.name.split(".")[0] or "result"
         with staged_output(out) as tmp:
-            files = write_all(tmp, contours, chord_tol=chord, stem=stem, png=not args.no_png)
+            files = write_all(tmp, contours, chord_tol=chord, stem=stem, png=not args.no_png, png_options=png_options)
             save_mapping(tmp / "mapping.npz", mapping, digest)
             files.append("mapping.npz")
             summary = _summary(contours, mapping, t_map, t_contour, files)
@@ -204,4 +223,7 @@ def register(sub, fmt) -> None:
     p.add_argument("--tolerance", type=float, default=None,
                    help="max node-to-CAD distance (default 1e-4 x model size); farther nodes stop the run (exit 1)")
     p.add_argument("--no-png", action="store_true", help="skip the PNG (large meshes)")
+    p.add_argument("--view", default=None, metavar="ELEV,AZIM", help="PNG view angles in degrees (default 28,-58)")
+    p.add_argument("--zoom", default=None, metavar="X0,X1,Y0,Y1,Z0,Z1",
+                   help="PNG shows only this model-space box (e.g. a die radius)")
     p.set_defaults(func=cmd_map)

@@ -256,9 +256,11 @@ def write_csv(folder: Path, contours, rows: list[dict] | None = None) -> list[st
 
 
 def write_png(path, contours, *, title: str | None = None, elev: float = 28.0, azim: float = -58.0,
-              max_triangles: int = 60_000) -> None:
+              box=None, max_triangles: int = 60_000) -> None:
     """The CAD shaded by band (Lambert shading), the contour lines on top, a colour bar of the
-    levels. Band pieces are drawn as they are clipped, so band borders are crisp."""
+    levels. Band pieces are drawn as they are clipped, so band borders are crisp. ``box``
+    ((2, 3) [min, max], model units) shows only that part (e.g. a die radius); elev / azim
+    (degrees) set the view."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import BoundaryNorm, ListedColormap
     from matplotlib.figure import Figure
@@ -289,15 +291,69 @@ def write_png(path, contours, *, title: str | None = None, elev: float = 28.0, a
         mab, mbc, mca = mid[:, 0], mid[:, 1], mid[:, 2]
         tuv = np.concatenate([np.stack(x, 1) for x in ((a, mab, mca), (mab, b, mbc), (mca, mbc, c), (mab, mbc, mca))])
         tb, tf = np.tile(tb, 4), np.tile(tf, 4)
-    xyz = np.empty((len(tuv), 3, 3))
-    for f in np.unique(tf):
-        s = np.flatnonzero(tf == f)
-        surf = model.faces[int(f)].surface
-        u0, u1, v0, v1 = surf.domain
-        q = tuv[s].reshape(-1, 2)
-        xyz[s] = surf.evaluate(np.clip(q[:, 0], u0, u1), np.clip(q[:, 1], v0, v1)).reshape(-1, 3, 3)
+    def on_surface(tuv, tf):
+        xyz = np.empty((len(tuv), 3, 3))
+        for f in np.unique(tf):
+            s = np.flatnonzero(tf == f)
+            surf = model.faces[int(f)].surface
+            u0, u1, v0, v1 = surf.domain
+            q = tuv[s].reshape(-1, 2)
+            xyz[s] = surf.evaluate(np.clip(q[:, 0], u0, u1), np.clip(q[:, 1], v0, v1)).reshape(-1, 3, 3)
+        return xyz
+
+    xyz = on_surface(tuv, tf)
+    if box is not None:  # split triangles reaching into the box until they are small against it
+        box = np.asarray(box, dtype=float).reshape(2, 3)
+        h = float(np.linalg.norm(box[1] - box[0])) / 40.0
+        for _ in range(8):
+            lo_t, hi_t = xyz.min(axis=1), xyz.max(axis=1)
+            meets = np.all((hi_t >= box[0]) & (lo_t <= box[1]), axis=1)
+            size = np.linalg.norm(hi_t - lo_t, axis=1)
+            big = meets & (size > h)
+            if not big.any() or len(tuv) + 3 * big.sum() > 4 * max_triangles:
+                break
+            t = tuv[big]
+            mid = 0.5 * (t + np.roll(t, -1, axis=1))
+            a, b, c = t[:, 0], t[:, 1], t[:, 2]
+            mab, mbc, mca = mid[:, 0], mid[:, 1], mid[:, 2]
+            new = np.concatenate([np.stack(x, 1) for x in ((a, mab, mca), (mab, b, mbc), (mca, mbc, c), (mab, mbc, mca))])
+            keep = meets & ~big
+            tuv = np.concatenate([tuv[keep], new])
+            tb = np.concatenate([tb[keep], np.tile(tb[big], 4)])
+            tf = np.concatenate([tf[keep], np.tile(tf[big], 4)])
+            xyz = np.concatenate([xyz[keep], on_surface(new, tf[keep.sum():])])
+    segs = []
+    L = contours.lines
+    if box is not None:
+        box = np.asarray(box, dtype=float).reshape(2, 3)
+    for i in range(len(L)):
+        p = L.points[L.offsets[i] : L.offsets[i + 1]]
+        if box is not None:  # runs of points inside the box
+            inside = np.all((p >= box[0]) & (p <= box[1]), axis=1)
+            cuts = np.flatnonzero(np.diff(inside.astype(np.int8))) + 1
+            segs += [q for q, ok in zip(np.split(p, cuts), np.split(inside, cuts)) if ok[0] and len(q) >= 2]
+        elif len(p) >= 2:
+            segs.append(p)
     n = np.cross(xyz[:, 1] - xyz[:, 0], xyz[:, 2] - xyz[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    polys: list[np.ndarray] | np.ndarray = xyz
+    if box is not None:
+        inside = np.all((xyz >= box[0]) & (xyz <= box[1]), axis=2)  # (T, 3) corners
+        full = inside.all(axis=1)
+        lo_t, hi_t = xyz.min(axis=1), xyz.max(axis=1)
+        part = ~full & np.all((hi_t >= box[0]) & (lo_t <= box[1]), axis=1)
+        polys = list(xyz[full])
+        keep = [np.flatnonzero(full)]
+        for i in np.flatnonzero(part):  # the few triangles on the box's faces: clipped flat
+            q = _clip_box(xyz[i], box)
+            if len(q) >= 3:
+                polys.append(q)
+                keep.append(np.array([i]))
+        keep = np.concatenate(keep)
+        if not len(keep):
+            raise ValueError(f"nothing of the CAD lies in the view box {box.tolist()}")
+        tb, n = tb[keep], n[keep]
+        xyz = np.concatenate([np.asarray(p) for p in polys])[None]
     el, az = np.radians(elev), np.radians(azim)
     view = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     light = view + np.array([0.0, 0.0, 0.6])
@@ -305,18 +361,13 @@ def write_png(path, contours, *, title: str | None = None, elev: float = 28.0, a
     shade = 0.45 + 0.55 * np.abs(n @ light)
     fc = np.clip(colors[tb] * shade[:, None], 0, 1)
 
-    fig = Figure(figsize=(10, 6.5), dpi=160, layout="constrained")
+    fig = Figure(figsize=(10, 6.5), dpi=120, layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.add_subplot(projection="3d")
-    ax.add_collection3d(Poly3DCollection(xyz, facecolors=fc, edgecolors=fc, linewidths=0.25))
-    L = contours.lines
-    segs = []
-    for i in range(len(L)):
-        p = L.points[L.offsets[i] : L.offsets[i + 1]]
-        if len(p) >= 2:
-            segs.append(p)
+    ax.computed_zorder = False  # lines over the surface (matplotlib's depth sort is per collection)
+    ax.add_collection3d(Poly3DCollection(polys, facecolors=fc, edgecolors=fc, linewidths=0.25, zorder=1))
     if segs:
-        ax.add_collection3d(Line3DCollection(segs, colors="k", linewidths=0.7))
+        ax.add_collection3d(Line3DCollection(segs, colors="k", linewidths=0.7, zorder=2))
     lo, hi = xyz.reshape(-1, 3).min(axis=0), xyz.reshape(-1, 3).max(axis=0)
     ctr, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     ax.set_xlim(lo[0], hi[0])
@@ -350,7 +401,28 @@ def write_png(path, contours, *, title: str | None = None, elev: float = 28.0, a
         fig.savefig(tmp, format="png", dpi=fig.dpi)
 
 
-def write_all(folder: Path, contours, *, chord_tol: float, stem: str = "result", png: bool = True) -> list[str]:
+def _clip_box(poly: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """A flat polygon (k, 3) clipped to an axis-aligned box (Sutherland-Hodgman, 6 planes)."""
+    p = poly
+    for axis in range(3):
+        for bound, keep_below in ((box[1, axis], True), (box[0, axis], False)):
+            if not len(p):
+                return p
+            out = []
+            for a, b in zip(p, np.roll(p, -1, axis=0)):
+                ina = a[axis] <= bound if keep_below else a[axis] >= bound
+                inb = b[axis] <= bound if keep_below else b[axis] >= bound
+                if ina:
+                    out.append(a)
+                if ina != inb:
+                    t = (bound - a[axis]) / (b[axis] - a[axis])
+                    out.append(a + t * (b - a))
+            p = np.array(out).reshape(-1, 3)
+    return p
+
+
+def write_all(folder: Path, contours, *, chord_tol: float, stem: str = "result", png: bool = True,
+              png_options: dict | None = None) -> list[str]:
     """All outputs into ``folder`` (which exists): {stem}_cad.vtu, {stem}_lines.vtu,
     {stem}_bands.igs, bands.csv, band_faces.csv, lines.csv, {stem}.png. Returns the names."""
     folder = Path(folder)
@@ -363,7 +435,7 @@ def write_all(folder: Path, contours, *, chord_tol: float, stem: str = "result",
     files.append(f"{stem}_bands.igs")
     files += write_csv(folder, contours, rows)
     if png:
-        write_png(folder / f"{stem}.png", contours)
+        write_png(folder / f"{stem}.png", contours, **(png_options or {}))
         files.append(f"{stem}.png")
     return files
 
