@@ -946,19 +946,30 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
     node_x: list[np.ndarray] = []
     node_face: list[int] = []
     node_uv: list[np.ndarray] = []
-    corner_ids: list[int] = []
-    corner_tree_pts: list[np.ndarray] = []
+    # end points of all edges within mtol of each other are one node (union-find over pairs)
+    ends_x = np.array([p for e in edges for p in (e.x0, e.x1)])
+    parent = np.arange(len(ends_x))
 
-    def corner_node(x, f, uv) -> int:
-        for k, p in zip(corner_ids, corner_tree_pts):
-            if np.linalg.norm(p - x) <= mtol:
-                return k
-        node_x.append(x)
-        node_face.append(f)
-        node_uv.append(uv)
-        corner_ids.append(len(node_x) - 1)
-        corner_tree_pts.append(x)
-        return len(node_x) - 1
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in cKDTree(ends_x).query_pairs(mtol) if len(ends_x) else []:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    corner_of: dict[int, int] = {}
+
+    def corner_node(end: int, x, f, uv) -> int:
+        r = find(end)
+        if r not in corner_of:
+            node_x.append(x)
+            node_face.append(f)
+            node_uv.append(uv)
+            corner_of[r] = len(node_x) - 1
+        return corner_of[r]
 
     for i, e in enumerate(edges):
         if e.owner != i:
@@ -971,13 +982,13 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
         e.t = t
         d = _edge_derivs(s, e.curve, t)[:, 0]
         uv = e.curve.evaluate(t)[:, :2]
-        ids = [corner_node(d[0], e.face, uv[0])]
+        ids = [corner_node(2 * i, d[0], e.face, uv[0])]
         for k in range(1, len(t) - 1):
             node_x.append(d[k])
             node_face.append(e.face)
             node_uv.append(uv[k])
             ids.append(len(node_x) - 1)
-        ids.append(corner_node(d[-1], e.face, uv[-1]))
+        ids.append(corner_node(2 * i + 1, d[-1], e.face, uv[-1]))
         e.nodes, e.uv = ids, uv
     for i, e in enumerate(edges):
         if e.owner == i:
@@ -993,6 +1004,9 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
         cx = s.evaluate(np.clip(cuv[:, 0], s.domain[0], s.domain[1]), np.clip(cuv[:, 1], s.domain[2], s.domain[3]))
         near = cKDTree(cx).query(pts)[1]
         pr = project_to_surface(s, pts, uv0=cuv[near])
+        if not np.all(pr.distance <= 10 * mtol):
+            raise QitError(f"{_face_label(model, e.face)}: the edge it shares with {_face_label(model, o.face)} "
+                           f"is {float(np.max(pr.distance)):.3g} off its surface; QIT cannot conform them")
         e.nodes, e.uv = ids, np.column_stack([pr.u, pr.v])
     # --- faces
     tri_all, tri_face = [], []
