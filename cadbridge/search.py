@@ -154,11 +154,12 @@ def _split_matrices(p: int, s: int) -> np.ndarray:
     return out
 
 
-def _subpatches(surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray]:
+def _subpatches(surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bezier sub-patches of the surface over its domain: every knot span cut into up to
     ``_SUB_SPLITS`` equal parts per direction (at most ``_SUB_PATCHES`` per face). Returns uv
-    boxes (K, 4) rows (u0, u1, v0, v1) and xyz boxes (K, 2, 3) [min, max] of their control
-    nets (each contains its piece of surface: convex hull property, weights > 0)."""
+    boxes (K, 4) rows (u0, u1, v0, v1), xyz boxes (K, 2, 3) [min, max] of their control
+    nets (each contains its piece of surface: convex hull property, weights > 0) and their
+    slabs (K, 5) (`_slabs`)."""
     uvb, pts, w = bezier_patches(surface)
     net = np.concatenate([pts * w[..., None], w[..., None]], axis=-1)  # (K, p+1, q+1, 4)
     k, p1, q1 = net.shape[:3]
@@ -180,7 +181,24 @@ def _subpatches(surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray]:
     box[..., 2] = va[:, None, :-1]
     box[..., 3] = va[:, None, 1:]
     xyz = (sub[..., :3] / sub[..., 3:]).reshape(k * su * sv, -1, 3)
-    return box.reshape(-1, 4), np.stack([xyz.min(axis=1), xyz.max(axis=1)], axis=1)
+    return box.reshape(-1, 4), np.stack([xyz.min(axis=1), xyz.max(axis=1)], axis=1), _slabs(xyz, p1, q1)
+
+
+def _slabs(xyz: np.ndarray, p1: int, q1: int) -> np.ndarray:
+    """Slabs (K, 5) [nx, ny, nz, smin, smax] holding each sub-patch: n a unit normal from the
+    diagonals of its control net (K, p1*q1, 3), [smin, smax] the range of n.x over the net (the
+    piece lies in the net's convex hull, weights > 0). A degenerate net gets an unbounded slab."""
+    net = xyz.reshape(len(xyz), p1, q1, 3)
+    n = np.cross(net[:, -1, -1] - net[:, 0, 0], net[:, 0, -1] - net[:, -1, 0])
+    ln = np.linalg.norm(n, axis=1)
+    ok = ln > 0
+    n[ok] /= ln[ok, None]
+    s = np.einsum("kij,kj->ki", xyz, n)
+    out = np.empty((len(xyz), 5))
+    out[:, :3] = n
+    out[:, 3] = np.where(ok, s.min(axis=1), -np.inf)
+    out[:, 4] = np.where(ok, s.max(axis=1), np.inf)
+    return out
 
 
 def _trim_loops(face: Face) -> list:
@@ -218,14 +236,20 @@ def _trim_curve_boxes(face: Face) -> np.ndarray:
 
 
 def _face_cells(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_face_cells_slabs` without the slabs."""
+    return _face_cells_slabs(face)[:4]
+
+
+def _face_cells_slabs(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Sub-patch boxes of ``face`` that meet its trimmed region.
 
     Returns xyz boxes (K, 2, 3), the uv grid breaks of the sub-patches (bu (Mu+1,),
     bv (Mv+1,)) and a cell state grid (Mu, Mv) int8: 0 outside the face, 1 inside, 2 crossed by
     a trim curve (its control-point boxes, widened by 1e-9 of the domain, meet the cell).
     Cells without a trim curve lie wholly on one side: their centre decides (`Face.contains`).
+    Also the slabs (K, 5) of the kept sub-patches (`_slabs`).
     """
-    uvb, xyz = _subpatches(face.surface)
+    uvb, xyz, slab = _subpatches(face.surface)
     bu = np.unique(np.concatenate([uvb[:, 0], uvb[:, 1]]))
     bv = np.unique(np.concatenate([uvb[:, 2], uvb[:, 3]]))
     iu = np.searchsorted(bu, uvb[:, 0])
@@ -256,7 +280,7 @@ def _face_cells(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
         state[:] = 2
         state[ii, jj] = face.contains(cu[ii], cv[jj]).astype(np.int8)
     keep = state[iu, iv] > 0
-    return xyz[keep], bu, bv, state
+    return xyz[keep], bu, bv, state, slab[keep]
 
 
 def _inside_samples(face: Face, uv: np.ndarray, bu: np.ndarray, bv: np.ndarray, state: np.ndarray) -> np.ndarray:
@@ -293,7 +317,8 @@ class SearchIndex:
     one on the model).
 
     box_lo, box_hi (B, 3), box_face (B,): boxes of the Bezier sub-patches that meet each
-    face's trimmed region; groups: list of (cKDTree of centres, R max, box indices) per size
+    face's trimmed region; box_slab (B, 5): a slab {x: smin <= n.x <= smax} holding each
+    sub-patch (a second, often much tighter, lower bound of the distance); groups: list of (cKDTree of centres, R max, box indices) per size
     octave; sample_tree over valid samples of all faces, sample_face (S,); size: model size
     (box diagonal).
     """
@@ -306,6 +331,7 @@ class SearchIndex:
     sample_face: np.ndarray
     size: float
     n_faces: int
+    box_slab: np.ndarray | None = None  # (B, 5) slab [n, smin, smax] holding each box's sub-patch
     pack: SurfacePack | None = None  # the faces' surfaces packed for `project_to_surfaces` (built on first use)
 
     def surface_pack(self, model: Model) -> SurfacePack:
@@ -321,10 +347,10 @@ def build_search_index(model: Model) -> SearchIndex:
     faces."""
     if not model.faces:
         raise ValueError("project_points: empty model (no faces to project onto)")
-    los, his, fids, spts, sfid = [], [], [], [], []
+    los, his, fids, spts, sfid, slabs = [], [], [], [], [], []
     for k, face in enumerate(model.faces):
         try:
-            b, bu, bv, state = _face_cells(face)
+            b, bu, bv, state, slab = _face_cells_slabs(face)
             smp = surface_samples(face.surface)
             inside = _inside_samples(face, smp.uv, bu, bv, state)
             cpts = _cell_centres(face, bu, bv, state)
@@ -332,6 +358,7 @@ def build_search_index(model: Model) -> SearchIndex:
             raise ValueError(f"search index: face {k} (DE {face.de}): {exc}") from exc
         los.append(b[:, 0])
         his.append(b[:, 1])
+        slabs.append(slab)
         fids.append(np.full(len(b), k))
         spts.append(smp.points[inside])
         spts.append(cpts)
@@ -349,7 +376,8 @@ def build_search_index(model: Model) -> SearchIndex:
         groups.append((cKDTree(centre[sel]), float(rad[sel].max()), sel))
     allpts = np.concatenate(spts)
     tree = cKDTree(allpts) if len(allpts) else None
-    return SearchIndex(lo, hi, face_of_box, groups, tree, np.concatenate(sfid), size, len(model.faces))
+    return SearchIndex(lo, hi, face_of_box, groups, tree, np.concatenate(sfid), size, len(model.faces),
+                       np.ascontiguousarray(np.concatenate(slabs)))
 
 
 _INDEX_KEY = "_cadbridge_search_index"
@@ -368,9 +396,10 @@ def index_for(model: Model) -> SearchIndex:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _pair_keys(pi, bj, pts, box_lo, box_hi, box_face, bound, exclude, n):  # pragma: no cover - compiled
-    """Keys face * n + point of the raw (point pi, box bj) pairs whose exact point-box distance
-    is within the point's bound and whose face is not the point's excluded one (-1: none)."""
+def _pair_keys(pi, bj, pts, box_lo, box_hi, box_slab, box_face, bound, exclude, n):  # pragma: no cover - compiled
+    """Keys face * n + point of the raw (point pi, box bj) pairs whose exact distance lower
+    bound (to the box, and to the slab holding the sub-patch) is within the point's bound and
+    whose face is not the point's excluded one (-1: none)."""
     out = np.empty(pi.shape[0], dtype=np.int64)
     m = 0
     for t in range(pi.shape[0]):
@@ -380,11 +409,14 @@ def _pair_keys(pi, bj, pts, box_lo, box_hi, box_face, bound, exclude, n):  # pra
         if f == exclude[p]:
             continue
         g2 = 0.0
+        s = 0.0
         for c in range(3):
             x = pts[p, c]
             g = max(box_lo[b, c] - x, x - box_hi[b, c], 0.0)
             g2 += g * g
-        if np.sqrt(g2) <= bound[p] or not np.isfinite(bound[p]):
+            s += box_slab[b, c] * x
+        lb = max(np.sqrt(g2), box_slab[b, 3] - s, s - box_slab[b, 4])
+        if lb <= bound[p] or not np.isfinite(bound[p]):
             out[m] = f * n + p
             m += 1
     return out[:m]
@@ -399,6 +431,10 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
     finite = np.isfinite(bound)
     excl = np.full(n, -1, dtype=np.int64) if exclude is None else np.asarray(exclude, dtype=np.int64)
     face_of_box = index.box_face.astype(np.int64)
+    slab = index.box_slab
+    if slab is None:  # an index made without slabs: boxes only
+        slab = np.zeros((len(face_of_box), 5))
+        slab[:, 3], slab[:, 4] = -np.inf, np.inf
     keys = []
     if np.any(~finite):  # no bound at all (no valid samples): every face is a candidate
         pi = np.nonzero(~finite)[0]
@@ -419,8 +455,8 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
                 m = ptree.sparse_distance_matrix(btree, bmax + rmax, output_type="ndarray")
                 if len(m) == 0:
                     continue
-                keys.append(_pair_keys(sel[m["i"]], boxes[m["j"]], pts, index.box_lo, index.box_hi, face_of_box,
-                                       bound, excl, n))
+                keys.append(_pair_keys(sel[m["i"]], boxes[m["j"]], pts, index.box_lo, index.box_hi, slab,
+                                       face_of_box, bound, excl, n))
     if not keys:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
     key = np.unique(np.concatenate(keys))  # sorted by face, then point

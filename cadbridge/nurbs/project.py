@@ -520,8 +520,10 @@ def _edge_check(
 @numba.njit(cache=True, error_model="numpy")
 def _ders2_one(pw, ku, kv, p, q, rational, u, v, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, out
                ):  # pragma: no cover - compiled
-    """S and its derivatives up to order 2 in u and v at one (u, v) into out (3, 3, 3): the same
-    sums in the same order as `NurbsSurface.derivatives` (its compiled kernel), scratch passed in."""
+    """S and its derivatives of total order <= 2 at one (u, v) into out (3, 3, 3): out[k, l] =
+    d^(k+l) S / du^k dv^l for k + l <= 2 (what Newton uses; out[2, 1], out[1, 2], out[2, 2] are
+    not computed), the same sums in the same order as `NurbsSurface.derivatives` (its
+    compiled kernel), scratch passed in."""
     nu, nv = pw.shape[0], pw.shape[1]
     su = find_span_one(ku, p, nu, u)
     sv = find_span_one(kv, q, nv, v)
@@ -542,7 +544,7 @@ def _ders2_one(pw, ku, kv, p, q, rational, u, v, ndu_u, ndu_v, lu, ru, lv, rv, a
                 t1 += w * pt[1]
                 t2 += w * pt[2]
                 t3 += w * pt[3]
-            for k in range(3):
+            for k in range(3 - l):
                 w = bu[k, a]
                 aw[k, l, 0] += w * t0
                 aw[k, l, 1] += w * t1
@@ -550,14 +552,14 @@ def _ders2_one(pw, ku, kv, p, q, rational, u, v, ndu_u, ndu_v, lu, ru, lv, rv, a
                 aw[k, l, 3] += w * t3
     if not rational:
         for k in range(3):
-            for l in range(3):
+            for l in range(3 - k):
                 for c in range(3):
                     out[k, l, c] = aw[k, l, c]
         return
     # quotient rule (P&T A4.4) with binomials of row 2: (1, 1), (1, 2, 1)
     w0 = aw[0, 0, 3]
     for k in range(3):
-        for l in range(3):
+        for l in range(3 - k):
             for c in range(3):
                 val = aw[k, l, c]
                 for j in range(1, l + 1):
