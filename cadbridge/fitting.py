@@ -101,9 +101,13 @@ def read_points(path, *, nagata_samples: int = 0) -> tuple[np.ndarray, str]:
         else:
             import meshio
 
+            import contextlib
+            import io
+
             try:
-                m = meshio.read(p)
-            except Exception as exc:  # meshio raises many types for unreadable files
+                with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                    m = meshio.read(p)  # its readers print their own complaints
+            except (Exception, SystemExit) as exc:  # meshio raises many types (its PLY reader even exits)
                 raise FitInputError(f"{p}: cannot read as a mesh ({type(exc).__name__}: "
                                     f"{str(exc).splitlines()[0] if str(exc) else 'unknown format'})") from None
             pts, kind = np.asarray(m.points, dtype=float), "mesh vertices"
@@ -590,8 +594,7 @@ def write_fit_outputs(report: FitReport, iges_path, *, units=None, extras: bool 
     with atomic_write(csv) as fh:
         fh.write("index,x,y,z,u,v,deviation,weight,outlier\n")
         for i in sel:
-            x = report.points[i]
-            fh.write(f"{i},{x[0]!r},{x[1]!r},{x[2]!r},{f.u[i]!r},{f.v[i]!r},{f.signed[i]!r},{f.weight[i]!r},"
-                     f"{int(f.outliers[i])}\n")
+            vals = (*report.points[i], f.u[i], f.v[i], f.signed[i], f.weight[i])
+            fh.write(f"{i}," + ",".join("%.17g" % float(c) for c in vals) + f",{int(f.outliers[i])}\n")
     written.append(csv)
     return written

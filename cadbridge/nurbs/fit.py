@@ -16,10 +16,11 @@ tied to the domain size instead biased a refined die radius by 0.02 mm).
 
 Around the solve (`fit_surface`):
 
-- robust reweighting: Huber (k = 1.345), then Tukey's biweight (c = 4.685) on the distances,
-  scale 1.4826 MAD, never below half the tolerance (a deviation within the tolerance is never an
-  outlier), restarted from Huber after every refinement so a region the coarser net could not
-  follow is not thrown away;
+- robust reweighting: Huber (k = 1.345) while refining, then Tukey's biweight (c = 4.685) on the
+  final net, applied to each point's residual contrast (its signed distance minus the median of
+  its 8 nearest neighbours' in space), scale 1.4826 MAD, never below the tolerance: an isolated
+  outlier is rejected, a coherent region the current net does not follow yet is not (it gets
+  knots instead); points below half weight keep their parameters;
 - parameter correction: every iteration re-projects the points onto the current fit (Newton point
   inversion, P&T §6.1 / §9.4.1 "parameter correction", Hoschek 1988) starting from their current
   (u, v);
@@ -28,8 +29,9 @@ Around the solve (`fit_surface`):
   until no cell exceeds the tolerance ("tolerance") or the control net limit is reached
   ("control-net limit"); "no improvement" when a refinement no longer lowers the worst cell.
   The statistic is the cell's maximum distance for exact data, and for noisy data (estimated noise
-  sigma above tol/20, `estimate_noise`) its 90 % quantile against tol + 1.645 sigma: the 90 %
-  quantile of |N(0, sigma^2)| is 1.645 sigma, so what is left above it is systematic.
+  sigma above tol/20, `estimate_noise`) the largest 90 % quantile of its 4 x 4 sub-cells against
+  tol + 1.645 sigma: the 90 % quantile of |N(0, sigma^2)| is 1.645 sigma, so what is left above
+  it is systematic.
 
 All arrays are float64; points (N, 3) in model units, parameters (N,).
 """
@@ -401,7 +403,10 @@ def _variation(cell, bins, r, n_cells) -> np.ndarray:
     ok = cnt > 0
     tot = np.maximum(ok.sum(axis=1), 1)
     mu = np.nansum(mean, axis=1) / tot
-    return np.nansum(np.where(ok, (mean - mu[:, None]) ** 2, 0.0), axis=1) / tot
+    var = np.nansum(np.where(ok, (mean - mu[:, None]) ** 2, 0.0), axis=1) / tot
+    # fewer than 3 occupied bins: the variation along this direction is unknown (data too sparse
+    # to tell), which must not send the knots the other way
+    return np.where(ok.sum(axis=1) >= 3, var, np.inf)
 
 
 def fit_surface(
@@ -422,7 +427,7 @@ def fit_surface(
     domain: tuple[float, float, float, float] | None = None,
     noise: float | None = None,
     point_weights=None,
-    max_levels: int = 12,
+    max_levels: int = 40,
     robust_iterations: int = 4,
     max_points_per_level: int = 200000,
     progress=None,
@@ -511,6 +516,8 @@ def fit_surface(
         return NurbsSurface(p, q, ku, kv, cp, cw if base is not None else None)
 
     near = 10.0 * tolerance + 5.0 * sigma  # parameters are corrected only on a fit this close
+    on_u0, on_u1 = u <= dom[0], u >= dom[1]
+    on_v0, on_v1 = v <= dom[2], v >= dom[3]
 
     def correct(surf, u, v, movable=None):
         """Foot parameters, distances and signed distances of all points on surf. Only points
@@ -532,13 +539,54 @@ def fit_surface(
                 ok = (res.status != FAILED) & (res.distance <= dist[idx])
                 u, v = u.copy(), v.copy()
                 u[idx[ok]], v[idx[ok]] = res.u[ok], res.v[ok]
-                foot[idx[ok]] = res.foot[ok]
+                # points on the domain's edge stay on it (else they slide inward and the fit's
+                # edge floats past the data: 0.006 mm at the end of an FE-node die strip)
+                u[on_u0] = dom[0]
+                u[on_u1] = dom[1]
+                v[on_v0] = dom[2]
+                v[on_v1] = dom[3]
+                foot = surf.evaluate(u, v)
         r = x - foot
         nrm = surf.normal(u, v)
         signed = np.einsum("ij,ij->i", r, nrm)
         dist = np.linalg.norm(r, axis=1)
         signed = np.where(np.isfinite(signed), signed, dist)
         return u, v, dist, signed
+
+    if robust is not None:
+        # the residual a point is judged by is its contrast to its 8 nearest neighbours on the
+        # surface (minus their median): an isolated outlier stands out, a region the fit does not
+        # follow yet (a radius on a coarse net) does not, and is refined instead of rejected.
+        # Neighbours in (u, v) scaled by the mean |S_u|, |S_v| of the first fit (lengths).
+        def contrast(r):
+            if "nbr" not in state:
+                from scipy.spatial import cKDTree
+
+                gu, gv = state["surf"].grid(12, 12)
+                der = state["surf"].derivatives(gu, gv, order=1)
+                su = float(np.mean(np.linalg.norm(der[:, 1, 0], axis=1))) or 1.0
+                sv = float(np.mean(np.linalg.norm(der[:, 0, 1], axis=1))) or 1.0
+                stage(f"neighbours of {n} points")
+                k_nb = min(9, n)
+                state["nbr"] = cKDTree(np.column_stack([u0_par * su, v0_par * sv])).query(
+                    np.column_stack([u0_par * su, v0_par * sv]), k=k_nb, workers=-1)[1][:, 1:]
+            nbr = state["nbr"]
+            return r - np.median(r[nbr], axis=1) if nbr.shape[1] else r
+    u0_par, v0_par = u.copy(), v.copy()
+    def final_projection(surf, u, v):
+        """Every point projected onto the final fit (Newton from its parameters, the existing
+        point inversion with its global check), for the reported deviations."""
+        from cadbridge.nurbs.project import FAILED, project_to_surface
+
+        stage(f"projecting all {n} points onto the fit")
+        res = project_to_surface(surf, x, uv0=np.column_stack([u, v]), tol=1e-12, max_iter=30)
+        ok = res.status != FAILED
+        u = np.where(ok, res.u, u)
+        v = np.where(ok, res.v, v)
+        r = x - surf.evaluate(u, v)
+        dist = np.linalg.norm(r, axis=1)
+        signed = np.einsum("ij,ij->i", r, surf.normal(u, v))
+        return u, v, dist, np.where(np.isfinite(signed), signed, dist)
 
     history: list[dict] = []
     stop = "tolerance"
@@ -557,6 +605,7 @@ def fit_surface(
         cp = solve_control_points(u, v, x, pw_user * rob_w, ku, p, kv, q, ctrl_weights=cw, smoothing=smoothing,
                                   gram=state["gram"])
         surf = make_surface(ku, kv, cp, cw)
+        state.setdefault("surf", surf)
         # a point the reweighting distrusts keeps its parameters: an outlier that slid onto the
         # bump it pulled would look like an inlier and keep the bump (no correction before the
         # first weights exist, for the same reason)
@@ -574,7 +623,7 @@ def fit_surface(
                 phase, settled = kind, False
             elif settled:
                 continue
-            new_w = _robust_weights(signed, kind, tolerance)
+            new_w = _robust_weights(contrast(signed), kind, tolerance)
             settled = np.max(np.abs(new_w - rob_w)) < 1e-3 and it > 0
             rob_w = new_w
             surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"robust iteration {it + 1} ({kind})")
@@ -604,22 +653,32 @@ def fit_surface(
         history = [dict(h, subset=len(sub)) for h in f0.history]
         for it in range(2 if robust is not None else 1):
             if robust is not None:
-                rob_w = _robust_weights(signed, robust, tolerance)
+                rob_w = _robust_weights(contrast(signed), robust, tolerance)
             surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"all {n} points, solve {it + 1}")
         if robust is not None:
-            rob_w = _robust_weights(signed, robust, tolerance)
+            rob_w = _robust_weights(contrast(signed), robust, tolerance)
         history.append(dict(ctrl=surf.shape, max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
                             worst_cell=float("nan"), outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
         final_w = rob_w if robust is not None else np.ones(n)
+        u, v, dist, signed = final_projection(surf, u, v)
         return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), f0.stop, float(tolerance), sigma,
                           history)
+
+    def sub_statistic(iu, iv, cell, keep, dist):
+        """Per cell the largest statistic of its 4 x 4 sub-cells: a misfit on a tenth of a cell
+        (a radius inside a wide span) must not hide under the cell's 90 % quantile."""
+        bu = np.clip(((u - ku[p + iu]) / np.maximum(ku[p + iu + 1] - ku[p + iu], 1e-300) * 4).astype(np.int64), 0, 3)
+        bv = np.clip(((v - kv[q + iv]) / np.maximum(kv[q + iv + 1] - kv[q + iv], 1e-300) * 4).astype(np.int64), 0, 3)
+        key = (cell * 4 + bu) * 4 + bv
+        n_cells = (len(ku) - 2 * p - 1) * (len(kv) - 2 * q - 1)
+        return _cell_statistic(key[keep], dist[keep], q_stat, 16 * n_cells).reshape(n_cells, 16).max(axis=1)
 
     for level in range(max_levels + 1):
         n_iter = 1 if robust is None else 2
         for it in range(n_iter):
             surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"level {level + 1}, solve {it + 1}/{n_iter}")
             if robust is not None:
-                rob_w = _robust_weights(signed, "huber", tolerance)
+                rob_w = _robust_weights(contrast(signed), "huber", tolerance)
         nu, nv = len(ku) - p - 1, len(kv) - q - 1
         # cell (knot span pair) of each point and its deviation statistic; isolated outliers
         # (beyond Tukey's cut at the current MAD, never within 4.685 tol) do not ask for knots
@@ -627,8 +686,8 @@ def fit_surface(
         iv = find_span(kv, q, v) - q
         nsu, nsv = len(ku) - 2 * p - 1, len(kv) - 2 * q - 1
         cell = iu * nsv + iv
-        keep = _robust_weights(signed, "tukey", tolerance) > 0 if robust is not None else np.ones(n, bool)
-        stat = _cell_statistic(cell[keep], dist[keep], q_stat, nsu * nsv)
+        keep = _robust_weights(contrast(signed), "tukey", tolerance) > 0 if robust is not None else np.ones(n, bool)
+        stat = sub_statistic(iu, iv, cell, keep, dist)
         flagged = np.nonzero(stat > thresh)[0]
         if (flagged.size == 0 or not refine or level == max_levels) and robust is not None and not state.get("done"):
             rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
@@ -637,9 +696,12 @@ def fit_surface(
             iv = find_span(kv, q, v) - q
             cell = iu * nsv + iv
             keep = rob_w > 0
-            stat = _cell_statistic(cell[keep], dist[keep], q_stat, nsu * nsv)
+            stat = sub_statistic(iu, iv, cell, keep, dist)
             flagged = np.nonzero(stat > thresh)[0]
         worst = float(stat.max())
+        # knots go where the error comes from: cells within a factor 3 of the worst (a least-squares
+        # misfit rings into the neighbouring spans; they settle once its source is resolved)
+        focus = flagged[stat[flagged] >= worst / 3.0]
         history.append(dict(ctrl=(nu, nv), max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
                             worst_cell=worst, outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
         if not refine:
@@ -655,7 +717,7 @@ def fit_surface(
             best_worst, stale = worst, 0
         else:
             stale += 1
-            if stale >= 2:
+            if stale >= 3:
                 stop = "no improvement"
                 break
         # direction of refinement: the direction(s) along which a flagged cell's residuals vary
@@ -666,8 +728,9 @@ def fit_surface(
         var_u = _variation(cell[keep], bu[keep], signed[keep], nsu * nsv)
         var_v = _variation(cell[keep], bv[keep], signed[keep], nsu * nsv)
         top = np.maximum(var_u, var_v)
-        want_u = flagged[var_u[flagged] >= 0.3 * top[flagged]]
-        want_v = flagged[var_v[flagged] >= 0.3 * top[flagged]]
+        with np.errstate(invalid="ignore"):
+            want_u = focus[(var_u[focus] >= 0.3 * top[focus]) | np.isinf(var_u[focus])]
+            want_v = focus[(var_v[focus] >= 0.3 * top[focus]) & ~np.isinf(var_u[focus])]
         cnt = np.bincount(cell, minlength=nsu * nsv).reshape(nsu, nsv)
         score_u = np.full(nsu, -np.inf)
         score_v = np.full(nsv, -np.inf)
@@ -675,6 +738,16 @@ def fit_surface(
         np.maximum.at(score_v, want_v % nsv, stat[want_v])
         score_u[cnt.sum(axis=1) < 2 * nv] = -np.inf  # a u knot adds nv control points: enough data for them
         score_v[cnt.sum(axis=0) < 2 * nu] = -np.inf  # a v knot adds nu
+        # and data spread along the span (>= 2 of its 8 eighths hold points), so the new basis
+        # functions have data under them (Schoenberg-Whitney); rows of FE nodes 1 mm apart
+        # cannot carry knots 0.25 mm apart
+        iu0 = find_span(ku, p, u0_par) - p
+        iv0 = find_span(kv, q, v0_par) - q
+        for score, i_s, t, kn, deg, ns in ((score_u, iu0, u0_par, ku, p, nsu), (score_v, iv0, v0_par, kv, q, nsv)):
+            lo, hi = kn[deg + i_s], kn[deg + i_s + 1]
+            eighth = np.clip(((t - lo) / np.maximum(hi - lo, 1e-300) * 8).astype(np.int64), 0, 7)
+            occ = np.bincount(i_s * 8 + eighth, minlength=8 * ns).reshape(ns, 8) > 0
+            score[occ.sum(axis=1) < 2] = -np.inf
         room_u, room_v = max_ctrl[0] - nu, max_ctrl[1] - nv
         su_idx = np.argsort(-score_u)[: max(room_u, 0)]
         su_idx = su_idx[np.isfinite(score_u[su_idx])]
@@ -699,4 +772,5 @@ def fit_surface(
         history[-1].update(max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
                            outliers=int(np.count_nonzero(rob_w <= 0)))
     final_w = rob_w if robust is not None else np.ones(n)
+    u, v, dist, signed = final_projection(surf, u, v)
     return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), stop, float(tolerance), sigma, history)
