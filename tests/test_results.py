@@ -107,6 +107,10 @@ def test_plane_levels_through_nodes_and_equal_bands():
     assert np.allclose(c.bands.area[1:9], 0.5 * 3.0, rtol=1e-9)
     assert c.bands.area[0] == 0 and c.bands.area[9] == 0
     assert np.max(np.abs(c.lines.points[:, 0] - _level_of_points(c.lines))) <= 1e-12 * model.size()
+    # one straight line across the strip per interior level (levels through border nodes
+    # give no zero-length pieces; none at the data's minimum and maximum)
+    assert sorted(c.lines.level.tolist()) == list(range(1, 8))
+    assert np.allclose(c.lines.lengths(), 3.0, rtol=1e-12)
 
 
 # ----------------------------------------------------------------------------- cylinder

@@ -220,6 +220,12 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
     tol = 1e-5 * size if chord_tol is None else float(chord_tol)
     tf, tuv, tkey, tface = mapping.tri_f, mapping.tri_uv, mapping.tri_key, mapping.tri_face
     tri, lev = _level_pairs(lo, hi)
+    # a level at the field's maximum meets it only where it peaks (points, or edges of a
+    # plateau): no line is drawn there (nor at the minimum, which no triangle crosses)
+    at_max = levels >= float(np.max(mapping.values))
+    if at_max.any():
+        keep = ~at_max[lev]
+        tri, lev = tri[keep], lev[keep]
     c = levels[lev]
     above = tf[tri] >= c[:, None]  # (P, 3)
     # per pair, the two crossed edges (in edge order); canonical orientation by key
@@ -231,15 +237,18 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
         swap = ki > kj
         a_i = np.where(swap, j, i)
         b_i = np.where(swap, i, j)
-        r = np.arange(len(tri))
         fa, fb = tf[tri, a_i], tf[tri, b_i]
         t = (c - fa) / np.where(fb != fa, fb - fa, 1.0)
         uva, uvb = tuv[tri, a_i], tuv[tri, b_i]
         uv = uva + t[:, None] * (uvb - uva)
-        code = (np.minimum(ki, kj) * nk + np.maximum(ki, kj)) * len(levels) + lev
+        ka, kb = np.minimum(ki, kj), np.maximum(ki, kj)
+        # a crossing at an edge's end is that vertex's point (key pair (k, k)): the segments of
+        # all triangles around a vertex on the level meet there, the zero-length ones drop out
+        ka = np.where(t == 1.0, kb, ka)
+        kb = np.where(t == 0.0, ka, kb)
+        code = (ka * nk + kb) * len(levels) + lev
         ends_code.append(code)
         ends_uv.append(uv)
-        del r
     ends_code = np.stack(ends_code, axis=1)  # (P, 3)
     ends_uv = np.stack(ends_uv, axis=1)  # (P, 3, 2)
     # the two crossed edges of each pair
