@@ -172,6 +172,22 @@ def test_edge_segments_equal_arc_length():
             assert np.abs(lens / (lens.sum() / ns) - 1).max() <= 0.01
 
 
+def test_trim_curve_segments_equal_arc_length():
+    # reference: the R10 hole of trimmed_hole.igs (a rational quadratic circle in (u, v) =
+    # (x, y) of the plate): every segment subtends 2 pi / NS, NS = round(20 pi / R)
+    model = read_iges(ROOT / "iges_samples" / "trimmed_hole.igs")
+    f = model.faces[0]
+    c = f.trims.inner[0].curves[0]
+    for R in (5.0, 2.0):
+        t, length = discretise_edge(f.surface, c, R, 1.0)
+        assert length == pytest.approx(20 * np.pi, rel=0.01)
+        p = c.evaluate(t)[:, :2]
+        ang = np.unwrap(np.arctan2(p[:, 1] - 25, p[:, 0] - 30))
+        seg = np.abs(np.diff(ang)) * 10.0  # exact arc lengths on the circle
+        assert len(seg) == round(20 * np.pi / R)
+        assert np.abs(seg / (20 * np.pi / len(seg)) - 1).max() <= 0.01
+
+
 def test_tolerance_does_not_raise_q(tmp_path_factory):
     # the paper's Fig. 39: Q falls (does not rise) as the tolerances grow; edge 0.25 % -> 4 %,
     # surface 4x as in the paper
@@ -228,3 +244,19 @@ def test_zero_jacobian_named():
     model = Model(faces=[Face(example_71(), de=1), Face(bad, de=3, name="POLE")])
     with pytest.raises(QitError, match=r"face 1 \(DE 3 'POLE'\).*Jacobian"):
         qit_mesh(model, 12.0)
+
+
+def test_sliver_of_collinear_edge_vertices_is_flipped():
+    # three vertices of one straight edge joined into a flat triangle (what an extrapolated
+    # pattern position can give on a face too small for an interior lattice): the flip of
+    # its longest edge leaves two proper triangles; reference: exact geometry of the square
+    from cadbridge.mesh.qit import _fix_slivers
+
+    x = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0]], dtype=float)
+    uv = x[:, :2]
+    tris = np.array([[0, 1, 2], [0, 2, 3]])  # [0, 1, 2] is flat
+    out, n = _fix_slivers(tris, x, uv, {(0, 1), (1, 2), (2, 3), (0, 3)})
+    assert n == 1
+    assert sorted(map(sorted, out.tolist())) == [[0, 1, 3], [1, 2, 3]]
+    ang = triangle_angles(x, out)
+    assert ang.min() == pytest.approx(45.0)

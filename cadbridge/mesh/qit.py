@@ -151,8 +151,17 @@ def _ppi(h_a, slope, length):
 
 
 def _edge_derivs(surface, curve: NurbsCurve, t: np.ndarray) -> np.ndarray:
-    """C = S(c(t)) and its first three t-derivatives (chain rule), (N, 4, 3)."""
-    c = curve.derivatives(t, 3)[:, :, :2]
+    """C = S(c(t)) and its first three t-derivatives (chain rule), (N, 4, 3).
+
+    Trim curves of analytic IGES entities (`cadbridge.iges.analytic` mapped / inverted
+    curves) give derivatives up to order 2 only: their third derivative is taken as 0, which
+    touches only C''' and so only the dC-mesh error estimate (A.4), never a length or a
+    position."""
+    try:
+        c = curve.derivatives(t, 3)[:, :, :2]
+    except ValueError:
+        c2 = curve.derivatives(t, 2)[:, :, :2]
+        c = np.concatenate([c2, np.zeros((len(c2), 1, 2))], axis=1)
     u0, u1, v0, v1 = surface.domain
     uu = np.clip(c[:, 0, 0], u0, u1)
     vv = np.clip(c[:, 0, 1], v0, v1)
@@ -585,7 +594,7 @@ def _chord_polish(surf: _Surf, uva, uvb, ra, rb, uv, iters: int = 8):
 
 
 def _surface_vertices(surf: _Surf, ds: _DSMesh, region: np.ndarray, centre: np.ndarray, opt: QitOptions,
-                      max_rings: int, rep: QitFaceReport) -> _Lattice:
+                      max_rings: int, rep: QitFaceReport, label: str = "face") -> _Lattice:
     """Hexagonal wave from ``centre`` (section 5.4): a vertex is computed iff one of its base
     vertices lies in ``region`` (u0, u1, v0, v1); the front stops at the first ring with none."""
     R = opt.size
@@ -610,7 +619,8 @@ def _surface_vertices(surf: _Surf, ds: _DSMesh, region: np.ndarray, centre: np.n
         c = ring1[n][:2]
         uv = _run_aip(lat, surf, ds, [(ring1[n - 1][:2], (0, 0), c)], opt)[0]
         if not np.all(np.isfinite(uv)):
-            raise QitError("AIP failed on the first hexagon")
+            raise QitError(f"{label}: AIP found no vertex of the first hexagon (the face is small or strongly "
+                           f"curved for R = {R:g}); use a smaller --size or --mesher gmsh")
         lat.add(c, uv)
 
     def inside(ij) -> bool:
@@ -820,6 +830,49 @@ def _edge_strip_flips(tris: np.ndarray, is_edge: np.ndarray, x: np.ndarray, uv: 
         if not changed:
             break
     return np.array(tris), flips
+
+
+def _fix_slivers(tris: np.ndarray, x: np.ndarray, uv: np.ndarray, constrained: set,
+                 min_angle: float = np.radians(0.5)) -> tuple[np.ndarray, int]:
+    """Beyond the paper: a triangle flatter than ``min_angle`` (three nearly collinear
+    vertices; on faces too small for an interior lattice the pattern coordinates of their
+    edge vertices are extrapolated and the CDT can join three vertices of one straight edge)
+    has its longest edge flipped, if that edge is not a loop segment and the new pair is
+    positive in (u, v). Repeats until none is left or none can be flipped."""
+    tris = [list(t) for t in tris]
+    done = 0
+    for _ in range(4 * len(tris) + 4):
+        t_arr = np.array(tris)
+        p = x[t_arr]
+        ang = np.empty((len(t_arr), 3))
+        for i in range(3):
+            a, b = p[:, (i + 1) % 3] - p[:, i], p[:, (i + 2) % 3] - p[:, i]
+            ang[:, i] = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+        bad = np.flatnonzero(ang.min(axis=1) < min_angle)
+        if bad.size == 0:
+            break
+        adj = _tri_adjacency(t_arr)
+        flipped = False
+        for t1 in bad:
+            tt = tris[t1]
+            k = int(np.argmax(ang[t1]))  # the vertex opposite the longest edge
+            c, a, b = tt[k], tt[(k + 1) % 3], tt[(k + 2) % 3]
+            if (min(a, b), max(a, b)) in constrained or (b, a) not in adj:
+                continue
+            t2 = adj[(b, a)]
+            d = [v for v in tris[t2] if v not in (a, b)][0]
+            if _orient2d(uv[c], uv[d], uv[b]) <= 0 and _orient2d(uv[d], uv[c], uv[a]) <= 0:
+                continue
+            new1, new2 = [c, a, d], [c, d, b]
+            if _orient2d(uv[new1[0]], uv[new1[1]], uv[new1[2]]) <= 0 or _orient2d(uv[new2[0]], uv[new2[1]], uv[new2[2]]) <= 0:
+                continue
+            tris[t1], tris[t2] = new1, new2
+            done += 1
+            flipped = True
+            break
+        if not flipped:
+            break
+    return np.array(tris), done
 
 
 # ---------------------------------------------------------------------------------------
@@ -1063,7 +1116,7 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
         region = np.array([surf.lo[0], surf.hi[0], surf.lo[1], surf.hi[1]])
     centre = np.array([0.5 * (region[0] + region[1]), 0.5 * (region[2] + region[3])])
     perim = float(np.linalg.norm(np.diff(np.vstack([e_x, e_x[:1]]), axis=0), axis=1).sum())
-    lat = _surface_vertices(surf, ds, region, centre, opt, int(perim / R) + 10, rep)
+    lat = _surface_vertices(surf, ds, region, centre, opt, int(perim / R) + 10, rep, label)
     uv = np.array(lat.uv)
     pr = np.array([lat.r(ij) for ij in lat.ij])
     rep.computed = len(uv)
@@ -1135,6 +1188,8 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
         is_edge = np.zeros(len(pts), dtype=bool)
         is_edge[n_si:] = True
         local, rep.flips = _edge_strip_flips(local, is_edge, all_x, all_uv, {(min(p, q), max(p, q)) for p, q in cons})
+    local, fixed = _fix_slivers(local, all_x, all_uv, {(min(p, q), max(p, q)) for p, q in cons})
+    rep.flips += fixed
     return gid[local]
 
 
