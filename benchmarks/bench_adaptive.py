@@ -113,7 +113,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="one tolerance (0.01), U-shape die and punch only")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "adaptive.md"))
-    ap.add_argument("--max-steps", type=int, default=14)
+    ap.add_argument("--max-steps", type=int, default=22)
+    ap.add_argument("--no-production", action="store_true", help="skip the production die even if present")
     a = ap.parse_args(argv)
     tols = (0.01,) if a.quick else (0.05, 0.01)
     rows: list = []
@@ -123,7 +124,7 @@ def main(argv=None) -> int:
         make_punch(punch)
         samples = [ROOT / "iges_samples" / "ushape_die_nurbs.igs", punch]
         prod = ROOT / "iges_samples" / "production_die_nurbs.igs"
-        if prod.is_file() and not a.quick:
+        if prod.is_file() and not a.quick and not a.no_production:
             samples.append(prod)
         for s in samples:
             print(f"{s.name} ...", flush=True)

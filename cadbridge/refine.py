@@ -389,9 +389,10 @@ def refine_mesh(
             nonlocal floor_p
             hs = _element_sizes(t.nagata)[elems]
             cen = _centroids(t.mesh)[elems]
-            h_now = np.minimum(hs, field_(cen))
+            # the element's own size (its most curved edge) scaled by the law's factor; where
+            # the field already asks for less (min in the field), the mark changes nothing
             f = np.clip(0.9 * (t_loop / np.maximum(e, 1e-300)) ** 0.25, 0.3, factor_cap)
-            h_new = np.maximum(h_now * f, h_min)
+            h_new = np.maximum(hs * f, h_min)
             at_floor = hs <= 1.3 * h_min
             for k in np.flatnonzero(at_floor):  # loop over the (few) floor elements
                 floor_p.append(FloorElement(t.name, int(elems[k]) + 1, float(e[k]), float(hs[k]),

@@ -461,6 +461,9 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     }
     _apply(sess, mopts)
     if kw["size_callback"] is not None:
+        # the callback alone sets the sizes inside faces (else gmsh interpolates the boundary
+        # sizes across them, filling a plane next to a small round with small elements)
+        sess.set("Mesh.MeshSizeExtendFromBoundary", 0)
         g.model.mesh.setSizeCallback(kw["size_callback"])
     if kw["structured"]:
         faces, shapes = _classify(g, kw["fillet_max_radius"])
