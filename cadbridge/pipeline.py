@@ -87,6 +87,7 @@ class RunResult:
     output: Path
     tools: list[ToolResult] = field(default_factory=list)
     files: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what was done on the way (mesh clean-up, ...)
 
     def summary(self) -> str:
         nan = float("nan")
@@ -107,6 +108,7 @@ class RunResult:
                          "flat err: surface err of the flat mesh at the same samples")
         for t in self.tools:
             lines += [f"  {t.name}: {d}" for d in t.diagnosis]
+        lines += [f"  {n}" for n in self.notes]
         return "\n".join(lines)
 
 
@@ -290,6 +292,19 @@ def build_tool(
                             f"{more} (1-based, {len(strad)} in all) have corners on both sides of a crease line or "
                             f"sharp edge, and no normal can make a patch fold inside an element; remesh with mesh "
                             f"edges on the creases (cadbridge convert does)")
+    turned = sorted(set(reversed_normal_elements(nm).tolist()) - set(strad.tolist()))
+    if turned:
+        more = f" (and {len(turned) - 10} more)" if len(turned) > 10 else ""
+        where = ""
+        if ef is not None and model is not None:
+            fs = np.unique(ef[turned])
+            where = " on face " + ", ".join(f"{int(f)} ({model.faces[int(f)].name or 'DE %d' % model.faces[int(f)].de})"
+                                             for f in fs[:3])
+        diagnosis.insert(0, f"the CAD normal reverses inside elements {', '.join(str(e + 1) for e in turned[:10])}"
+                            f"{more} (1-based, {len(turned)} in all){where}: their corner normals differ by more "
+                            f"than {REVERSAL_DEG:.0f} degrees, so the surface folds back over itself there or the "
+                            f"elements span more than that of its turn; no quadratic patch can follow it (check the "
+                            f"face in CAD, or refine)")
     folded = folded_elements(nm)
     if len(folded):
         more = f" (and {len(folded) - 10} more)" if len(folded) > 10 else ""
@@ -314,6 +329,25 @@ def folded_elements(nm) -> np.ndarray:
               else np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 1]))
         against = np.einsum("eki,ei->ek", cn, en) < 0
         out.append(glob[against.all(axis=1) & (np.linalg.norm(en, axis=1) > 0)])
+    return np.sort(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
+
+
+REVERSAL_DEG = 120.0
+"""Corner normals of one element further apart than this: the surface turns back inside it."""
+
+
+def reversed_normal_elements(nm, max_angle_deg: float = REVERSAL_DEG) -> np.ndarray:
+    """Elements (global ids, sorted) with two corner normals more than ``max_angle_deg``
+    apart: the CAD surface folds back between their corners (a parametrisation that turns
+    over, e.g. the ANSA face FACE(274) of the OCC corpus, whose v-direction runs back over
+    2.4 mm twice), or the element spans too much of a tight radius. (K,) int64."""
+    c = np.cos(np.radians(max_angle_deg))
+    out = []
+    for cn, glob in ((nm.tri_corner_normals, nm.tri_global), (nm.quad_corner_normals, nm.quad_global)):
+        if len(cn) == 0:
+            continue
+        dots = np.einsum("eai,ebi->eab", cn, cn)
+        out.append(glob[(dots < c).any(axis=(1, 2))])
     return np.sort(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
 
 
@@ -742,7 +776,7 @@ def convert(
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
                              orient=True, meshed_per_face=True)
     check_tools(tools, allow_worse)
-    result = RunResult(Path(output), tools)
+    result = RunResult(Path(output), tools, notes=list(mesh.notes))
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
         result.files.append(f"{mesh.name}_mesh.msh")

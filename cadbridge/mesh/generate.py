@@ -292,6 +292,10 @@ def _structured_counts(
     return counts
 
 
+MERGE_TOLERANCE = 1e-4
+"""Nodes of a generated mesh closer than this x the element size are merged."""
+
+
 def mesh_cad(
     path: str | Path,
     *,
@@ -480,6 +484,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
                 if kw["element"] == "quad":
                     g.model.mesh.setRecombine(2, f.tag)
     g.model.mesh.generate(2)
+    _check_all_meshed(g, surfaces, path)
     mesh = _collect(g, surfaces, kw["parametric"], path)
     if kw["element"] == "quad" and len(mesh.triangles):
         # recombination left triangles: gmsh's all-quad subdivision (splits every element
@@ -490,9 +495,18 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
             for c, n in counts.items():
                 g.model.mesh.setTransfiniteCurve(c, max(1, math.ceil(n / 2)) + 1)
         g.model.mesh.generate(2)
+        _check_all_meshed(g, surfaces, path)
         mesh = _collect(g, surfaces, kw["parametric"], path)
         if len(mesh.triangles):
             raise MeshError(f"{path}: gmsh left {len(mesh.triangles)} triangles in quad mode")
+    # faces that pinch to a point (two boundary curves touching) and edges far below the
+    # size make gmsh grade nodes down to ~1e-13 apart and overlap slivers there: nodes
+    # closer than 1e-4 x size are one node (cadbridge.mesh.cleanup)
+    from cadbridge.mesh.cleanup import merge_close_nodes
+
+    mesh, merged = merge_close_nodes(mesh, MERGE_TOLERANCE * size)
+    if merged:
+        mesh.notes.append(f"mesh: {merged.summary()}")
     return mesh
 
 
@@ -505,6 +519,27 @@ def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
     ds = np.linalg.norm(np.diff(x, axis=0), axis=1)
     h = np.asarray(curve_size(0.5 * (x[1:] + x[:-1]), np.maximum(k[1:], k[:-1])), dtype=float)
     return float(np.sum(ds / h))
+
+
+def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:
+    """Raise `MeshError` naming the surfaces gmsh left without elements.
+
+    gmsh gives up on a surface whose boundary it cannot recover in parameter space ("No
+    elements in surface ...", a warning only), e.g. the long helical wire faces of the
+    Inventor spring; a tool without them would silently lack part of the CAD."""
+    empty = [s for s in surfaces if not any(len(t) for t in g.model.mesh.getElements(2, s)[1])]
+    if not empty:
+        return
+    parts = []
+    for s in empty[:5]:
+        bb = np.asarray(g.model.getBoundingBox(2, s), dtype=float)
+        area = g.model.occ.getMass(2, s) if g.model.getType(2, s) else float("nan")
+        parts.append(f"{s} ({g.model.getType(2, s)}, area {area:.4g}, box ({bb[0]:.4g}, {bb[1]:.4g}, {bb[2]:.4g})"
+                     f"-({bb[3]:.4g}, {bb[4]:.4g}, {bb[5]:.4g}))")
+    more = f" and {len(empty) - 5} more" if len(empty) > 5 else ""
+    raise MeshError(f"{path}: gmsh left {len(empty)} of {len(surfaces)} surfaces without elements (it could not "
+                    f"recover their boundary in parameter space): gmsh surface {', '.join(parts)}{more}; "
+                    f"try another --size, or mesh the CAD elsewhere and run `cadbridge nagata MESH --cad CAD`")
 
 
 def _embed_curves(g, curves: list, path: Path) -> None:

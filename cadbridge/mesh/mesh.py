@@ -102,6 +102,8 @@ class Mesh:
     point_data: dict[str, np.ndarray] = field(default_factory=dict)
     cell_data: dict[str, np.ndarray] = field(default_factory=dict)
     name: str = "mesh"
+    #: what was done to the mesh on the way (e.g. nodes merged by the mesher), for reports
+    notes: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         nodes = np.asarray(self.nodes, dtype=np.float64)

@@ -1,0 +1,84 @@
+"""Real CAD that gmsh or the CAD itself gets wrong: what cadbridge does about it.
+
+* `merge_close_nodes` (cadbridge.mesh.cleanup) against hand-built meshes (reference: the
+  connectivity worked out by hand).
+* The Inventor spring of the OCC corpus: gmsh leaves its two helical wire faces without
+  elements (its own log says "No elements in surface 1 6"); `mesh_cad` must say so instead
+  of returning a mesh that lacks them.
+* The ANSA file of the OCC corpus: the surface of FACE(274) runs back over itself in v
+  (reference: its own control net, whose x goes 3549.8 -> 3545.8 -> 3547.6 along one row,
+  and its analytic S_v reversing); `convert` must stop naming the face, not write a tool
+  with a 90-degree normal error.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cadbridge.mesh.cleanup import merge_close_nodes
+from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
+
+REAL = Path(__file__).parents[1].parent / "shared" / "iges_real"
+
+
+def test_merge_collapses_a_sliver_and_keeps_the_rest():
+    # two triangles on the unit square, plus a sliver whose apex 3 is 1e-9 from node 1
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1 + 1e-9, 0, 0], [1, 1, 0]], dtype=float)
+    tri = np.array([[0, 1, 2], [1, 4, 2], [1, 3, 4]])
+    m = Mesh(x, [CellBlock("triangle", tri)], point_data={"id": np.arange(5)},
+             cell_data={"element_entity": np.array([7, 8, 9])})
+    out, rep = merge_close_nodes(m, 1e-6)
+    assert rep.merged == 1 and rep.dropped == 1 and rep.to_triangles == 0
+    # node 3 joined node 1; nodes renumbered 0,1,2,4 -> 0,1,2,3
+    np.testing.assert_array_equal(out.cells[0].data, [[0, 1, 2], [1, 3, 2]])
+    np.testing.assert_array_equal(out.point_data["id"], [0, 1, 2, 4])
+    np.testing.assert_array_equal(out.cell_data["element_entity"], [7, 8])
+    assert "merged 1 nodes" in rep.summary()
+
+
+def test_merge_turns_a_quad_with_a_collapsed_edge_into_a_triangle_with_its_winding():
+    x = np.array([[0, 0, 0], [1, 0, 0], [1, 1e-12, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0], [1, 1, 0]], dtype=float)
+    quads = np.array([[0, 1, 2, 3], [1, 4, 5, 6]])
+    m = Mesh(x, [CellBlock("quad", quads)], cell_data={"element_entity": np.array([1, 2])})
+    out, rep = merge_close_nodes(m, 1e-9)
+    assert rep.merged == 1 and rep.to_triangles == 1
+    types = {b.type: b.data for b in out.cells}
+    np.testing.assert_array_equal(types["quad"], [[1, 3, 4, 5]])
+    np.testing.assert_array_equal(types["triangle"], [[0, 1, 2]])   # (0, 1, 1, 3) -> (0, 1, 3) renumbered
+    # counter-clockwise about +z as the quad was
+    t = out.nodes[types["triangle"][0]]
+    assert np.cross(t[1] - t[0], t[2] - t[0])[2] > 0
+    np.testing.assert_array_equal(out.cell_data["element_entity"], [2, 1])  # quads, then new triangles
+
+
+def test_nothing_to_merge_returns_the_same_mesh():
+    x = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=float)
+    m = Mesh(x, [CellBlock("triangle", np.array([[0, 1, 2]]))])
+    out, rep = merge_close_nodes(m, 1e-3)
+    assert out is m and not rep
+
+
+@pytest.mark.skipif(not (REAL / "occt_bug22869_Inventor2011_Spring.igs").is_file(), reason="corpus not present")
+def test_surfaces_gmsh_leaves_empty_are_named():
+    from cadbridge.mesh.generate import mesh_cad
+
+    with pytest.raises(MeshError, match=r"gmsh left 2 of 6 surfaces without elements.*BSpline surface"):
+        mesh_cad(REAL / "occt_bug22869_Inventor2011_Spring.igs", curvature_elements=12)
+
+
+@pytest.mark.skipif(not (REAL / "occt_OCC131-2_ANSA9.igs").is_file(), reason="corpus not present")
+def test_a_face_that_folds_back_stops_convert_naming_it(tmp_path):
+    from cadbridge.iges import read_iges
+    from cadbridge.pipeline import ToolQualityError, convert
+
+    path = REAL / "occt_OCC131-2_ANSA9.igs"
+    s = read_iges(path).faces[0].surface
+    # the reference: S_v at u = 0.5 points one way before v = 0.8167 and the other way after
+    d = s.derivatives(np.array([0.5, 0.5]), np.array([0.75, 0.9]), order=1)
+    assert np.dot(d[0, 0, 1], d[1, 0, 1]) < 0
+    with pytest.raises(ToolQualityError, match=r"the CAD normal reverses inside elements .* on face 0 \(FACE\(274\)\)"):
+        convert(path, tmp_path / "out", element="tri")
+    assert not (tmp_path / "out").exists()
