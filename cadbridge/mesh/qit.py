@@ -82,6 +82,7 @@ class QitFaceReport:
     rescued: int = 0
     flips: int = 0
     ds_partitions: int = 0
+    seam_dropped: int = 0
 
 
 # ---------------------------------------------------------------------------------------
@@ -1150,6 +1151,15 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
             c = np.array(tree.query_ball_point(x[k], dx_th + half))
             dist[k] = _dist_to_polyline_pairs(x[k], seg_a[c], seg_b[c])
     si = inside & (dist >= dx_th)
+    # the front must have reached every edge vertex (else the CDT would bridge the gap with
+    # slivers): a long face narrower than a few R can starve the hexagon rings
+    xs_all, _, _ = surf.d1(uv)
+    gap = cKDTree(xs_all).query(e_x)[0]
+    if gap.max() > 2.0 * R:
+        k = int(np.argmax(gap))
+        raise QitError(f"{label}: the hexagonal front of QIT did not reach the whole face (edge vertex at "
+                       f"{np.round(e_x[k], 6).tolist()} is {gap[k]:.3g} from every lattice vertex, R = {R:g}: "
+                       "a long face only a few R wide); use a smaller --size or --mesher gmsh")
     rep.so = int((~inside).sum())
     rep.se = int((inside & ~si).sum())
     rep.si = int(si.sum())
@@ -1190,7 +1200,12 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
         local, rep.flips = _edge_strip_flips(local, is_edge, all_x, all_uv, {(min(p, q), max(p, q)) for p, q in cons})
     local, fixed = _fix_slivers(local, all_x, all_uv, {(min(p, q), max(p, q)) for p, q in cons})
     rep.flips += fixed
-    return gid[local]
+    out = gid[local]
+    # two loop vertices may be one node (the two sides of a seam meet in 3D): a triangle on
+    # both has two coincident corners, zero area; dropping it joins its neighbours there
+    rep_node = (out[:, 0] == out[:, 1]) | (out[:, 1] == out[:, 2]) | (out[:, 2] == out[:, 0])
+    rep.seam_dropped = int(rep_node.sum())
+    return out[~rep_node]
 
 
 def _interpolate_pattern(p: np.ndarray, r: np.ndarray, q: np.ndarray) -> np.ndarray:
