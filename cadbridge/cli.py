@@ -89,7 +89,7 @@ class CheckFailed(Exception):
 # Subcommands that live in their own module (one module per job). Each module defines
 # ``register(sub, fmt) -> None`` that adds its parser with ``set_defaults(func=...)``; its
 # command functions raise `UsageError` (exit 2) or `CheckFailed` (exit 1) with one line.
-COMMAND_MODULES: tuple[str, ...] = ("cadbridge.results.command", "cadbridge.fit_command")
+COMMAND_MODULES: tuple[str, ...] = ("cadbridge.results.command", "cadbridge.fit_command", "cadbridge.mesh.quality_command")
 
 
 def _say(msg: str) -> None:

@@ -60,3 +60,22 @@ def test_distorted_lattice_scores_less():
     q0 = mesh_quality(pts, tris, 1.0).q
     q1 = mesh_quality(pts + rng.normal(0, 0.08, pts.shape) * [1, 1, 0], tris, 1.0).q
     assert q1 < q0 - 10
+
+
+def test_quality_command_on_a_written_mesh(tmp_path, capsys):
+    # reference: the BIT itself scores Q = 100 (appendix C), through a mesh file
+    import json
+
+    from cadbridge.cli import main
+    from cadbridge.mesh.io import write_mesh
+    from cadbridge.mesh.mesh import CellBlock, Mesh
+
+    pts, tris = _lattice(4, 7, r=3.0)
+    f = tmp_path / "bit.vtu"
+    write_mesh(Mesh(pts, [CellBlock("triangle", tris)]), f)
+    js = tmp_path / "q.json"
+    assert main(["quality", str(f), "--size", "3", "--json", str(js)]) == 0
+    out = capsys.readouterr().out
+    assert "Q = 100.0 %" in out
+    assert json.loads(js.read_text())["q"] == pytest.approx(100.0)
+    assert main(["quality", str(f), "--size", "-1"]) == 2
