@@ -28,10 +28,10 @@ Around the solve (`fit_surface`):
   knot in the middle of its u-span and/or v-span (the direction(s) along which its residuals vary),
   until no cell exceeds the tolerance ("tolerance") or the control net limit is reached
   ("control-net limit"); "no improvement" when a refinement no longer lowers the worst cell.
-  The statistic is the cell's maximum distance for exact data, and for noisy data (estimated noise
-  sigma above tol/20, `estimate_noise`) the largest 90 % quantile of its 4 x 4 sub-cells against
-  tol + 1.645 sigma: the 90 % quantile of |N(0, sigma^2)| is 1.645 sigma, so what is left above
-  it is systematic.
+  The statistic is the cell's maximum distance for exact data; for noisy data (estimated noise
+  sigma above tol/20, `estimate_noise`) it is, over the cell's 4 x 4 sub-cells, the largest
+  |mean signed residual| less 3 sigma / sqrt(n): the fit's offset from the local mean of the data,
+  i.e. its deviation from the measured surface, once the noise of that mean is allowed for.
 
 All arrays are float64; points (N, 3) in model units, parameters (N,).
 """
@@ -64,7 +64,6 @@ __all__ = [
 HUBER_K = 1.345  # Huber's constant (95 % efficiency at the normal distribution)
 TUKEY_C = 4.685  # Tukey's biweight constant (95 % efficiency)
 MAD_TO_SIGMA = 1.4826  # sigma = 1.4826 x median absolute deviation for normal data
-Q90_Z = 1.6448536269514722  # 90 % quantile of |Z|, Z ~ N(0, 1): P(|Z| < 1.645) = 0.9
 
 
 class FitError(ValueError):
@@ -509,7 +508,7 @@ def fit_surface(
 
     sigma = estimate_noise(x) if noise is None else float(noise)
     noisy = sigma > 0.05 * tolerance
-    q_stat, thresh = (0.9, tolerance + Q90_Z * sigma) if noisy else (1.0, tolerance)
+    thresh = tolerance
     stage = getattr(progress, "stage", None) or (lambda text: None)
 
     def make_surface(ku, kv, cp, cw):
@@ -664,14 +663,24 @@ def fit_surface(
         return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), f0.stop, float(tolerance), sigma,
                           history)
 
-    def sub_statistic(iu, iv, cell, keep, dist):
+    def sub_statistic(iu, iv, cell, keep, dist, signed_now):
         """Per cell the largest statistic of its 4 x 4 sub-cells: a misfit on a tenth of a cell
         (a radius inside a wide span) must not hide under the cell's 90 % quantile."""
         bu = np.clip(((u - ku[p + iu]) / np.maximum(ku[p + iu + 1] - ku[p + iu], 1e-300) * 4).astype(np.int64), 0, 3)
         bv = np.clip(((v - kv[q + iv]) / np.maximum(kv[q + iv + 1] - kv[q + iv], 1e-300) * 4).astype(np.int64), 0, 3)
         key = (cell * 4 + bu) * 4 + bv
         n_cells = (len(ku) - 2 * p - 1) * (len(kv) - 2 * q - 1)
-        return _cell_statistic(key[keep], dist[keep], q_stat, 16 * n_cells).reshape(n_cells, 16).max(axis=1)
+        if not noisy:
+            return _cell_statistic(key[keep], dist[keep], 1.0, 16 * n_cells).reshape(n_cells, 16).max(axis=1)
+        # noisy data: the sub-cell's mean signed residual (the fit's offset from the data's local
+        # mean), less 3 standard errors of that mean; sub-cells with fewer than 4 points abstain
+        k = key[keep]
+        cnt = np.bincount(k, minlength=16 * n_cells)
+        sm = np.bincount(k, weights=signed_now[keep], minlength=16 * n_cells)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            st = np.abs(sm / cnt) - 3.0 * sigma / np.sqrt(cnt)
+        st = np.where(cnt >= 4, st, -np.inf)
+        return st.reshape(n_cells, 16).max(axis=1)
 
     for level in range(max_levels + 1):
         n_iter = 1 if robust is None else 2
@@ -687,7 +696,7 @@ def fit_surface(
         nsu, nsv = len(ku) - 2 * p - 1, len(kv) - 2 * q - 1
         cell = iu * nsv + iv
         keep = _robust_weights(contrast(signed), "tukey", tolerance) > 0 if robust is not None else np.ones(n, bool)
-        stat = sub_statistic(iu, iv, cell, keep, dist)
+        stat = sub_statistic(iu, iv, cell, keep, dist, signed)
         flagged = np.nonzero(stat > thresh)[0]
         if (flagged.size == 0 or not refine or level == max_levels) and robust is not None and not state.get("done"):
             rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
@@ -696,7 +705,7 @@ def fit_surface(
             iv = find_span(kv, q, v) - q
             cell = iu * nsv + iv
             keep = rob_w > 0
-            stat = sub_statistic(iu, iv, cell, keep, dist)
+            stat = sub_statistic(iu, iv, cell, keep, dist, signed)
             flagged = np.nonzero(stat > thresh)[0]
         worst = float(stat.max())
         # knots go where the error comes from: cells within a factor 3 of the worst (a least-squares

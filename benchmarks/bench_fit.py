@@ -1,0 +1,150 @@
+"""Surface fitting against peers, measured in the same run.
+
+1. Grid data (a smooth sheet-metal-like height field on an n x n grid): OCC's
+   GeomAPI_PointsToBSplineSurface (degree 3, C2, its own net for --occ-tol), then geomdl's
+   fitting.approximate_surface and cadbridge.nurbs.fit at OCC's control net size. Max deviation of
+   the grid points from each surface (each point projected by cadbridge's point inversion; the
+   same measure for all three) and the time ratio.
+2. Scattered data: scan-like points of the U-shape die (noise, outliers, a hole), the whole
+   `cadbridge.fitting.fit_points` job: points/s.
+3. Scale: --scale N points of the same kind (default 1 000 000): wall time and peak memory.
+
+    python benchmarks/bench_fit.py                 # all three
+    python benchmarks/bench_fit.py --skip-scale    # grid + scattered only
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))
+
+from cadbridge.nurbs.fit import fit_surface, uniform_knots  # noqa: E402
+from cadbridge.nurbs.project import project_to_surface  # noqa: E402
+from cadbridge.nurbs.surface import NurbsSurface  # noqa: E402
+
+
+def height(x, y):
+    return 5.0 * np.sin(x / 15.0) * np.cos(y / 20.0) + 0.002 * x * y
+
+
+def occ_to_nurbs(bs) -> NurbsSurface:
+    """A Geom_BSplineSurface as a cadbridge NurbsSurface (poles, weights, flat knot vectors)."""
+    nu, nv = bs.NbUPoles(), bs.NbVPoles()
+    cp = np.array([[[bs.Pole(i, j).X(), bs.Pole(i, j).Y(), bs.Pole(i, j).Z()] for j in range(1, nv + 1)]
+                   for i in range(1, nu + 1)])
+    w = np.array([[bs.Weight(i, j) for j in range(1, nv + 1)] for i in range(1, nu + 1)])
+
+    def flat(n_knots, knot, mult):
+        return np.concatenate([[knot(k)] * mult(k) for k in range(1, n_knots + 1)])
+
+    ku = flat(bs.NbUKnots(), bs.UKnot, bs.UMultiplicity)
+    kv = flat(bs.NbVKnots(), bs.VKnot, bs.VMultiplicity)
+    return NurbsSurface(bs.UDegree(), bs.VDegree(), ku, kv, cp, None if np.ptp(w) == 0 else w)
+
+
+def max_dev(surface: NurbsSurface, pts: np.ndarray) -> float:
+    return float(project_to_surface(surface, pts).distance.max())
+
+
+def grid_bench(n: int, occ_tol: float) -> None:
+    from OCP.GeomAbs import GeomAbs_C2
+    from OCP.GeomAPI import GeomAPI_PointsToBSplineSurface
+    from OCP.gp import gp_Pnt
+    from OCP.TColgp import TColgp_Array2OfPnt
+
+    xs, ys = np.linspace(0.0, 120.0, n), np.linspace(0.0, 90.0, n)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    pts = np.stack([X, Y, height(X, Y)], axis=-1)  # (n, n, 3), [i, j]: i along x
+    flat = pts.reshape(-1, 3)
+    arr = TColgp_Array2OfPnt(1, n, 1, n)
+    for i in range(n):
+        for j in range(n):
+            arr.SetValue(i + 1, j + 1, gp_Pnt(*pts[i, j]))
+    t = time.perf_counter()
+    occ = GeomAPI_PointsToBSplineSurface(arr, 3, 3, GeomAbs_C2, occ_tol).Surface()
+    t_occ = time.perf_counter() - t
+    s_occ = occ_to_nurbs(occ)
+    nu, nv = s_occ.shape
+    print(f"grid {n}x{n} = {n * n} points; OCC net {nu}x{nv} for Tol3D {occ_tol:g}")
+
+    import geomdl.fitting
+
+    t = time.perf_counter()
+    gd = geomdl.fitting.approximate_surface(flat.tolist(), n, n, 3, 3, ctrlpts_size_u=nu, ctrlpts_size_v=nv)
+    t_gd = time.perf_counter() - t
+    cp = np.array(gd.ctrlpts).reshape(nu, nv, 3)
+    s_gd = NurbsSurface(3, 3, gd.knotvector_u, gd.knotvector_v, cp)
+
+    # cadbridge: parameters = the grid's (x, y) (the best-fit-plane base of a height field), the
+    # same net size with uniform knots, parameter correction on, no refinement, no smoothing
+    u, v = X.ravel(), Y.ravel()
+    ku, kv = uniform_knots(3, nu - 3, 0.0, 120.0), uniform_knots(3, nv - 3, 0.0, 90.0)
+    fit_surface(flat[::37], u[::37], v[::37], knots=(uniform_knots(3, 1, 0, 120), uniform_knots(3, 1, 0, 90)),
+                refine=False, robust=None, noise=0.0, smoothing=0.0)  # compile outside the timing
+    t = time.perf_counter()
+    ours = fit_surface(flat, u, v, knots=(ku, kv), refine=False, robust=None, noise=0.0, smoothing=0.0)
+    t_cb = time.perf_counter() - t
+    rows = [("OCC GeomAPI_PointsToBSplineSurface", s_occ, t_occ), ("geomdl approximate_surface", s_gd, t_gd),
+            ("cadbridge fit_surface", ours.surface, t_cb)]
+    print(f"  {'fitter':<38}{'net':>8}{'max deviation':>16}{'time [s]':>11}")
+    for name, s, tt in rows:
+        print(f"  {name:<38}{f'{s.shape[0]}x{s.shape[1]}':>8}{max_dev(s, flat):>16.3e}{tt:>11.3f}")
+    print(f"  time ratio: OCC / cadbridge = {t_occ / t_cb:.2f}x, geomdl / cadbridge = {t_gd / t_cb:.2f}x")
+
+
+def scattered_bench(n: int) -> None:
+    from test_fit_points import die_scan
+
+    from cadbridge.fitting import fit_points
+
+    model, _, x, _ = die_scan(n)
+    fit_points(x[:5000], base=model, tolerance=0.01)  # compile outside the timing
+    t = time.perf_counter()
+    rep = fit_points(x, base=model, tolerance=0.01, trim=True)
+    dt = time.perf_counter() - t
+    f = rep.fit
+    print(f"scattered die scan: {n} points in {dt:.2f} s = {n / dt:,.0f} points/s; net {f.surface.shape}, "
+          f"stop {f.stop}, RMS {f.rms:.4f}, outliers {int(f.outliers.sum())}")
+
+
+def scale_bench(n: int) -> None:
+    from test_fit_points import die_scan
+
+    from cadbridge.fitting import fit_points
+
+    model, _, x, _ = die_scan(n)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    t = time.perf_counter()
+    rep = fit_points(x, base=model, tolerance=0.01, trim=True)
+    dt = time.perf_counter() - t
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    f = rep.fit
+    print(f"scale: {n} points in {dt:.1f} s ({n / dt:,.0f} points/s); net {f.surface.shape}, stop {f.stop}; "
+          f"peak RSS {peak:.0f} MB (was {before:.0f} MB before the fit; the points alone are {x.nbytes / 2**20:.0f} MB)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--grid", type=int, default=100, help="grid points per side (default 100)")
+    ap.add_argument("--occ-tol", type=float, default=1e-3, help="OCC Tol3D, model units (default 1e-3)")
+    ap.add_argument("--scattered", type=int, default=100000, help="scattered points (default 100000)")
+    ap.add_argument("--scale", type=int, default=1000000, help="points of the scale run (default 1000000)")
+    ap.add_argument("--skip-scale", action="store_true")
+    a = ap.parse_args()
+    grid_bench(a.grid, a.occ_tol)
+    scattered_bench(a.scattered)
+    if not a.skip_scale:
+        scale_bench(a.scale)
+
+
+if __name__ == "__main__":
+    main()
