@@ -25,7 +25,7 @@ import numpy as np
 
 from cadbridge.mesh.mesh import CellBlock, Mesh
 
-__all__ = ["NodeMove", "move_nodes_to_inflections"]
+__all__ = ["NodeMove", "inadmissible_elements", "inflection_edges", "move_nodes_to_inflections"]
 
 
 @dataclass
@@ -173,3 +173,32 @@ def _keeps_orientation(blocks, nodes, node, x_new, n_new, cn) -> bool:
         if np.any(np.sign(after) != np.sign(before)) or np.any(after == 0):
             return False
     return True
+
+
+def inadmissible_elements(mesh: Mesh, model, cn, nm, max_bend: float = 100.0) -> dict[int, str]:
+    """Elements of ``mesh`` (global ids, block order; ``nm`` its `NagataMesh` with the corner
+    normals of ``cn``) that one quadratic patch cannot describe, with the reason: an edge
+    across an inflection of the CAD (`inflection_edges`), or an edge that fails
+    `cadbridge.nagata.admissibility` (inflected chord, not monotone, sharp bend)."""
+    from cadbridge.nagata.admissibility import edge_admissibility
+
+    out: dict[int, str] = {}
+    adm = edge_admissibility(nm, max_bend=max_bend)
+    topo = nm.edges
+    reasons = adm.reasons()
+    bad = ~adm.admissible[topo["inst_edge"]]
+    for el, ed in zip(topo["inst_elem"][bad], topo["inst_edge"][bad]):  # loop over the (few) bad instances
+        a, b = adm.edges[ed]
+        out.setdefault(int(el), f"edge {a + 1}-{b + 1}: {reasons[ed]}")
+    e, face, t = inflection_edges(mesh, model, cn)
+    if len(e):
+        key = lambda p, q: np.minimum(p, q) * np.int64(len(mesh.nodes)) + np.maximum(p, q)  # noqa: E731
+        k_all = key(topo["edges"][:, 0], topo["edges"][:, 1])
+        k_bad = key(e[:, 0], e[:, 1])
+        pos = {int(k): i for i, k in enumerate(k_bad)}
+        hit = np.isin(k_all[topo["inst_edge"]], k_bad)
+        for el, ed in zip(topo["inst_elem"][hit], topo["inst_edge"][hit]):
+            i = pos[int(k_all[ed])]
+            out.setdefault(int(el), f"edge {e[i, 0] + 1}-{e[i, 1] + 1} straddles an inflection line of face {face[i]} "
+                                    f"(at {t[i]:.3f} of the edge)")
+    return out

@@ -375,6 +375,15 @@ def refine_mesh(
                 actions += [str(m) for m in moves[:50]]
             elif moves:
                 actions.append(f"pass {p}: {len(moves)} nodes moved onto inflection lines")
+        bad_full: dict[int, str] = {}
+        if inflections:  # what one quadratic patch cannot hold: edges across inflections, bad edges
+            from cadbridge.inflection_nodes import inadmissible_elements
+            from cadbridge.nagata import NagataMesh
+
+            if moved:
+                cn = cad_normals(mesh, model, orient=True, allow_far=True)
+            bad_full = inadmissible_elements(mesh, model, cn, NagataMesh(
+                mesh.nodes, [np.asarray(b.data) for b in mesh.cells], cn.corner_normals))
         tools = _tools_from_mesh(mesh, model, "cad", None, grid, None, False, False, projector, progress,
                                  orient=True, meshed_per_face=True)
         surf = np.concatenate([t.grid["surface_error"] for t in tools])
@@ -413,6 +422,12 @@ def refine_mesh(
             above_all += [(t.name, int(i) + 1, float(e[i])) for i in bad]
             if len(bad):
                 mark(t, bad, e[bad], 0.75)
+        if inflections:
+            n_inadm = len(bad_full)
+            if bad_full and (p == 1 or p == max_passes):
+                more = f" and {len(bad_full) - 10} more" if len(bad_full) > 10 else ""
+                actions.append(f"pass {p}: elements not admissible (mesh numbering, 1-based): " + "; ".join(
+                    f"{k + 1}: {r}" for k, r in sorted(bad_full.items())[:10]) + more)
         checked = math.nan
         if n_above == 0:
             progress.stage(f"pass {p}: independent check on {check_grid} divisions per patch")

@@ -144,6 +144,10 @@ def test_thesis_s_surface_3x5_straddled_patches_and_moved_nodes():
     assert len(edges) == 6 and np.allclose(t, (u_star - 1 / 3) * 3, atol=1e-9)
     centre = np.arange(5, 10)  # elements of the centre column
     assert e[centre].min() > 5 * np.delete(e, centre).max()
+    from cadbridge.inflection_nodes import inadmissible_elements
+
+    bad = inadmissible_elements(mesh, model, cn, tool.nagata)
+    assert sorted(bad) == centre.tolist() and all("straddles an inflection" in r for r in bad.values())
     moved_mesh, moves = move_nodes_to_inflections(mesh, model, cn)
     assert len(moves) == 6
     for mv in moves:  # on the inflection line: k_n along u vanishes there
@@ -153,6 +157,7 @@ def test_thesis_s_surface_3x5_straddled_patches_and_moved_nodes():
     assert len(inflection_edges(moved_mesh, model, cn2)[0]) == 0
     assert e2.max() < 0.5 * e.max()
     assert edge_admissibility(tool2.nagata).element_ok.all()
+    assert inadmissible_elements(moved_mesh, model, cn2, tool2.nagata) == {}
 
 
 def test_adaptive_s_surface_meets_tolerance_with_no_inadmissible_patch():
