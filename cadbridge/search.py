@@ -489,6 +489,7 @@ def _project_pairs(model: Model, index: SearchIndex, pts: np.ndarray, cp: np.nda
     return r.u, r.v, r.foot, r.distance, r.normal, r.status, inside, out
 
 
+_ON_MODEL = 1e-10  # a foot inside its face this near its point (x model size) ends the search
 _BLOCK = 262144  # points projected together at most (larger inputs go block by block)
 
 
@@ -548,8 +549,15 @@ def project_points(
     good = r1[6] & (r1[5] != FAILED)
     np.minimum.at(bound, cp1[good], r1[3][good] * (1.0 + 1e-9) + 1e-9 * size)
 
-    # 2. the other candidate (point, face) pairs: sub-patch boxes within the bound
-    cp2, cf2 = _candidate_pairs(index, pts, bound, exclude=f0 if len(cp1) else None)
+    # 2. the other candidate (point, face) pairs: sub-patch boxes within the bound; not for
+    # points on the model: a foot inside its face within _ON_MODEL x size of the point (no
+    # other face can be nearer by more than that; mesh nodes are such points)
+    open_ = np.ones(n, dtype=bool)
+    on = good & (r1[5] == CONVERGED) & (r1[3] <= _ON_MODEL * size)
+    open_[cp1[on]] = False
+    sub = np.flatnonzero(open_)
+    cp2, cf2 = _candidate_pairs(index, pts[sub], bound[sub], exclude=f0[sub] if len(cp1) else None)
+    cp2 = sub[cp2]
     r2 = _project_pairs(model, index, pts, cp2, cf2, tol)
     cp, cf = np.concatenate([cp1, cp2]), np.concatenate([cf1, cf2])
     pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate([x, y]) for x, y in zip(r1, r2))

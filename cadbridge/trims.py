@@ -487,11 +487,86 @@ class LoopBoundary:
         return inside, on
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _lens_kernel(cpw, knots, deg, rat, ta, tb, a, b, p, size, max_iter, lens, dist):  # pragma: no cover - compiled
+    """`_lens` for a NURBS curve, pair by pair, with the same steps and tests (its docstring);
+    writes lens (K,) and dist (K,)."""
+    dim = cpw.shape[1] - 1
+    ndu = np.empty((deg + 1, deg + 1))
+    left = np.empty(deg + 1)
+    right = np.empty(deg + 1)
+    sa = np.empty((2, deg + 1))
+    nd = np.empty((3, deg + 1))
+    aw = np.empty((3, dim + 1))
+    cd = np.empty((3, dim))
+    for i in range(ta.shape[0]):
+        ax, ay = a[i, 0], a[i, 1]
+        dx, dy = b[i, 0] - ax, b[i, 1] - ay
+        ln = np.sqrt(dx * dx + dy * dy)
+        ll = ln if ln > 0 else 1.0
+        ex, ey = dx / ll, dy / ll  # dirn
+        nx, ny = -ey, ex  # nrm
+        qx, qy = p[i, 0] - ax, p[i, 1] - ay
+        sp = qx * ex + qy * ey
+        npp = qx * nx + qy * ny
+        mid = sp > 0 and sp < ln
+        t = ta[i] + (tb[i] - ta[i]) * min(max(sp / ll, 0.0), 1.0)
+        lo, hi = ta[i], tb[i]
+        eps = 1e-15 * (size + max(abs(ax), abs(ay)))
+        if mid:
+            for _ in range(max_iter):
+                _curve_ders_one(cpw, knots, deg, rat, t, 1, ndu, left, right, sa, nd, aw, cd)
+                g = (cd[0, 0] - ax) * ex + (cd[0, 1] - ay) * ey - sp
+                gp = cd[1, 0] * ex + cd[1, 1] * ey
+                if g < 0:
+                    lo = t
+                if g > 0:
+                    hi = t
+                tn = t - g / gp
+                if not (tn > lo and tn < hi):
+                    tn = 0.5 * (lo + hi)
+                if (abs(g) <= eps or hi - lo <= 4e-16 * (abs(hi) + abs(lo)) or abs(tn - t) * abs(gp) <= eps):
+                    break
+                t = tn
+        _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
+        f = (cd[0, 0] - ax) * nx + (cd[0, 1] - ay) * ny
+        lens[i] = mid and npp * f > 0 and abs(npp) < abs(f)
+        # distance to the arc: Newton on (C - p).C' from the chord's abscissa (or the near end)
+        for _ in range(8):
+            _curve_ders_one(cpw, knots, deg, rat, t, 2, ndu, left, right, sa, nd, aw, cd)
+            rx, ry = cd[0, 0] - p[i, 0], cd[0, 1] - p[i, 1]
+            g = rx * cd[1, 0] + ry * cd[1, 1]
+            c11 = cd[1, 0] * cd[1, 0] + cd[1, 1] * cd[1, 1]
+            gp = c11 + (rx * cd[2, 0] + ry * cd[2, 1])
+            if not gp > 0:
+                gp = c11 + 1e-300
+            tn = min(max(t - g / gp, ta[i]), tb[i])
+            moved = abs(tn - t) * np.sqrt(c11) > 1e-15 * size
+            t = tn
+            if not moved:
+                break
+        _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
+        rx, ry = cd[0, 0] - p[i, 0], cd[0, 1] - p[i, 1]
+        dd = np.sqrt(rx * rx + ry * ry)
+        da = np.sqrt((ax - p[i, 0]) ** 2 + (ay - p[i, 1]) ** 2)
+        db = np.sqrt((b[i, 0] - p[i, 0]) ** 2 + (b[i, 1] - p[i, 1]) ** 2)
+        dist[i] = min(dd, min(da, db))
+
+
 def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
     """For pairs (point p (K, 2), edge k of curve c): whether p lies strictly between the
     chord a -> b and the exact arc c([ta, tb]) (the arc is a graph over its chord: solve
     s(t) = s_p by safeguarded Newton, compare normal offsets), and the distance of p to the
-    arc (Newton on (C - p).C' from there, clamped; ends included). (K,) bool, (K,) float."""
+    arc (Newton on (C - p).C' from there, clamped; ends included). (K,) bool, (K,) float.
+    NURBS curves go through the compiled `_lens_kernel` (same steps)."""
+    if isinstance(c, NurbsCurve):
+        lens = np.empty(len(ta), dtype=np.bool_)
+        dist = np.empty(len(ta))
+        _lens_kernel(c._pw, c.knots, c.degree, c.rational, np.ascontiguousarray(ta, dtype=float),
+                     np.ascontiguousarray(tb, dtype=float), np.ascontiguousarray(a, dtype=float),
+                     np.ascontiguousarray(b, dtype=float), np.ascontiguousarray(p, dtype=float), float(size),
+                     int(max_iter), lens, dist)
+        return lens, dist
     d = b - a
     ln = np.linalg.norm(d, axis=1)
     dirn = d / np.where(ln > 0, ln, 1.0)[:, None]

@@ -346,24 +346,18 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, tol: float = 1e-12,
 
 def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float, max_iter: int) -> SurfaceProjection:
     n = len(p)
-    # one k-nearest query per surface serves the start (column 0), the global and edge checks
+    # the nearest sample of each pair's surface starts Newton; the k nearest (global and edge
+    # checks) are queried afterwards, only for the pairs that get restarts
     k = _CHECK_K
-    dk = np.full((n, k), np.inf)
-    ik = np.zeros((n, k), dtype=np.int64)  # global sample index (pack.suv, pack.spts)
-    kk = np.zeros(n, dtype=np.int64)  # k of the surface: min(_CHECK_K, samples)
     cuts = np.flatnonzero(np.diff(sid)) + 1
     starts, stops = np.concatenate([[0], cuts]), np.concatenate([cuts, [n]])
+    first = np.zeros(n, dtype=np.int64)  # global sample index (pack.suv, pack.spts)
     for a, b in zip(starts, stops):
         s = int(sid[a])
-        smp = pack.samples[s]
-        ks = min(k, len(smp.uv))
-        d_, i_ = smp.tree.query(p[a:b], k=ks)
-        dk[a:b, :ks] = np.asarray(d_).reshape(b - a, ks)
-        ik[a:b, :ks] = np.asarray(i_).reshape(b - a, ks) + pack.s_off[s]
-        ik[a:b, ks:] = ik[a:b, :1]
-        kk[a:b] = ks
+        _, i_ = pack.samples[s].tree.query(p[a:b])
+        first[a:b] = np.asarray(i_).reshape(b - a) + pack.s_off[s]
     run = _Run(pack, sid, p, tol, max_iter)
-    uv = pack.suv[ik[:, 0]]
+    uv = pack.suv[first]
     res, _ = run(uv[:, 0], uv[:, 1])
 
     # global check: restarts from other discrete local minima of the sampled distance; not
@@ -371,6 +365,22 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     d = np.where(res.status == FAILED, np.inf, res.distance)
     d = np.where(np.isfinite(d), d, np.inf)
     d_seed = np.where(d <= _ON_SURFACE * pack.size[sid], np.nan, d)  # NaN: no sample is within the radius
+    need = ~np.isnan(d_seed) | (res.status == ON_BOUNDARY)
+    dk = np.full((n, k), np.inf)
+    ik = np.repeat(first[:, None], k, axis=1)
+    kk = np.ones(n, dtype=np.int64)  # k of the surface: min(_CHECK_K, samples)
+    for a, b in zip(starts, stops):
+        s = int(sid[a])
+        smp = pack.samples[s]
+        ks = min(k, len(smp.uv))
+        kk[a:b] = ks
+        rows = a + np.flatnonzero(need[a:b])
+        if not len(rows):
+            continue
+        d_, i_ = smp.tree.query(p[rows], k=ks)
+        dk[rows, :ks] = np.asarray(d_).reshape(len(rows), ks)
+        ik[rows, :ks] = np.asarray(i_).reshape(len(rows), ks) + pack.s_off[s]
+        ik[rows, ks:] = ik[rows, :1]
     rows_all, seeds_all = [], []
     for a, b in zip(starts, stops):
         s = int(sid[a])
