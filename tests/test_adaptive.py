@@ -88,6 +88,7 @@ def test_ushape_die_holds_tolerance_checked_by_occ():
     assert r.passes[-1].max_normal_error > 0 and np.isfinite(r.check["max_normal_error"])
 
 
+@pytest.mark.slow
 def test_tri_elements_hold_tolerance():
     path = SAMPLES / "ushape_die_nurbs.igs"
     r = refine_mesh(path, 0.05, element="tri")
