@@ -256,3 +256,35 @@ def test_cli_fit_height_field_writes_outputs(tmp_path, capsys):
     ins = face.contains(u, v)
     s = face.surface.evaluate(u[ins], v[ins])
     assert np.abs(s[:, 2] - f(s[:, 0], s[:, 1])).max() <= 2e-3
+
+
+def test_large_input_path_chooses_knots_on_a_subset():
+    # the >max_points_per_level path (knots from a random subset, final net on all points) gives
+    # the same quality against the die CAD as the direct fit
+    from cadbridge.fitting import face_base
+    from cadbridge.nurbs.fit import fit_surface
+
+    model, strip, x, bad = die_scan(30000)
+    par = face_base(x, model)
+    fit = fit_surface(x, par.u, par.v, tolerance=0.01, max_points_per_level=10000)
+    assert fit.stop == "tolerance"
+    assert len(fit.distance) == len(x)
+    u, v = fit.surface.grid(400, 40)
+    pr = project_points(fit.surface.evaluate(u, v), model)
+    assert pr.distance[pr.status == 0].max() <= 0.04
+
+
+def test_cli_rational_fit_on_the_die_base(tmp_path, capsys):
+    # weights fixed from the base (the die strip's rational quarter circle): the fitted surface is
+    # rational and within 3 sigma + tol of the CAD (reference: the die CAD)
+    model, strip, x, bad = die_scan(20000)
+    path = tmp_path / "scan.xyz"
+    np.savetxt(path, x)
+    out = tmp_path / "rat.igs"
+    rc, stdout, err = _run(["fit", str(path), "-o", str(out), "--base", str(DIE), "--rational", "--no-report"], capsys)
+    assert rc == 0, err
+    face = cadbridge.read_iges(out).faces[0]
+    assert face.surface.rational and face.surface.degree_u == 2
+    u, v = face.surface.grid(300, 30)
+    pr = project_points(face.surface.evaluate(u, v), model)
+    assert pr.distance[pr.status == 0].max() <= 0.04

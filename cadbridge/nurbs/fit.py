@@ -648,6 +648,7 @@ def fit_surface(
             base = refine_surface(base, extra_u, extra_v)
         u[sub], v[sub] = f0.u, f0.v
         state["weighted"] = True
+        state["surf"] = f0.surface
         u, v, dist, signed = correct(f0.surface, u, v)
         history = [dict(h, subset=len(sub)) for h in f0.history]
         for it in range(2 if robust is not None else 1):
