@@ -258,6 +258,7 @@ def test_cli_fit_height_field_writes_outputs(tmp_path, capsys):
     assert np.abs(s[:, 2] - f(s[:, 0], s[:, 1])).max() <= 2e-3
 
 
+@pytest.mark.slow
 def test_large_input_path_chooses_knots_on_a_subset():
     # the >max_points_per_level path (knots from a random subset, final net on all points) gives
     # the same quality against the die CAD as the direct fit
@@ -274,6 +275,7 @@ def test_large_input_path_chooses_knots_on_a_subset():
     assert pr.distance[pr.status == 0].max() <= 0.04
 
 
+@pytest.mark.slow
 def test_cli_rational_fit_on_the_die_base(tmp_path, capsys):
     # weights fixed from the base (the die strip's rational quarter circle): the fitted surface is
     # rational and within 3 sigma + tol of the CAD (reference: the die CAD)
