@@ -924,6 +924,28 @@ def _dist_to_polyline(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return np.linalg.norm(p[:, None] - q, axis=2).min(axis=1)
 
 
+def _foot_on_curve(surface, curve: NurbsCurve, pts: np.ndarray, iters: int = 30):
+    """(u, v) on ``curve`` (a face's edge in its parameter space) of the points of the curve
+    S(c(t)) nearest to ``pts`` (M, 3): dense samples, then Newton on t for
+    C'(t).(C(t) - p) = 0, t kept in the curve's domain (so the side of a seam the curve is
+    on is kept). Returns uv (M, 2) and the distances (M,)."""
+    t0, t1 = curve.domain
+    ts = np.linspace(t0, t1, 513)
+    cs = _edge_derivs(surface, curve, ts)[:, 0]
+    t = ts[cKDTree(cs).query(pts)[1]]
+    for _ in range(iters):
+        d = _edge_derivs(surface, curve, t)
+        r = d[:, 0] - pts
+        f = np.einsum("ij,ij->i", d[:, 1], r)
+        df = np.einsum("ij,ij->i", d[:, 2], r) + np.einsum("ij,ij->i", d[:, 1], d[:, 1])
+        step = np.where(np.abs(df) > 0, f / np.where(np.abs(df) > 0, df, 1.0), 0.0)
+        t = np.clip(t - step, t0, t1)
+        if np.all(np.abs(step) <= 1e-14 * (t1 - t0)):
+            break
+    d = _edge_derivs(surface, curve, t)
+    return curve.evaluate(t)[:, :2], np.linalg.norm(d[:, 0] - pts, axis=1)
+
+
 def _face_label(model, f: int) -> str:
     face = model.faces[f]
     nm = f" '{face.name}'" if face.name else ""
@@ -987,7 +1009,7 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
         cand = set(j % n_e for j in ends.query_ball_point(e.x0, mtol)) & set(j % n_e for j in ends.query_ball_point(e.x1, mtol))
         for j in sorted(cand):
             o = edges[j]
-            if j <= i or o.owner >= 0 or o.face == e.face:
+            if j <= i or o.owner >= 0:  # the same face too: the two sides of a seam
                 continue
             if _dist_to_polyline(o.samples[::4], e.samples).max() > mtol + 1e-3 * e.length / 16:
                 continue
@@ -1050,18 +1072,12 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
         o = edges[e.owner]
         ids = o.nodes[::-1] if e.reversed else list(o.nodes)
         pts = np.array([node_x[k] for k in ids])
-        from cadbridge.nurbs.project import project_to_surface
-
         s = model.faces[e.face].surface
-        ts = np.linspace(*e.curve.domain, 257)
-        cuv = e.curve.evaluate(ts)[:, :2]
-        cx = s.evaluate(np.clip(cuv[:, 0], s.domain[0], s.domain[1]), np.clip(cuv[:, 1], s.domain[2], s.domain[3]))
-        near = cKDTree(cx).query(pts)[1]
-        pr = project_to_surface(s, pts, uv0=cuv[near])
-        if not np.all(pr.distance <= 10 * mtol):
+        uv, dist = _foot_on_curve(s, e.curve, pts)
+        if not np.all(dist <= 10 * mtol):
             raise QitError(f"{_face_label(model, e.face)}: the edge it shares with {_face_label(model, o.face)} "
-                           f"is {float(np.max(pr.distance)):.3g} off its surface; QIT cannot conform them")
-        e.nodes, e.uv = ids, np.column_stack([pr.u, pr.v])
+                           f"is {float(np.max(dist)):.3g} off its own trim curve; QIT cannot conform them")
+        e.nodes, e.uv = ids, uv
     # --- faces
     tri_all, tri_face = [], []
     for f in face_ids:
@@ -1205,6 +1221,21 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
     # both has two coincident corners, zero area; dropping it joins its neighbours there
     rep_node = (out[:, 0] == out[:, 1]) | (out[:, 1] == out[:, 2]) | (out[:, 2] == out[:, 0])
     rep.seam_dropped = int(rep_node.sum())
+    local = local[~rep_node]
+    # guard: a triangle whose normal opposes the surface normal at its (u, v) centroid is
+    # folded (R too large for the curvature, or a parametrisation so uneven that the lattice
+    # left a gap the CDT bridged); a silent fold would poison the Nagata tool
+    cuv = surf.clamp(all_uv[local].mean(axis=1))
+    d = s.derivatives(cuv[:, 0], cuv[:, 1], order=1)
+    nrm = np.cross(d[:, 1, 0], d[:, 0, 1])  # at the (u, v) centroid of each triangle
+    p = all_x[local]
+    tn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    folded = np.einsum("kj,kj->k", tn, nrm) <= 0
+    if folded.any():
+        k = int(np.flatnonzero(folded)[0])
+        raise QitError(f"{label}: QIT made {int(folded.sum())} folded triangles (normal against the surface's, "
+                       f"first near {np.round(p[k].mean(axis=0), 6).tolist()}; R = {R:g} is too large for the "
+                       "curvature or the parametrisation too uneven there); use a smaller --size or --mesher gmsh")
     return out[~rep_node]
 
 
