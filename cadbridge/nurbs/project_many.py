@@ -35,6 +35,7 @@ from cadbridge.nurbs.project import (
     _wrap_clamp,
     project_to_surface,
     smooth_pieces,
+    pole_starts,
     surface_samples,
 )
 from cadbridge.nurbs.surface import NurbsSurface
@@ -305,14 +306,15 @@ def _replace(res: SurfaceProjection, tgt: np.ndarray, extra: SurfaceProjection, 
     np.add.at(res.iterations, rows, extra.iterations[idx])
 
 
-def project_to_surfaces(pack: SurfacePack, which, points, *, tol: float = 1e-12, max_iter: int = 30
+def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: float = 1e-12, max_iter: int = 30
                         ) -> SurfaceProjection:
     """Nearest point of surface ``pack.surfaces[which[i]]`` to ``points[i]`` for every pair i.
 
     which (M,) int surface ids, points (M, 3). Same result as
     ``project_to_surface(pack.surfaces[which[i]], points[i], tol=tol, max_iter=max_iter)``
     (start from the nearest sample, Newton, global check, edge check; every foot checked for
-    orthogonality, FAILED otherwise). Returns a `SurfaceProjection` of M pairs.
+    orthogonality, FAILED otherwise). uv0 (M, 2): start parameters instead of the nearest
+    grid sample (the checks still use the grid). Returns a `SurfaceProjection` of M pairs.
     """
     which = np.asarray(which, dtype=np.int64).ravel()
     pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
@@ -337,28 +339,30 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, tol: float = 1e-12,
     if not len(order):
         return out
     p = np.ascontiguousarray(pts[order])
-    n = len(p)
-    res = _sorted_pairs(pack, sid, p, tol, max_iter)
+    start = None if uv0 is None else np.asarray(uv0, dtype=float).reshape(m, 2)[order]
+    res = _sorted_pairs(pack, sid, p, tol, max_iter, start)
     for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
         getattr(out, name)[order] = getattr(res, name)
     return out
 
 
-def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float, max_iter: int) -> SurfaceProjection:
+def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float, max_iter: int,
+                  start: np.ndarray | None) -> SurfaceProjection:
     n = len(p)
     # the nearest sample of each pair's surface starts Newton; the k nearest (global and edge
     # checks) are queried afterwards, only for the pairs that get restarts
     k = _CHECK_K
     cuts = np.flatnonzero(np.diff(sid)) + 1
     starts, stops = np.concatenate([[0], cuts]), np.concatenate([cuts, [n]])
-    first = np.zeros(n, dtype=np.int64)  # global sample index (pack.suv, pack.spts)
-    for a, b in zip(starts, stops):
-        s = int(sid[a])
-        _, i_ = pack.samples[s].tree.query(p[a:b])
-        first[a:b] = np.asarray(i_).reshape(b - a) + pack.s_off[s]
+    first = pack.s_off[sid].astype(np.int64)  # global sample index (pack.suv, pack.spts)
+    if start is None:
+        for a, b in zip(starts, stops):
+            s = int(sid[a])
+            _, i_ = pack.samples[s].tree.query(p[a:b])
+            first[a:b] = np.asarray(i_).reshape(b - a) + pack.s_off[s]
+        start = pack.suv[first]
     run = _Run(pack, sid, p, tol, max_iter)
-    uv = pack.suv[first]
-    res, _ = run(uv[:, 0], uv[:, 1])
+    res, _ = run(start[:, 0], start[:, 1])
 
     # global check: restarts from other discrete local minima of the sampled distance; not
     # for feet within _ON_SURFACE x size of their point (a restart could gain at most that)
@@ -424,6 +428,13 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
             starts_u.append(uv[:, 0])
             starts_v.append(uv[:, 1])
             owners.append(r[rr])
+        for s_ in np.unique(sid[rows]):  # feet on a pole: restarts carrying the point's azimuth
+            r = rows[sid[rows] == s_]
+            pu, pv, pi = pole_starts(pack.samples[s_], pack.surfaces[s_].domain, p[r], res.u[r], res.v[r])
+            if len(pi):
+                starts_u.append(pu)
+                starts_v.append(pv)
+                owners.append(r[pi])
         owner = np.concatenate(owners)
         order = np.argsort(owner, kind="stable")  # by owner = by surface (sid sorted), same per-pair order
         owner = owner[order]
