@@ -317,3 +317,31 @@ def test_against_opencascade(name, make):
     assert compared >= 0.8 * len(pts)
     # points beyond the edges really are flagged
     assert np.any(res.status == ON_BOUNDARY)
+
+
+def test_points_near_a_pole_find_their_azimuth():
+    """Feet near the pole of a sphere of revolution (the generatrix starts on the axis, so
+    the u = u0 edge is one point). The nearest grid samples are then all the pole, whose v
+    is arbitrary; Newton from there slid back to the pole (0.68 mm off on the SolidWorks
+    file of the OCC corpus). Reference: the analytic sphere, distance |p - c| - R."""
+    from cadbridge.nurbs.construct import circular_arc, revolved_surface
+    from cadbridge.nurbs.project import project_to_surface
+
+    r = 7.0
+    gen = circular_arc((0, 0, 0), (0, 0, r), (r, 0, 0), normal=(0, 1, 0))  # pole at +z, to the equator
+    s = revolved_surface(gen, (0, 0, 0), (0, 0, 1), 0.0, 2 * np.pi)
+    assert np.ptp(s.evaluate(np.full(5, s.domain[0]), np.linspace(*s.domain[2:], 5)), axis=0).max() < 1e-12
+    rng = np.random.default_rng(3)
+    az = rng.uniform(0, 2 * np.pi, 40)
+    polar = rng.uniform(0.005, 0.1, 40)      # 0.035 .. 0.7 mm from the pole on the sphere
+    rad = r + rng.uniform(-0.05, 0.05, 40)
+    p = rad[:, None] * np.column_stack([np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar)])
+    res = project_to_surface(s, p)
+    np.testing.assert_allclose(res.distance, np.abs(rad - r), atol=1e-9)
+    np.testing.assert_allclose(res.foot, r * p / np.linalg.norm(p, axis=1)[:, None], atol=1e-9)
+    # ... and through the model-level search (all faces at once, its own compiled Newton)
+    from cadbridge.model import Face, Model
+    from cadbridge.search import project_points
+
+    pr = project_points(p, Model(faces=[Face(s, de=1)]))
+    np.testing.assert_allclose(pr.distance, np.abs(rad - r), atol=1e-9)

@@ -458,6 +458,45 @@ def _global_check(
     res.iterations[rows] += extra.iterations[extra_idx]
 
 
+def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray, v: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Newton restarts for feet on a degenerate edge (a pole: the whole edge is one point,
+    e.g. a sphere cap of revolution at u = 0).
+
+    A pole has no azimuth: its samples all coincide, so the nearest samples and the inward
+    steps keep the start's arbitrary v (or u) and Newton slides back to the pole, 0.68 mm
+    off on the SolidWorks file of the OCC corpus. The restarts are the nearest sample of the
+    grid ring next to the pole, and half-way to it, both carrying the point's azimuth.
+
+    pts (K, 3), u, v (K,) the feet; returns start u, v and the row (into the K) of each."""
+    u0, u1, v0, v1 = domain
+    us, vs = samples.us, samples.vs
+    g = samples.points.reshape(len(us), len(vs), 3)
+    guv = samples.uv.reshape(len(us), len(vs), 2)
+    eps = 1e-12 * (u1 - u0), 1e-12 * (v1 - v0)
+    out_u, out_v, out_i = [np.zeros(0)], [np.zeros(0)], [np.zeros(0, dtype=np.int64)]
+    for axis, e, r in ((0, 0, 1), (0, -1, -2), (1, 0, 1), (1, -1, -2)):
+        if g.shape[axis] < 2 or g.shape[1 - axis] < 2:
+            continue
+        edge = g[e] if axis == 0 else g[:, e]
+        if float(np.ptp(edge, axis=0).max()) > 1e-9 * samples.size:
+            continue
+        t_edge = (u0, u1)[e] if axis == 0 else (v0, v1)[e]
+        on = np.flatnonzero(np.abs((u if axis == 0 else v) - t_edge) <= eps[axis])
+        if not len(on):
+            continue
+        ring, ring_uv = (g[r], guv[r]) if axis == 0 else (g[:, r], guv[:, r])
+        d2 = ((pts[on][:, None, :] - ring[None, :, :]) ** 2).sum(axis=2)
+        best = ring_uv[np.argmin(d2, axis=1)]
+        for frac in (1.0, 0.5):
+            st = best.copy()
+            st[:, axis] = t_edge + frac * (best[:, axis] - t_edge)
+            out_u.append(st[:, 0])
+            out_v.append(st[:, 1])
+            out_i.append(on)
+    return np.concatenate(out_u), np.concatenate(out_v), np.concatenate(out_i)
+
+
 def _edge_check(
     surface: NurbsSurface, samples: SurfaceSamples, pts: np.ndarray, res: SurfaceProjection, tol: float, max_iter: int
 ) -> None:
@@ -502,6 +541,10 @@ def _edge_check(
         starts_u.append(uv[:, 0])
         starts_v.append(uv[:, 1])
         owner.append(rows[rr])
+    pu, pv, pi = pole_starts(samples, surface.domain, pts[rows], ur, vr)
+    starts_u.append(pu)
+    starts_v.append(pv)
+    owner.append(rows[pi])
     su, sv, owner = np.concatenate(starts_u), np.concatenate(starts_v), np.concatenate(owner)
     extra = _newton(surface, samples, pts[owner], su, sv, tol, max_iter)
     d = res.distance[owner]
