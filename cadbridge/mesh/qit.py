@@ -1187,6 +1187,11 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
     # constrained Delaunay in pattern space
     si_idx = np.flatnonzero(si)
     pts = np.concatenate([pr[si_idx], e_pr])
+    if len(si_idx) == 0:
+        # no interior lattice vertex (a face about R wide or smaller): the pattern positions
+        # of its edge vertices are all extrapolated, and straight edges can come out bent;
+        # the loop is then triangulated in its (u, v) scaled by the metric instead
+        pts = e_uv * scale
     n_si = len(si_idx)
     cons = []
     off = n_si
