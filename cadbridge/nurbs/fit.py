@@ -365,6 +365,36 @@ class SurfaceFit:
         return (float(d.max()), float(np.sqrt(np.mean(d**2)))) if d.size else (0.0, 0.0)
 
 
+def _residuals(surf: NurbsSurface, x: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances |x - S(u, v)| (N,) and signed distances (x - S) . n (N,), n = Su x Sv / |.|
+    (the distance where the normal is undefined), from one first-derivative evaluation."""
+    der = surf.derivatives(u, v, order=1)
+    r = x - der[:, 0, 0]
+    nrm = np.cross(der[:, 1, 0], der[:, 0, 1])
+    ln = np.linalg.norm(nrm, axis=1)
+    dist = np.linalg.norm(r, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        signed = np.einsum("ij,ij->i", r, nrm) / ln
+    return dist, np.where(np.isfinite(signed) & (ln > 0), signed, dist)
+
+
+@numba.njit(cache=True, parallel=True)
+def _median_contrast(r, nbr, out):  # pragma: no cover - compiled
+    """out[i] = r[i] - median(r[nbr[i, :]]) (insertion sort of the few neighbours)."""
+    k = nbr.shape[1]
+    for i in numba.prange(r.shape[0]):
+        buf = np.empty(k)
+        for j in range(k):
+            val = r[nbr[i, j]]
+            m = j
+            while m > 0 and buf[m - 1] > val:
+                buf[m] = buf[m - 1]
+                m -= 1
+            buf[m] = val
+        med = buf[k // 2] if k % 2 == 1 else 0.5 * (buf[k // 2 - 1] + buf[k // 2])
+        out[i] = r[i] - med
+
+
 def _robust_weights(r: np.ndarray, kind: str, floor: float) -> np.ndarray:
     """Huber or Tukey weights of residuals r (N,) with scale 1.4826 MAD (at least ``floor``)."""
     s = max(MAD_TO_SIGMA * float(np.median(np.abs(r))), floor, 1e-300)
@@ -428,7 +458,7 @@ def fit_surface(
     point_weights=None,
     max_levels: int = 40,
     robust_iterations: int = 4,
-    max_points_per_level: int = 200000,
+    max_points_per_level: int = 100000,
     progress=None,
 ) -> SurfaceFit:
     """Fit one NURBS surface to points with start parameters, refining knots to a tolerance.
@@ -523,8 +553,7 @@ def fit_surface(
         within ``near`` of the fit (and ``movable``, (N,) bool) get corrected parameters: on a
         coarse fit that cuts a corner, projection would slide the points along it and spoil a
         good base parametrisation."""
-        foot = surf.evaluate(u, v)
-        dist = np.linalg.norm(x - foot, axis=1)
+        dist = np.linalg.norm(x - surf.evaluate(u, v), axis=1)
         if correct_parameters:
             from cadbridge.nurbs.project import FAILED, project_to_surface
 
@@ -544,13 +573,7 @@ def fit_surface(
                 u[on_u1] = dom[1]
                 v[on_v0] = dom[2]
                 v[on_v1] = dom[3]
-                foot = surf.evaluate(u, v)
-        r = x - foot
-        nrm = surf.normal(u, v)
-        signed = np.einsum("ij,ij->i", r, nrm)
-        dist = np.linalg.norm(r, axis=1)
-        signed = np.where(np.isfinite(signed), signed, dist)
-        return u, v, dist, signed
+        return (u, v) + _residuals(surf, x, u, v)
 
     if robust is not None:
         # the residual a point is judged by is its contrast to its 8 nearest neighbours on the
@@ -570,7 +593,11 @@ def fit_surface(
                 state["nbr"] = cKDTree(np.column_stack([u0_par * su, v0_par * sv])).query(
                     np.column_stack([u0_par * su, v0_par * sv]), k=k_nb, workers=-1)[1][:, 1:]
             nbr = state["nbr"]
-            return r - np.median(r[nbr], axis=1) if nbr.shape[1] else r
+            if not nbr.shape[1]:
+                return r
+            out = np.empty(n)
+            _median_contrast(np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(nbr, dtype=np.int64), out)
+            return out
     u0_par, v0_par = u.copy(), v.copy()
     def final_projection(surf, u, v):
         """Every point projected onto the final fit (Newton from its parameters, the existing
@@ -582,10 +609,7 @@ def fit_surface(
         ok = res.status != FAILED
         u = np.where(ok, res.u, u)
         v = np.where(ok, res.v, v)
-        r = x - surf.evaluate(u, v)
-        dist = np.linalg.norm(r, axis=1)
-        signed = np.einsum("ij,ij->i", r, surf.normal(u, v))
-        return u, v, dist, np.where(np.isfinite(signed), signed, dist)
+        return (u, v) + _residuals(surf, x, u, v)
 
     history: list[dict] = []
     stop = "tolerance"
@@ -594,7 +618,7 @@ def fit_surface(
     stale = 0
     state = {}
 
-    def solve(ku, kv, rob_w, u, v, text):
+    def solve(ku, kv, rob_w, u, v, text, correct_now=True):
         nu, nv = len(ku) - p - 1, len(kv) - q - 1
         if state.get("knots") is not (ku, kv):
             state["gram"] = bending_matrix(ku, p, kv, q) if smoothing > 0 else None
@@ -605,6 +629,8 @@ def fit_surface(
                                   gram=state["gram"])
         surf = make_surface(ku, kv, cp, cw)
         state.setdefault("surf", surf)
+        if not correct_now:
+            return (surf, u, v) + _residuals(surf, x, u, v)
         # a point the reweighting distrusts keeps its parameters: an outlier that slid onto the
         # bump it pulled would look like an inlier and keep the bump (no correction before the
         # first weights exist, for the same reason)
@@ -651,10 +677,12 @@ def fit_surface(
         state["surf"] = f0.surface
         u, v, dist, signed = correct(f0.surface, u, v)
         history = [dict(h, subset=len(sub)) for h in f0.history]
-        for it in range(2 if robust is not None else 1):
+        n_full = 2 if robust is not None else 1
+        for it in range(n_full):
             if robust is not None:
                 rob_w = _robust_weights(contrast(signed), robust, tolerance)
-            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"all {n} points, solve {it + 1}")
+            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"all {n} points, solve {it + 1}",
+                                             correct_now=it + 1 < n_full)
         if robust is not None:
             rob_w = _robust_weights(contrast(signed), robust, tolerance)
         history.append(dict(ctrl=surf.shape, max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
