@@ -112,6 +112,7 @@ class Bands:
     pieces_face: np.ndarray
     pieces_tri: np.ndarray
     pieces_area: np.ndarray
+    slivers: tuple = field(repr=False, default=None)  # arc, band, t0, t1, area (S,) each
     bmin: np.ndarray = field(repr=False, default=None)
     bmax: np.ndarray = field(repr=False, default=None)
     mapping: object = field(repr=False, default=None)
@@ -269,6 +270,17 @@ class Bands:
         pcen = (pp * valid[:, :, None]).sum(axis=1) / np.maximum(pc, 1)[:, None]
         cen = np.concatenate([m.tri_uv[sel].mean(axis=1), pcen])
         area = np.concatenate([m.tri_area[sel], self.pieces_area[ps]])
+        if self.slivers is not None and len(self.slivers[0]):  # slivers beyond curved-trim chords
+            k, sb, t0, t1, sa = self.slivers
+            arcs = m.arcs
+            s_sel = np.flatnonzero((sb == b) & (arcs.face[k] == f))
+            if len(s_sel):
+                kk = k[s_sel]
+                tm = 0.5 * (t0[s_sel] + t1[s_sel])
+                at = arcs.a[kk] + tm[:, None] * (arcs.b[kk] - arcs.a[kk])
+                opp = m.tri_uv[arcs.tri[kk], (arcs.edge[kk] + 2) % 3]
+                cen = np.concatenate([cen, at + 1e-6 * (opp - at)])  # just inside the triangle
+                area = np.concatenate([area, sa[s_sel]])
         taken = np.zeros(len(cen), dtype=bool)
         for r in regs:
             inside = points_in_polygon(cen, r.outer) & ~taken
@@ -344,6 +356,34 @@ def _fan_areas(mapping, poly: np.ndarray, pc: np.ndarray, face: np.ndarray, quad
     return area
 
 
+def _slivers(mapping, levels: np.ndarray):
+    """The slivers between border chords and curved trim arcs, split at the levels: arc,
+    band, t0, t1, exact area (S,) each (`cadbridge.results.borders`)."""
+    arcs = mapping.arcs
+    K = len(arcs)
+    if K == 0:
+        z = np.zeros(0)
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), z, z, z
+    fa, fb = arcs.fa, arcs.fb
+    lo = np.searchsorted(levels, np.minimum(fa, fb), side="right")
+    hi = np.searchsorted(levels, np.maximum(fa, fb), side="left")
+    cnt = np.maximum(hi - lo, 0)
+    arc = np.repeat(np.arange(K), cnt)
+    lev = np.repeat(lo, cnt) + (np.arange(len(arc)) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    t = (levels[lev] - fa[arc]) / (fb[arc] - fa[arc])
+    arc = np.concatenate([np.arange(K), np.arange(K), arc])
+    t = np.concatenate([np.zeros(K), np.ones(K), t])
+    order = np.lexsort((t, arc))
+    arc, t = arc[order], t[order]
+    same = arc[1:] == arc[:-1]
+    k, t0, t1 = arc[:-1][same], t[:-1][same], t[1:][same]
+    keep = t1 > t0
+    k, t0, t1 = k[keep], t0[keep], t1[keep]
+    fm = fa[k] + 0.5 * (t0 + t1) * (fb[k] - fa[k])
+    band = band_index(fm, levels)
+    return k, band, t0, t1, arcs.sliver_area(mapping, k, t0, t1)
+
+
 def band_areas(mapping, levels: np.ndarray, quadrature: int = 4, ranks: tuple[np.ndarray, np.ndarray] | None = None
                ) -> Bands:
     """Bands of ``mapping`` at ``levels`` with exact areas (see the module text).
@@ -386,6 +426,10 @@ def band_areas(mapping, levels: np.ndarray, quadrature: int = 4, ranks: tuple[np
     ti = tri[top]
     parea[top] = np.maximum(mapping.tri_area[ti] - below[ti], 0.0)
     face_area += np.bincount(band * F + pface, weights=parea, minlength=(L + 1) * F).reshape(L + 1, F)
-    return Bands(levels=levels, lower=lower, upper=upper, area=face_area.sum(axis=1), face_area=face_area,
+    sl = _slivers(mapping, levels)
+    if len(sl[0]):
+        face_area += np.bincount(sl[1] * F + mapping.arcs.face[sl[0]], weights=sl[4],
+                                 minlength=(L + 1) * F).reshape(L + 1, F)
+    return Bands(slivers=sl, levels=levels, lower=lower, upper=upper, area=face_area.sum(axis=1), face_area=face_area,
                  whole=whole, pieces_band=band, pieces_face=pface, pieces_tri=tri, pieces_area=parea,
                  bmin=bmin, bmax=bmax, mapping=mapping)

@@ -229,9 +229,16 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
     c = levels[lev]
     above = tf[tri] >= c[:, None]  # (P, 3)
     # per pair, the two crossed edges (in edge order); canonical orientation by key
-    ends_code, ends_uv = [], []
+    ends_code, ends_uv, ends_arc = [], [], []
     crossed = np.stack([above[:, i] != above[:, j] for i, j in _EDGES], axis=1)  # (P, 3)
     nk = np.int64(mapping.n_keys)
+    arcs = mapping.arcs
+    n_faces = np.int64(len(model.faces))
+    arc_codes = arc_order = None
+    if arcs is not None and len(arcs):
+        codes = (np.minimum(arcs.ka, arcs.kb) * nk + np.maximum(arcs.ka, arcs.kb)) * n_faces + arcs.face
+        arc_order = np.argsort(codes)
+        arc_codes = codes[arc_order]
     for e, (i, j) in enumerate(_EDGES):
         ki, kj = tkey[tri, i], tkey[tri, j]
         swap = ki > kj
@@ -242,6 +249,18 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
         uva, uvb = tuv[tri, a_i], tuv[tri, b_i]
         uv = uva + t[:, None] * (uvb - uva)
         ka, kb = np.minimum(ki, kj), np.maximum(ki, kj)
+        auv = np.full((len(tri), 2), np.nan)
+        if arc_codes is not None:  # a crossing on a border chord of a curved trim: on the arc
+            ec = (ka * nk + kb) * n_faces + tface[tri]
+            pos = np.minimum(np.searchsorted(arc_codes, ec), len(arc_codes) - 1)
+            hit = np.flatnonzero((arc_codes[pos] == ec) & (t > 0.0) & (t < 1.0))
+            if len(hit):
+                k = arc_order[pos[hit]]
+                ta = np.where(arcs.ka[k] == ka[hit], t[hit], 1.0 - t[hit])
+                w = arcs.arc(k, ta)[:, 0]
+                iso = arcs.iso[k]
+                uv[hit[iso]] = w[iso]  # the line runs straight on (or stops) at the trim curve
+                auv[hit[~iso]] = w[~iso]  # elsewhere it runs on to it along the sliver
         # a crossing at an edge's end is that vertex's point (key pair (k, k)): the segments of
         # all triangles around a vertex on the level meet there, the zero-length ones drop out
         ka = np.where(t == 1.0, kb, ka)
@@ -249,18 +268,22 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
         code = (ka * nk + kb) * len(levels) + lev
         ends_code.append(code)
         ends_uv.append(uv)
+        ends_arc.append(auv)
     ends_code = np.stack(ends_code, axis=1)  # (P, 3)
     ends_uv = np.stack(ends_uv, axis=1)  # (P, 3, 2)
+    ends_arc = np.stack(ends_arc, axis=1)  # (P, 3, 2): the arc point beyond a border chord, or NaN
     # the two crossed edges of each pair
     idx = np.argsort(~crossed, axis=1, kind="stable")[:, :2]  # first two True
     rows = np.arange(len(tri))[:, None]
     seg_code = ends_code[rows, idx]  # (P, 2)
     seg_uv = ends_uv[rows, idx]  # (P, 2, 2)
+    seg_arc = ends_arc[rows, idx]  # (P, 2, 2)
     seg_face = tface[tri]
     seg_lev = lev
     # drop segments of zero length in (u, v) on the same point name (a level through a vertex)
     keep = seg_code[:, 0] != seg_code[:, 1]
     seg_code, seg_uv, seg_face, seg_lev = seg_code[keep], seg_uv[keep], seg_face[keep], seg_lev[keep]
+    seg_arc = seg_arc[keep]
     S = len(seg_face)
     if S == 0:
         z = np.zeros(0)
@@ -327,6 +350,28 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
     jface = seg_face[s_prev]
     jxyz = _eval(model, jface, uv_prev[:, 0], uv_prev[:, 1]) if len(jpt) else np.zeros((0, 3))
     gap = np.linalg.norm(jxyz - pts[jpt], axis=1) if len(jpt) else np.zeros(0)
+    if n_lines and np.isfinite(seg_arc).any():
+        # lines ending on a border chord of a curved trim run on to the trim curve, along the
+        # sliver's line of constant field (cadbridge.results.borders)
+        first_pos, last_pos = line_start[:-1], last
+        a_start = seg_arc[seg_o[first_pos], np.where(flip[first_pos], 1, 0)]
+        a_end = seg_arc[seg_o[last_pos], np.where(flip[last_pos], 0, 1)]
+        f_start, f_end = seg_face[seg_o[first_pos]], seg_face[seg_o[last_pos]]
+        ok_s = np.isfinite(a_start[:, 0]) & ~closed
+        ok_e = np.isfinite(a_end[:, 0]) & ~closed
+        # ends before starts where a line ends and the next begins (stable sort below)
+        pos = np.concatenate([offsets[1:][ok_e], offsets[:-1][ok_s]])
+        new_uv = np.concatenate([a_end[ok_e], a_start[ok_s]])
+        new_face = np.concatenate([f_end[ok_e], f_start[ok_s]])
+        order_i = np.argsort(pos, kind="stable")
+        pos, new_uv, new_face = pos[order_i], new_uv[order_i], new_face[order_i]
+        new_pts = _eval(model, new_face, new_uv[:, 0], new_uv[:, 1])
+        pts = np.insert(pts, pos, new_pts, axis=0)
+        face = np.insert(face, pos, new_face)
+        uv = np.insert(uv, pos, new_uv, axis=0)
+        # line i now starts after all points inserted for the lines before it
+        offsets = offsets + np.concatenate([[0], np.cumsum(ok_s.astype(np.int64) + ok_e)])
+        jpt = jpt + np.searchsorted(pos, jpt, side="right")
     return ContourLines(levels, pts, face, uv[:, 0], uv[:, 1], offsets, level.astype(np.int64), closed.astype(bool),
                         jpt.astype(np.int64), jface.astype(np.int64), uv_prev[:, 0].copy(), uv_prev[:, 1].copy(), gap)
 

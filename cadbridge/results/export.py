@@ -26,6 +26,7 @@ from cadbridge.io.atomic import atomic_path, atomic_write
 from cadbridge.model import Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.results.bands import band_index
+from cadbridge.results.borders import loop_curves
 
 __all__ = ["band_colors", "band_faces", "tessellate", "write_all", "write_bands_iges", "write_cad_vtu", "write_csv",
            "write_lines_vtu", "write_png"]
@@ -181,7 +182,10 @@ def band_faces(contours) -> list[tuple[Face, dict]]:
         for j, r in enumerate(regs):
             name = f"{m.field_name} {bands.label(b)}"
             rgb = tuple(float(c) for c in colors[b])
-            trims = Trim(TrimLoop([_polyline(r.outer)]), [TrimLoop([_polyline(h)]) for h in r.holes])
+            u0, u1, v0, v1 = src.surface.domain
+            diag = float(np.hypot(u1 - u0, v1 - v0))
+            trims = Trim(TrimLoop(loop_curves(r.outer, f, m.arcs, diag)),
+                         [TrimLoop(loop_curves(h, f, m.arcs, diag)) for h in r.holes])
             face = Face(src.surface, de=0, name=name, color=rgb, trims=trims)
             out.append((face, {"iges_face": k, "band": b, "face": f, "face_name": src.name or "", "region": j,
                                "lower": bands.lower[b], "upper": bands.upper[b], "name": name, "color": _hex(rgb),

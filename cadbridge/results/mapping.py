@@ -175,6 +175,8 @@ class ResultMapping:
                  of the mesh across elements, faces and seams; tri_area (T,) exact area
     topology     per face `FaceTopology`
     timings      seconds per stage of the mapping
+    arcs         `cadbridge.results.borders.BorderArcs`: mesh border chords on curved trim
+                 curves, with the exact arcs the bands and lines follow there
     """
 
     model: Model
@@ -198,6 +200,13 @@ class ResultMapping:
     topology: list[FaceTopology]
     n_keys: int
     timings: dict[str, float] = field(default_factory=dict)
+    arcs: object = None  # cadbridge.results.borders.BorderArcs: border chords on curved trims
+
+    def __post_init__(self) -> None:
+        if self.arcs is None:
+            from cadbridge.results.borders import find_border_arcs
+
+            self.arcs = find_border_arcs(self.model, self.tri_face, self.tri_uv, self.tri_f, self.tri_key)
 
     @property
     def size(self) -> float:
