@@ -290,3 +290,32 @@ def test_cli_rational_fit_on_the_die_base(tmp_path, capsys):
     u, v = face.surface.grid(300, 30)
     pr = project_points(face.surface.evaluate(u, v), model)
     assert pr.distance[pr.status == 0].max() <= 0.04
+
+
+def test_tool_file_nodes_and_nagata_samples(tmp_path):
+    # reference: a tool file of the die (structured quads on the exact strip, exact CAD normals);
+    # its Nagata samples lie close to the die (Nagata with exact normals, thesis ch. 5), the fit is
+    # within its tolerance of the samples and so within Nagata's error + tol of the die CAD
+    from cadbridge.io.toolfile import ToolData, write_toolfile
+
+    model = cadbridge.read_iges(DIE)
+    strip = join_strip([f.surface for f in model.faces])
+    u0, u1, v0, v1 = strip.domain
+    nu_, nv_ = 117, 6
+    uu, vv = (a.ravel() for a in np.meshgrid(np.linspace(u0, u1, nu_), np.linspace(v0, v1, nv_), indexing="ij"))
+    nodes, normals = strip.evaluate(uu, vv), strip.normal(uu, vv)
+    idx = np.arange(nu_ * nv_).reshape(nu_, nv_)
+    quads = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], axis=-1).reshape(-1, 4)
+    path = tmp_path / "die.nagata"
+    write_toolfile(ToolData(name="die", units="MM", nodes=nodes, normals=normals, quads=quads), path)
+    got, kind = read_points(path)
+    assert kind == "tool nodes" and np.allclose(np.sort(got, axis=0), np.sort(nodes, axis=0))
+    samples, kind = read_points(path, nagata_samples=4)
+    assert kind == "Nagata samples" and len(samples) > 4 * len(nodes)
+    nagata_err = project_points(samples, model).distance.max()
+    assert nagata_err < 0.03  # 2 mm elements across the plane-radius junctions
+    rep = fit_points(samples, base=model, tolerance=0.005, noise=0.0)
+    assert rep.fit.stop == "tolerance" and rep.fit.max_deviation <= 0.005  # against the samples
+    u, v = rep.face.surface.grid(400, 20)
+    pr = project_points(rep.face.surface.evaluate(u, v), model)
+    assert pr.distance[pr.status == 0].max() <= nagata_err + 0.005
