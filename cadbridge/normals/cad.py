@@ -29,8 +29,8 @@ from cadbridge.mesh.io import MeshWarning
 from cadbridge.mesh.mesh import Mesh, MeshError
 from cadbridge.mesh.topology import edge_table, non_manifold_edges, orient_consistently, orientation_conflicts
 from cadbridge.model import Model
-from cadbridge.nurbs.project import project_to_surface
-from cadbridge.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
+from cadbridge.nurbs.project_many import project_to_surfaces
+from cadbridge.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, index_for, project_points
 
 __all__ = ["CadNormals", "ProjectionError", "cad_normals"]
 
@@ -264,11 +264,8 @@ def cad_normals(
             ei, ki = np.nonzero(other)
             nid = c[ei, ki]
             fids = ef[ei]
-            nrm = np.empty((len(nid), 3))
-            for f in np.unique(fids):  # loop over faces, vectorised over corners
-                sel = fids == f
-                sp = project_to_surface(model.faces[f].surface, nodes[nid[sel]])
-                nrm[sel] = sp.normal
+            # all (corner, element face) pairs in one compiled pass (`project_to_surfaces`)
+            nrm = project_to_surfaces(index_for(model).surface_pack(model), fids, nodes[nid]).normal
             nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * sign
             sharp = np.einsum("ij,ij->i", nrm, node_n[nid]) < cos_crease
             cn[ei[sharp], ki[sharp]] = nrm[sharp]
