@@ -184,7 +184,8 @@ def main() -> None:
     levels2 = [0, 1, 2, 4, 6, 8, 10, 12, 14]
     t_re, c2 = best(lambda: m.contour(levels2))
     print(f"mapping (inversion {m.timings['inversion']:.2f} s, sub-triangles {m.timings['sub-triangles']:.2f} s, "
-          f"exact areas {m.timings['areas']:.2f} s): {t_map:.2f} s")
+          f"exact areas {m.timings['areas']:.2f} s, curved-trim borders {m.timings['curved borders']:.2f} s): "
+          f"{t_map:.2f} s")
     print(f"contour 8 bands: {t_c8:.3f} s ({len(c8.lines)} lines, {len(c8.lines.points)} points)")
     print(f"map + contour: {t_map + t_c8:.2f} s   (target < 10 s: {'holds' if t_map + t_c8 < 10 else 'DOES NOT HOLD'})")
     print(f"re-levelling ({len(levels2)} levels): {t_re:.3f} s = {100 * t_re / t_map:.1f} % of the mapping "

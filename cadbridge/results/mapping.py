@@ -453,7 +453,12 @@ def map_results(mesh: Mesh, values, model: Model, *, field_name: str = "field", 
         if len(grp):
             area[grp] = surface_area_of_triangles(model.faces[int(t_face[grp[0]])].surface, t_uv[grp], quadrature)
     timings["areas"] = time.perf_counter() - t2
-    return ResultMapping(model=model, nodes=nodes, values=vals, field_name=field_name, source=source, face=face, u=u,
+    t3 = time.perf_counter()
+    from cadbridge.results.borders import find_border_arcs
+
+    arcs = find_border_arcs(model, t_face, t_uv, t_f, t_key)
+    timings["curved borders"] = time.perf_counter() - t3
+    return ResultMapping(arcs=arcs, model=model, nodes=nodes, values=vals, field_name=field_name, source=source, face=face, u=u,
                          v=v, distance=np.asarray(cn.distance, float), element_face=element_face, corner_uv=corner_uv,
                          seam=seam, pole=pole, tri_face=t_face, tri_uv=t_uv, tri_f=t_f, tri_key=t_key, tri_area=area,
                          topology=topo, n_keys=n_keys, timings=timings)
