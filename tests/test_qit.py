@@ -277,5 +277,14 @@ def test_folded_face_is_named_not_meshed():
     model = read_iges(p)
     with pytest.raises(QitError, match=r"face 0 \(DE 1 'FACE\(274\)'\).*folded"):
         qit_mesh(model, 2.0, faces=[0])
-    mesh = qit_mesh(model, 2.0, faces=[1, 2])  # the other two faces mesh with the invariants
+
+
+@pytest.mark.slow
+def test_ansa_other_faces_at_small_size():
+    # the two other faces of the ANSA file at R = 2 keep all invariants
+    p = REAL / "occt_OCC131-2_ANSA9.igs"
+    if not p.is_file():
+        pytest.skip("shared/iges_real absent")
+    model = read_iges(p)
+    mesh = qit_mesh(model, 2.0, faces=[1, 2])
     check_invariants(model, mesh, 2.0)
