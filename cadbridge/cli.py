@@ -183,6 +183,11 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------- mesh
+def _no_qit_refinement(args: argparse.Namespace) -> None:
+    if getattr(args, "mesher", "gmsh") == "qit" and getattr(args, "shape_tolerance", None) is not None:
+        raise UsageError("--shape-tolerance refines with gmsh; it cannot be combined with --mesher qit")
+
+
 def cmd_mesh(args: argparse.Namespace) -> int:
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.io import write_mesh
@@ -190,6 +195,7 @@ def cmd_mesh(args: argparse.Namespace) -> int:
     from cadbridge.creases import crease_lines
     from cadbridge.iges import read_iges
 
+    _no_qit_refinement(args)
     if getattr(args, "shape_tolerance", None) is not None:  # sized and refined for a Nagata tolerance
         from cadbridge.refine import mesh_command
 
@@ -285,6 +291,7 @@ def cmd_nagata(args: argparse.Namespace) -> int:
 def cmd_convert(args: argparse.Namespace) -> int:
     from cadbridge.pipeline import convert
 
+    _no_qit_refinement(args)
     with Progress("cadbridge convert") as progress:
         result = convert(
             args.cad, args.output, element=args.element, size=args.size, structured=args.structured,

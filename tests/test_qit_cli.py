@@ -43,3 +43,9 @@ def test_qit_refuses_quads_and_names_a_bad_face(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and "face 0 (DE 1" in err and "Jacobian" in err and "Traceback" not in err
     assert not (tmp_path / "y.msh").exists()
+
+
+def test_shape_tolerance_with_qit_is_a_usage_error(tmp_path, capsys):
+    code = main(["mesh", str(HOLE), "--mesher", "qit", "--element", "tri", "--shape-tolerance", "0.01",
+                 "-o", str(tmp_path / "z.msh")])
+    assert code == 2 and "--shape-tolerance refines with gmsh" in capsys.readouterr().err
