@@ -954,7 +954,8 @@ def _face_label(model, f: int) -> str:
 
 def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, progress=None,
              reports: list | None = None) -> Mesh:
-    """QIT of the faces of ``model`` (`cadbridge.model.Model`) with target edge length ``size``.
+    """QIT of the faces of ``model`` (`cadbridge.model.Model`, or one `Face`) with target edge
+    length ``size`` (R, model units).
 
     faces : indices of the faces to mesh (default all). Adjacent faces whose boundary curves
     coincide in 3D share one discretisation of that edge (same nodes). Returns a `Mesh`
@@ -963,6 +964,10 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
     cell_data ``element_face`` (E,). ``reports`` (a list) receives one `QitFaceReport` per face.
     Raises `QitError` naming the face it cannot mesh.
     """
+    from cadbridge.model import Face, Model
+
+    if isinstance(model, Face):
+        model = Model(faces=[model])
     opt = options or QitOptions(size=size)
     opt.size = float(size)
     if not (np.isfinite(opt.size) and opt.size > 0):
