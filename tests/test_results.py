@@ -294,3 +294,30 @@ def test_cell_values_become_area_weighted_nodal_values(tmp_path):
     assert "area-weighted" in f.source
     with pytest.raises(ValueError, match="not found"):
         read_results(p, "q")
+
+
+def test_torus_two_seams():
+    """Torus R 3, r 1 (closed in both directions, the corner element crosses both seams),
+    f = z. Reference: analytic. The bands cover 4 pi^2 R r (rel 1e-9), every line is closed;
+    with levels at node rows phi_a < phi_b (both in (-pi/2, pi/2)) the band between is the two
+    strips phi in [phi_a, phi_b] and [pi - phi_b, pi - phi_a]: 4 pi r R (phi_b - phi_a)."""
+    from cadbridge.nurbs.construct import torus_patch
+
+    R, r = 3.0, 1.0
+    model = Model(faces=[Face(torus_patch(R, r), de=1, name="TORUS")])
+    nt, ns = 16, 32
+    ph = np.pi / 2 + np.pi / nt + np.arange(nt) * 2 * np.pi / nt  # rows symmetric about phi = pi / 2
+    th = 0.2 + np.arange(ns) * 2 * np.pi / ns
+    P, T = np.meshgrid(ph, th, indexing="ij")
+    rho = R + r * np.cos(P)
+    nodes = np.column_stack([(rho * np.cos(T)).ravel(), (rho * np.sin(T)).ravel(), (r * np.sin(P)).ravel()])
+    idx = np.arange(nt * ns).reshape(nt, ns)
+    q = np.column_stack([idx.ravel(), np.roll(idx, -1, 0).ravel(), np.roll(np.roll(idx, -1, 0), -1, 1).ravel(),
+                         np.roll(idx, -1, 1).ravel()])
+    m = map_results(Mesh(nodes, [CellBlock("quad", q)]), nodes[:, 2], model)
+    assert m.topology[0].closed == (True, True)
+    phi_a, phi_b = ph[10] - 2 * np.pi, ph[12] - 2 * np.pi  # pi - phi are rows too
+    c = m.contour(r * np.sin([phi_a, phi_b]))
+    assert np.isclose(c.bands.area.sum(), 4 * np.pi**2 * R * r, rtol=1e-9)
+    assert np.isclose(c.bands.area[1], 4 * np.pi * r * R * (phi_b - phi_a), rtol=1e-9)
+    assert c.lines.closed.all() and len(c.lines) == 4

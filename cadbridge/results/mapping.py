@@ -272,6 +272,10 @@ def _corner_params(mesh: Mesh, model: Model, face: np.ndarray, u: np.ndarray, v:
         for f in np.unique(uf):
             sel = np.flatnonzero(uf == f)
             sp = project_to_surface(model.faces[int(f)].surface, mesh.nodes[un[sel]])
+            bad = ~(np.isfinite(sp.u) & np.isfinite(sp.v))
+            if np.any(bad):
+                raise ValueError(f"node {int(un[sel][bad][0])} could not be placed on face {int(f)} (its element's "
+                                 f"face): projection failed for {int(bad.sum())} such corners")
             uu[sel], vv[sel] = sp.u, sp.v
         k = 0
         off = 0
@@ -489,20 +493,18 @@ def _clip_side(poly: list, axis: int, c: float, keep_below: bool, cut_keys: dict
 
 def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology], n_keys: int):
     """Cut sub-triangles that reach beyond a seam at the seam line; the far part moves back by
-    one period. New vertices get keys per cut mesh edge (the same on both sides)."""
-    extra_uv, extra_f, extra_key, extra_face = [], [], [], []
-    drop = np.zeros(len(t_face), dtype=bool)
+    one period. New vertices get keys per cut mesh edge (the same on both sides). Both
+    directions in turn (a torus' corner element crosses two seams)."""
     cut_keys: dict = {}
     nk = [n_keys]
-    for f in np.unique(t_face):
-        t = topo[f]
-        if not any(t.closed):
-            continue
-        dom = model.faces[f].surface.domain
-        sel = np.flatnonzero(t_face == f)
-        for axis in (0, 1):
-            if not t.closed[axis]:
+    for axis in (0, 1):
+        extra_uv, extra_f, extra_key, extra_face = [], [], [], []
+        drop = np.zeros(len(t_face), dtype=bool)
+        for f in np.unique(t_face):
+            if not topo[f].closed[axis]:
                 continue
+            dom = model.faces[f].surface.domain
+            sel = np.flatnonzero(t_face == f)
             lo, hi = dom[2 * axis], dom[2 * axis + 1]
             eps = 1e-12 * (hi - lo)
             x = t_uv[sel, :, axis]
@@ -510,16 +512,13 @@ def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology],
             drop[out] = True
             for ti in out:
                 poly = [(t_uv[ti, k].copy(), t_f[ti, k], int(t_key[ti, k])) for k in range(3)]
-                pieces = []
                 if t_uv[ti, :, axis].max() > hi + eps:
-                    pieces.append((_clip_side(poly, axis, hi, True, cut_keys, nk), 0.0))
-                    pieces.append((_clip_side(poly, axis, hi, False, cut_keys, nk), -(hi - lo)))
+                    pieces = [(_clip_side(poly, axis, hi, True, cut_keys, nk), 0.0),
+                              (_clip_side(poly, axis, hi, False, cut_keys, nk), -(hi - lo))]
                 else:
-                    pieces.append((_clip_side(poly, axis, lo, False, cut_keys, nk), 0.0))
-                    pieces.append((_clip_side(poly, axis, lo, True, cut_keys, nk), hi - lo))
+                    pieces = [(_clip_side(poly, axis, lo, False, cut_keys, nk), 0.0),
+                              (_clip_side(poly, axis, lo, True, cut_keys, nk), hi - lo)]
                 for pc, shift in pieces:
-                    if len(pc) < 3:
-                        continue
                     for j in range(1, len(pc) - 1):
                         tri = [pc[0], pc[j], pc[j + 1]]
                         uvs = np.array([p[0] for p in tri])
@@ -528,9 +527,10 @@ def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology],
                         extra_f.append([p[1] for p in tri])
                         extra_key.append([p[2] for p in tri])
                         extra_face.append(f)
-    if not extra_face:
-        return t_uv, t_f, t_key, t_face, n_keys
-    keep = ~drop
-    return (np.concatenate([t_uv[keep], np.array(extra_uv)]), np.concatenate([t_f[keep], np.array(extra_f)]),
-            np.concatenate([t_key[keep], np.array(extra_key, dtype=np.int64)]),
-            np.concatenate([t_face[keep], np.array(extra_face, dtype=np.int64)]), nk[0])
+        if extra_face:
+            keep = ~drop
+            t_uv = np.concatenate([t_uv[keep], np.array(extra_uv)])
+            t_f = np.concatenate([t_f[keep], np.array(extra_f)])
+            t_key = np.concatenate([t_key[keep], np.array(extra_key, dtype=np.int64)])
+            t_face = np.concatenate([t_face[keep], np.array(extra_face, dtype=np.int64)])
+    return t_uv, t_f, t_key, t_face, nk[0]
