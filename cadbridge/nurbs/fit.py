@@ -474,7 +474,7 @@ def fit_surface(
     domain: (u0, u1, v0, v1) of the fit (default the box of the parameters); noise: sigma of
     the data (default `estimate_noise`); point_weights (N,) >= 0; progress: object with
     ``stage(text)`` (cadbridge.cli.Progress); robust_iterations: further reweighting solves on
-    the final net (stops when no weight changes by 1e-3); max_points_per_level: more points
+    the final net (each phase stops when no weight changes by 0.01); max_points_per_level: more points
     than this choose their knots on a random subset of this size, then the final net is solved
     on all of them.
     """
@@ -649,7 +649,7 @@ def fit_surface(
             elif settled:
                 continue
             new_w = _robust_weights(contrast(signed), kind, tolerance)
-            settled = np.max(np.abs(new_w - rob_w)) < 1e-3 and it > 0
+            settled = np.max(np.abs(new_w - rob_w)) < 1e-2 and it > 0
             rob_w = new_w
             surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"robust iteration {it + 1} ({kind})")
         return rob_w, u, v, surf, dist, signed
@@ -712,7 +712,7 @@ def fit_surface(
         return st.reshape(n_cells, 16).max(axis=1)
 
     for level in range(max_levels + 1):
-        n_iter = 1 if robust is None else 2
+        n_iter = 1  # Huber weights from the previous solve; the full IRLS runs on the final net
         for it in range(n_iter):
             surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"level {level + 1}, solve {it + 1}/{n_iter}")
             if robust is not None:
