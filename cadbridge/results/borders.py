@@ -230,35 +230,57 @@ def _empty() -> BorderArcs:
 NO_ARCS = _empty()
 
 
-def _nearest_on_curves(curves: list, pts: np.ndarray, tol: float, iters: int = 30):
-    """Nearest point of 2D curves to (N, 2) points: curve index, parameter, distance (N,)."""
-    samples, owner, params = [], [], []
-    for i, (_, c, _, t0, t1) in enumerate(curves):
+_SAMPLES: dict = {}
+
+
+def _samples(c) -> tuple[np.ndarray, np.ndarray, float]:
+    """Parameters, (u, v) points and largest spacing of a trim curve's samples (cached)."""
+    key = id(c)
+    hit = _SAMPLES.get(key)
+    if hit is None or hit[0] is not c:
         ts = c.sample_parameters(32)
-        samples.append(c.evaluate(ts)[:, :2])
+        xs = c.evaluate(ts)[:, :2]
+        gap = float(np.max(np.linalg.norm(np.diff(xs, axis=0), axis=1))) if len(xs) > 1 else 0.0
+        hit = _SAMPLES[key] = (c, ts, xs, gap)
+        if len(_SAMPLES) > 4096:
+            _SAMPLES.clear()
+    return hit[1], hit[2], hit[3]
+
+
+def _nearest_on_curves(curves: list, pts: np.ndarray, tol: float, iters: int = 30):
+    """Nearest point of 2D curves to (N, 2) points: curve index, parameter, distance (N,);
+    points farther than ``tol`` from every curve get distance inf (no Newton for them)."""
+    samples, owner, params, reach = [], [], [], []
+    for i, (_, c, _, t0, t1) in enumerate(curves):
+        ts, xs, gap = _samples(c)
+        samples.append(xs)
         owner.append(np.full(len(ts), i))
         params.append(ts)
+        reach.append(np.full(len(ts), gap))
     tree = cKDTree(np.concatenate(samples))
-    _, j = tree.query(pts)
+    d0, j = tree.query(pts)
     ci = np.concatenate(owner)[j]
     t = np.concatenate(params)[j].astype(float)
     dist = np.full(len(pts), np.inf)
+    near = d0 <= 0.51 * np.concatenate(reach)[j] + 2.0 * tol  # within half a sample gap of the curve
     for i, (_, c, closed, t0, t1) in enumerate(curves):
-        sel = np.flatnonzero(ci == i)
+        sel = np.flatnonzero((ci == i) & near)
         if not len(sel):
             continue
         tt = t[sel]
+        act = np.arange(len(sel))
         for _ in range(iters):
-            d = c.derivatives(tt, order=2)[:, :, :2]
-            r = d[:, 0] - pts[sel]
+            d = c.derivatives(tt[act], order=2)[:, :, :2]
+            r = d[:, 0] - pts[sel[act]]
             g = np.einsum("ij,ij->i", r, d[:, 1])
             h = np.einsum("ij,ij->i", d[:, 1], d[:, 1]) + np.einsum("ij,ij->i", r, d[:, 2])
             step = g / np.where(h > 0, h, np.einsum("ij,ij->i", d[:, 1], d[:, 1]) + 1e-300)
-            tn = tt - step
+            tn = tt[act] - step
             tn = t0 + np.mod(tn - t0, t1 - t0) if closed else np.clip(tn, t0, t1)
-            done = np.abs(tn - tt) <= 1e-15 * max(t1 - t0, 1.0)
-            tt = tn
-            if done.all():
+            done = np.abs(tn - tt[act]) <= 1e-15 * max(t1 - t0, 1.0)
+            tt[act] = tn
+            act = act[~done]
+            if not len(act):
                 break
         t[sel] = tt
         dist[sel] = np.linalg.norm(c.evaluate(tt)[:, :2] - pts[sel], axis=1)
