@@ -331,8 +331,10 @@ def refine_mesh(
     marks = SizeField(np.zeros((0, 3)), np.zeros(0), h_min, h_max, gradation)  # refinement requests only
     structured = (element == "quad") if structured is None else bool(structured)
 
-    def curve_size(x, k):  # sides of mapped faces: the law on the curve's own curvature, and the marks
-        return np.maximum(np.minimum(edge_length_for_tolerance(t_loop, k, h_max), marks(x)), h_min)
+    def curve_size(x, k):
+        # sides of mapped faces: the law on the curve's own curvature (integrated along it),
+        # and the refinement marks (a request that holds along the whole, uniformly divided side)
+        return (np.maximum(edge_length_for_tolerance(t_loop, k, h_max), h_min), marks(x))
 
     mesh_kw = dict(element=element, size=h_max, curvature_elements=0, structured=structured,
                    curve_size=curve_size if structured else None)

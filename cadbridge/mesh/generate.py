@@ -350,8 +350,9 @@ def mesh_cad(
         size gmsh uses is what it returns (``lc`` is the size from the other rules).
     curve_size : with ``structured``, ``f(points (M, 3), curvature (M,)) -> sizes (M,)``:
         each class of structured curves gets the largest number of elements any of its
-        curves needs, the integral of ds / f along the curve (its own curvature given, so
-        a straight side gets few elements and an arc many).
+        curves needs, the integral of ds / f along it (its own curvature given, so a
+        straight side gets few elements and an arc many); f may return a pair (sizes,
+        uniform sizes), see `_curve_need`.
 
     Returns a `Mesh` with one triangle and/or one quad block (in that order), element
     orientation as gmsh gives it (following each OCC face's orientation), unused nodes
@@ -511,14 +512,20 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
 
 
 def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
-    """Elements curve ``c`` needs under ``curve_size``: sum of ds / h over its polygon."""
+    """Elements curve ``c`` needs under ``curve_size``: the integral of ds / h over its
+    polygon; where ``curve_size`` returns a pair (h, h_uniform), the larger of that and the
+    length over the smallest h_uniform (a request that must hold all along the side, which is
+    divided uniformly)."""
     lo, hi = g.model.getParametrizationBounds(1, c)
     ts = np.linspace(lo[0], hi[0], samples)
     x = np.asarray(g.model.getValue(1, c, ts), dtype=float).reshape(-1, 3)
     k = np.abs(np.asarray(g.model.getCurvature(1, c, ts), dtype=float))
     ds = np.linalg.norm(np.diff(x, axis=0), axis=1)
-    h = np.asarray(curve_size(0.5 * (x[1:] + x[:-1]), np.maximum(k[1:], k[:-1])), dtype=float)
-    return float(np.sum(ds / h))
+    h = curve_size(0.5 * (x[1:] + x[:-1]), np.maximum(k[1:], k[:-1]))
+    if isinstance(h, tuple):
+        h, hu = (np.asarray(a, dtype=float) for a in h)
+        return float(max(np.sum(ds / h), np.sum(ds) / np.min(hu)))
+    return float(np.sum(ds / np.asarray(h, dtype=float)))
 
 
 def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:
