@@ -8,8 +8,8 @@ distance and its edge check for feet clamped to a domain edge), but each stage r
 pairs of all surfaces in one compiled call (`SurfacePack`: the surfaces' control nets, knots
 and sample grids packed into flat arrays), in parallel over blocks of pairs. Only the
 sample KD-tree queries stay per surface (one k-nearest query per surface serves all three
-stages). Surfaces with internal crease knot lines (`smooth_pieces`) go through
-`project_to_surface`.
+stages). Surfaces with internal crease knot lines are projected onto each of their smooth
+pieces (`smooth_pieces`, packed too) and the nearest is kept as in `project_to_surface`.
 
 Cost: one Python step per surface per call (a tree query), the rest compiled; for many
 surfaces with few points each this is several times faster than a loop over
@@ -33,7 +33,7 @@ from cadbridge.nurbs.project import (
     _global_seeds,
     _newton_range,
     _wrap_clamp,
-    project_to_surface,
+    _nearest_of_pieces,
     smooth_pieces,
     pole_starts,
     surface_samples,
@@ -56,13 +56,24 @@ _PARALLEL_MIN = 4096  # fewer pairs: serial
 
 class SurfacePack:
     """Surfaces and their start-value sample grids (`surface_samples`) in flat arrays for the
-    compiled kernels. surfaces: the list packed (index = surface id); single: (S,) bool, the
-    surface has no internal crease lines (else `project_to_surface` handles its pairs)."""
+    compiled kernels. faces_of: the surfaces given (ids 0..F-1); surfaces: those and, after
+    them, the smooth pieces of the ones with internal crease lines (pieces[id]: their ids);
+    single: (F,) bool, the surface has no internal crease lines."""
 
     def __init__(self, surfaces: list[NurbsSurface]) -> None:
-        self.surfaces = list(surfaces)
+        self.faces_of = list(surfaces)  # the surfaces asked for (ids 0..F-1)
+        pieces = [smooth_pieces(x) for x in self.faces_of]
+        self.single = np.array([len(pc) == 1 for pc in pieces], dtype=bool)
+        # surfaces with internal creases: their smooth pieces are packed after them (ids >= F)
+        self.pieces: dict[int, np.ndarray] = {}
+        extra = []
+        f = len(self.faces_of)
+        for k, pc in enumerate(pieces):
+            if len(pc) > 1:
+                self.pieces[k] = f + len(extra) + np.arange(len(pc))
+                extra.extend(pc)
+        self.surfaces = self.faces_of + extra
         s = len(self.surfaces)
-        self.single = np.array([len(smooth_pieces(x)) == 1 for x in self.surfaces], dtype=bool)
         self.samples = [surface_samples(x) for x in self.surfaces]
         self.deg = np.array([[x.degree_u, x.degree_v] for x in self.surfaces], dtype=np.int64).reshape(s, 2)
         self.shape = np.array([x.shape for x in self.surfaces], dtype=np.int64).reshape(s, 2)
@@ -328,21 +339,39 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: floa
     order = np.argsort(which, kind="stable")
     sid = which[order]
     multi = ~pack.single[sid]
-    if np.any(multi):  # surfaces with internal creases: piece by piece (`project_to_surface`)
-        for s in np.unique(sid[multi]):
-            rows = order[sid == s]
-            r = project_to_surface(pack.surfaces[s], pts[rows], tol=tol, max_iter=max_iter)
-            for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
-                getattr(out, name)[rows] = getattr(r, name)
+    rows_m, faces_m, piece_k = [], [], []
+    if np.any(multi):  # surfaces with internal creases: every pair on each smooth piece
+        for f in np.unique(sid[multi]):
+            rows = order[sid == f]
+            ids = pack.pieces[int(f)]
+            rows_m.append(np.repeat(rows, len(ids)))
+            piece_k.append(np.tile(ids, len(rows)))
+            faces_m.append(int(f))
         keep = ~multi
         order, sid = order[keep], sid[keep]
-    if not len(order):
-        return out
+        pr = np.concatenate(rows_m)
+        order = np.concatenate([order, pr])
+        sid = np.concatenate([sid, np.concatenate(piece_k)])
+        o2 = np.argsort(sid, kind="stable")
+        order, sid = order[o2], sid[o2]
     p = np.ascontiguousarray(pts[order])
     start = None if uv0 is None else np.asarray(uv0, dtype=float).reshape(m, 2)[order]
     res = _sorted_pairs(pack, sid, p, tol, max_iter, start)
+    single = pack.single[np.minimum(sid, len(pack.single) - 1)] & (sid < len(pack.single))
     for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
-        getattr(out, name)[order] = getattr(res, name)
+        getattr(out, name)[order[single]] = getattr(res, name)[single]
+    for f in faces_m:  # nearest over the pieces (`_nearest_of_pieces`: feet on crease lines)
+        ids = pack.pieces[f]
+        parts = []
+        for i in ids:
+            sel = np.flatnonzero(sid == i)  # rows of this piece, in the order of their points
+            sel = sel[np.argsort(order[sel], kind="stable")]
+            parts.append(SurfaceProjection(*(getattr(res, name)[sel] for name in
+                                             ("u", "v", "foot", "distance", "normal", "status", "iterations"))))
+        rows = np.sort(order[sid == ids[0]])
+        r = _nearest_of_pieces(pack.faces_of[f], [pack.surfaces[i] for i in ids], parts)
+        for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
+            getattr(out, name)[rows] = getattr(r, name)
     return out
 
 
