@@ -7,7 +7,8 @@ alternately (one cadbridge read, one OCC read, ``--repeat`` times), so a change 
 shared machine hits both; ``--rounds R`` repeats that R times and also reports the lowest and
 highest per-round ratio (how stable the ratio is), the times being the best over all rounds.
 
-    python benchmarks/bench_read.py [--repeat 3] [--rounds 1] [--file PATH ...] [--profile FILE_SUBSTRING]
+    python benchmarks/bench_read.py [--repeat 3] [--rounds 1] [--file PATH ...] [--only SUBSTRING ...]
+                                    [--profile FILE_SUBSTRING]
 
 cadbridge is warmed up once per file before timing (numba kernels compiled and cached, imports
 done), so compile time does not count; OCC is warmed up the same way. Faces, trimmed faces and
@@ -77,9 +78,13 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=1, help="repeat the timing; report the per-round ratio range")
     ap.add_argument("--profile", default=None, help="cProfile cadbridge's read of the file matching this")
     ap.add_argument("--file", action="append", default=[], help="another IGES file to measure")
+    ap.add_argument("--only", action="append", default=[],
+                    help="measure only files whose name contains this (repeatable); results/read.md is not written")
     args = ap.parse_args()
     rows = []
     for path in files(args.file):
+        if args.only and not any(s in path.name for s in args.only):
+            continue
         m = read_iges(path)  # warm-up: imports, numba compile / cache load
         occ_read(path)
         if args.profile and args.profile in path.name:
@@ -111,6 +116,8 @@ def main() -> None:
                      f"{r['t_delta'] * 1e3:.1f} |")
     text = "\n".join(lines)
     print("\n" + text)
+    if args.only:
+        return
     out = ROOT / "benchmarks" / "results"
     out.mkdir(exist_ok=True)
     (out / "read.md").write_text(f"Best of {args.repeat} x {max(1, args.rounds)} rounds, cadbridge and OCC timed "

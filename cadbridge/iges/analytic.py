@@ -104,7 +104,11 @@ class Frame:
     def local(self, pts: np.ndarray) -> np.ndarray:
         """(N, 3) model points -> (N, 3) coordinates along X, Y, A."""
         r = np.asarray(pts, dtype=float) - self.origin
-        return np.column_stack([r @ self.x, r @ self.y, r @ self.axis])
+        key = (id(self.axis), id(self.x))
+        y = self.__dict__.get("_y")
+        if y is None or y[0] != key:  # Y = A x X once per frame (the reader maps thousands of curves)
+            y = self.__dict__["_y"] = (key, self.y)
+        return np.column_stack([r @ self.x, r @ y[1], r @ self.axis])
 
 
 @dataclass
@@ -770,6 +774,13 @@ class MappedLoops:
     surface: NurbsSurface
     loops: list[list[tuple[int, "NurbsCurve | _TrimCurve", bool]]]
     sources: list[list[str]]  # per loop, per edge: "pcurve" or "model"
+    ends: list[tuple[np.ndarray, np.ndarray]] | None = None  # per loop (u, v) of its start and end
+
+    def closed(self, rel: float = 1e-6) -> list[bool]:
+        """Per loop whether it closes in (u, v): end = start within rel x the domain's diagonal."""
+        u0, u1, v0, v1 = self.surface.domain
+        tol = rel * np.hypot(u1 - u0, v1 - v0)
+        return [bool(np.linalg.norm(a - b) <= tol) for a, b in self.ends]
 
 
 def _exact_natural(c: NurbsCurve, fn) -> NurbsCurve:
@@ -815,13 +826,16 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
         samples.update(zip(keys, _sample_many([items[li][ii][1] for li, ii in keys], fn, ang)))
     nats: list[list[np.ndarray]] = []
     shifts: list[list[np.ndarray]] = []
+    exact_nat: dict[tuple[int, int], NurbsCurve] = {}  # the exactly mapped pieces, made once
     for li, its in enumerate(items):
         prev = None
         ln, ls = [], []
         for ii, (_, c, fn, exact) in enumerate(its):
             if exact:
-                nat = _exact_natural(c, fn)
-                pts = np.vstack([nat.control_points, nat.evaluate(nat.sample_parameters(4))])
+                nat = exact_nat[li, ii] = _exact_natural(c, fn)
+                # the curve lies in the convex hull of its control points (positive weights): their
+                # box is the box of control points and curve samples together
+                pts = nat.control_points
             else:
                 pts = samples[li, ii][1]
             sh = np.zeros(2)
@@ -830,7 +844,8 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
                     if ang[k]:
                         sh[k] = TWO_PI * np.round((prev[k] - pts[0, k]) / TWO_PI)
             pts = pts + sh
-            prev = pts[-1] if not exact else _exact_natural(c, fn).evaluate([c.domain[1]])[0]
+            if ang[0] or ang[1]:  # only angles need the previous piece's end
+                prev = pts[-1] if not exact else _eval(exact_nat[li, ii], [c.domain[1]])[0]
             ln.append(pts)
             ls.append(sh)
         nats.append(ln)
@@ -878,7 +893,7 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
         pieces: list[tuple[int, NurbsCurve | _TrimCurve, bool]] = []
         for ii, ((j, c, fn, exact), sh) in enumerate(zip(its, ls)):
             if exact:
-                nat = _exact_natural(c, fn)
+                nat = exact_nat[li, ii]
                 if np.any(sh):
                     nat = NurbsCurve(nat.degree, nat.knots, nat.control_points + sh, nat.weights, nat.domain)
                 pieces.append((j, nat, False))
@@ -889,7 +904,25 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
                 t, nat = samples[li, ii]
                 pieces.append((j, InvertedCurve(c, fn, sh, post, ang, t, nat + sh, surface), True))
         out.append(pieces)
-    return MappedLoops(surface, out, sources)
+    # (u, v) of each loop's start and end: exact pieces evaluated, mapped ones from their natural
+    # samples (which include the domain ends) through the same scalar maps as their evaluation
+    ends: list = []
+    post_nat = []  # (loop, 0 start / 1 end, natural point) for the mapped ends
+    for li, (its, pieces) in enumerate(zip(items, out)):
+        pair: list = [None, None]
+        for e, ii in ((0, 0), (1, len(its) - 1)):
+            if its[ii][3]:
+                c = pieces[ii][1]
+                pair[e] = _eval(c, [c.domain[e]])[0]
+            else:
+                post_nat.append((li, e, samples[li, ii][1][-e] + shifts[li][ii]))
+        ends.append(pair)
+    if post_nat:
+        nat = np.array([x for _, _, x in post_nat])
+        uv = np.column_stack([nat[:, src] if mp is None else mp(nat[:, src], 0)[0] for src, mp in post])
+        for (li, e, _), q in zip(post_nat, uv):
+            ends[li][e] = q
+    return MappedLoops(surface, out, sources, [(a, b) for a, b in ends])
 
 
 # ---------------------------------------------------------------------------- 128 without pcurves

@@ -50,6 +50,8 @@ _LINE_KNOTS = np.array([0.0, 0.0, 1.0, 1.0])
 _LINE_KNOTS.setflags(write=False)
 _ONES2 = np.ones(2)
 _ONES2.setflags(write=False)
+_EYE3 = np.eye(3)
+_EYE3.setflags(write=False)
 
 
 def _arc100(p: Params, v: np.ndarray) -> NurbsCurve:
@@ -131,7 +133,7 @@ def to_2d(c: NurbsCurve) -> NurbsCurve:
 
 
 def _is_identity(a: Affine | None) -> bool:
-    return a is None or (np.array_equal(a[0], np.eye(3)) and not np.any(a[1]))
+    return a is None or (np.array_equal(a[0], _EYE3) and not np.any(a[1]))
 
 
 def compose(outer: Affine | None, inner: Affine | None) -> Affine | None:
@@ -148,12 +150,17 @@ def apply_surface(s: NurbsSurface, a: Affine | None) -> NurbsSurface:
 
 
 def apply_curve(c: NurbsCurve, a: Affine | None) -> NurbsCurve:
+    """The curve under x -> R x + t (a 2D curve taken at z = 0): `NurbsCurve.transformed`'s
+    arithmetic, without re-validating knots and weights (those of a valid curve)."""
     if _is_identity(a):
         return c
-    if c.dim == 2:
-        cp = np.column_stack([c.control_points, np.zeros(len(c.control_points))])
-        c = NurbsCurve(c.degree, c.knots, cp, c.weights, c.domain)
-    return c.transformed(a[0], a[1])
+    cp = c.control_points
+    if cp.shape[1] == 2:
+        cp = np.column_stack([cp, np.zeros(len(cp))])
+    out = cp @ np.asarray(a[0], dtype=float).reshape(3, 3).T + np.asarray(a[1], dtype=float).reshape(3)
+    if not np.isfinite(out).all():  # overflow: the constructor's error
+        return NurbsCurve(c.degree, c.knots, out, c.weights, c.domain)
+    return NurbsCurve._trusted(c.degree, c.knots, out, c.weights, c.domain, c.rational)
 
 
 class Builder:
@@ -284,8 +291,9 @@ class Builder:
         if p.entry.form in (0, 1):
             # forms 0 and 1 promise an orthonormal R (det +1 / -1); applying any other R is
             # still exact for NURBS, but other readers (OpenCASCADE) treat it differently
-            dev = float(np.max(np.abs(r.T @ r - np.eye(3))))
-            det = float(np.linalg.det(r))
+            dev = float(np.abs(r.T @ r - _EYE3).max())
+            (a, b, c), (d, e, f), (g, h, i) = r.tolist()
+            det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)  # scalar: one per 124
             want = 1.0 if p.entry.form == 0 else -1.0
             if dev > 1e-6 or abs(det - want) > 1e-6:
                 self.note(f"transformation matrix form {p.entry.form} is not orthonormal with determinant "
@@ -778,7 +786,8 @@ class Builder:
         if de in self._delta:
             face.trim_delta = self._delta[de] * scale
         elif de in self._delta_lazy:
-            face.defer_trim_delta(self.deltas, self.deltas.add_pairs(*self._delta_lazy[de], scale))
+            surf, pairs, note = self._delta_lazy[de]
+            face.defer_trim_delta(self.deltas, self.deltas.add_pairs(surf, pairs, scale, note))
         elif face.trims is not None and any(lp is not None and lp.model_curves for lp in [face.trims.outer]
                                             + list(face.trims.inner)):
             face.defer_trim_delta(self.deltas, self.deltas.add_face(face))  # read after the placement below
@@ -1057,9 +1066,10 @@ class Builder:
 
         The file's trim tolerance delta (`trimcheck.loop_deltas`: max distance of S(c2d) to
         the model-space curves) is measured on the parameter-space route and kept for the
-        face: at read time when the route depends on it (PREF "model" / "equal" / unspecified),
-        else deferred to the first access of
-        `Face.trim_delta` (`trimcheck.DeltaBatch`). Which representation trims the face (IGES 5.3, 4.31-4.32):
+        face: at read time when the route depends on it (PREF "model", or "equal" / unspecified
+        over 190-198 or with loops that do not close), else deferred to the first access of
+        `Face.trim_delta` (`trimcheck.DeltaBatch`; the "disagree" note of such a face is then
+        added to the diagnostics at that access). Which representation trims the face (IGES 5.3, 4.31-4.32):
           - only one representation on an edge: that one;
           - "pcurve" preferred: the parameter-space curves, unless their loops do not close
             on the surface (then the model-space curves);
@@ -1086,17 +1096,30 @@ class Builder:
             return self._untrimmed(pm, sde, de, str(exc))
         prefs = list(prefs) if prefs is not None else [None] * len(loops)
         pref = "model" if "model" in prefs else ("pcurve" if "pcurve" in prefs else "equal")
-        closed = all(_closed(lp, res.surface) for lp in res.loops)
+        closed = all(res.closed())
         has_both = any(pc is not None and mc is not None for raw in loops for pc, mc in raw)
         pairs = self._mapped_pairs(res, loops)
+        box = res.surface.bbox()
+        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+        # over 118/120/122 with closed loops and no model preference the parameter-space curves
+        # trim the face whatever delta is (see the rule above): delta only decides the note
+        fixed_route = pref == "equal" and closed and pm.kind in ("revolution", "ruled", "tabulated")
         delta = None
-        if pairs is not None and pref != "pcurve":  # the route depends on delta: measured now
+        if pairs is not None and pref != "pcurve" and not fixed_route:  # the route depends on delta: measured now
             d = float(loop_deltas([(res.surface, pairs)])[0])
             delta = None if np.isnan(d) else d
         elif pairs is not None:
-            self._delta_lazy[de] = (res.surface, pairs)
-        box = res.surface.bbox()
-        size = max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+            note = None
+            if fixed_route:  # the disagreement note, on the first `Face.trim_delta` access (no Builder kept)
+                kind, e, diags = pm.kind, self.entries[de], self.diagnostics
+
+                def note(d, kind=kind, size=size, e=e, diags=diags):
+                    if d > DISAGREE_REL * size:
+                        diags.append(Diagnostic(
+                            f"parameter-space curves over the {kind} surface disagree with the model-space curves "
+                            f"(delta {d:.3g}, {d / size:.3g} x size): the parameter-space loops are used "
+                            f"(preferred: equal; noted when delta was computed)", e.line, e.de, e.entity_type))
+            self._delta_lazy[de] = (res.surface, pairs, note)
         use_model = False
         if has_both and pref == "pcurve":
             use_model = not closed

@@ -269,8 +269,10 @@ class DeltaBatch:
 
     Entries are added with `add_face` (a face whose own surface and trim loops -- parameter-space
     ``curves`` against ``model_curves`` -- are read when the batch computes, i.e. after any
-    placement) or `add_pairs` (a surface, (uv pieces, model pieces) per loop, and a factor the
-    result is multiplied by: a 408's scale for loops kept in the definition's coordinates)."""
+    placement) or `add_pairs` (a surface, (uv pieces, model pieces) per loop, a factor the
+    result is multiplied by: a 408's scale for loops kept in the definition's coordinates, and
+    optionally ``note``: called with the unscaled delta once it is computed, for a reader
+    note that depends on delta but not the trim route, e.g. "the 2D and 3D curves disagree")."""
 
     def __init__(self) -> None:
         self._entries: list[tuple] = []
@@ -283,14 +285,14 @@ class DeltaBatch:
         self._entries.append(("face", face))
         return len(self._entries) - 1
 
-    def add_pairs(self, surface, pairs: list[tuple], scale: float = 1.0) -> int:
-        self._entries.append(("pairs", surface, pairs, float(scale)))
+    def add_pairs(self, surface, pairs: list[tuple], scale: float = 1.0, note=None) -> int:
+        self._entries.append(("pairs", surface, pairs, float(scale), note))
         return len(self._entries) - 1
 
     def value(self, index: int) -> float | None:
         """Delta of entry ``index`` (model units), None when it has no loop with both curves."""
         if self._values is None:
-            items, scale = [], np.ones(len(self._entries))
+            items, scale, notes = [], np.ones(len(self._entries)), []
             for k, e in enumerate(self._entries):
                 if e[0] == "face":
                     f = e[1]
@@ -300,7 +302,13 @@ class DeltaBatch:
                 else:
                     items.append((e[1], e[2]))
                     scale[k] = e[3]
-            self._values = loop_deltas(items) * scale
+                    if e[4] is not None:
+                        notes.append((k, e[4]))
+            raw = loop_deltas(items)
+            self._values = raw * scale
+            for k, note in notes:
+                if not np.isnan(raw[k]):
+                    note(float(raw[k]))
             self._entries = []  # the geometry is no longer needed
         d = self._values[index]
         return None if np.isnan(d) else float(d)
