@@ -309,3 +309,8 @@ def test_bands_follow_curved_trims_exactly(tmp_path):
     for row, (area, _, name) in zip(rows, got):
         assert name == row["name"] and np.isclose(area, row["area"], rtol=1e-9)
     assert np.isclose(sum(g[0] for g in got), 100 * 60 - np.pi * R * R, rtol=1e-9)
+    # the CAD tessellation ends at the circle too: no point inside the hole
+    from cadbridge.results.export import tessellate
+
+    pts = tessellate(m, chord_tol=1e-3)[0]
+    assert np.min(np.hypot(pts[:, 0] - cx, pts[:, 1] - 25.0)) >= R - 1e-9

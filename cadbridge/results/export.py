@@ -77,6 +77,17 @@ def tessellate(mapping, chord_tol: float, max_div: int = 8, max_points: int = 2_
         pm = s.evaluate(mids[sel].reshape(-1, 2)[:, 0], mids[sel].reshape(-1, 2)[:, 1]).reshape(-1, 3, 3)
         chord = 0.5 * (pv + np.roll(pv, -1, axis=1))
         dev[sel] = np.linalg.norm(pm - chord, axis=2).max(axis=1)
+    arcs = m.arcs
+    if arcs is not None and len(arcs):  # curved-trim borders: their sagitta counts too
+        mid = arcs.arc(np.arange(len(arcs)), np.full(len(arcs), 0.5))[:, 0]
+        sag = np.linalg.norm(mid - 0.5 * (arcs.a + arcs.b), axis=1)
+        for f in np.unique(arcs.face):
+            s = model.faces[int(f)].surface
+            b = s.bbox()
+            u0, u1, v0, v1 = s.domain
+            scale = float(np.linalg.norm(b[1] - b[0])) / max(float(np.hypot(u1 - u0, v1 - v0)), 1e-300)
+            sel = arcs.face == f
+            dev[arcs.tri[sel]] = np.maximum(dev[arcs.tri[sel]], sag[sel] * scale)  # (u, v) -> model units, roughly
     div = np.ones(F, dtype=np.int64)
     for f in np.unique(m.tri_face):
         d = dev[m.tri_face == f].max()
@@ -101,7 +112,9 @@ def tessellate(mapping, chord_tol: float, max_div: int = 8, max_points: int = 2_
                     small.append((index[(i + 1, j)], index[(i + 1, j + 1)], index[(i, j + 1)]))
         small = np.array(small, dtype=np.int64)
         q = len(bary)
-        puv = np.einsum("qk,tkd->tqd", bary, uv[sel]).reshape(-1, 2)
+        puv = np.einsum("qk,tkd->tqd", bary, uv[sel])  # (t, q, 2)
+        _bend_to_arcs(m, f, sel, bary, puv)
+        puv = puv.reshape(-1, 2)
         pf = np.einsum("qk,tk->tq", bary, m.tri_f[sel]).reshape(-1)
         s = model.faces[int(f)].surface
         u0, u1, v0, v1 = s.domain
@@ -116,6 +129,31 @@ def tessellate(mapping, chord_tol: float, max_div: int = 8, max_points: int = 2_
         base += q * len(sel)
     return (np.concatenate(pts_all), np.concatenate(tri_all), np.concatenate(f_all), np.concatenate(face_all),
             np.concatenate(u_all), np.concatenate(v_all))
+
+
+def _bend_to_arcs(m, face: int, sel: np.ndarray, bary: np.ndarray, puv: np.ndarray) -> None:
+    """In place: lattice points (t, q, 2) of sub-triangles ``sel`` whose edge is a border chord
+    on a curved trim curve follow the curve (linear blending from the opposite vertex:
+    uv += (l_j + l_j+1) (c(tau(s)) - chord(s)), s = l_j+1 / (l_j + l_j+1)), so the
+    tessellation ends at the exact trim curve."""
+    arcs = m.arcs
+    if arcs is None or not len(arcs):
+        return
+    ks = np.flatnonzero(arcs.face == face)
+    if not len(ks):
+        return
+    pos = np.full(len(m.tri_face), -1)
+    pos[sel] = np.arange(len(sel))
+    for k in ks:
+        r = pos[arcs.tri[k]]
+        if r < 0:
+            continue
+        j = int(arcs.edge[k])
+        lj, lk = bary[:, j], bary[:, (j + 1) % 3]
+        w = lj + lk
+        t = np.where(w > 0, lk / np.where(w > 0, w, 1.0), 0.0)
+        chord = arcs.a[k] + t[:, None] * (arcs.b[k] - arcs.a[k])
+        puv[r] += w[:, None] * (arcs.arc(np.full(len(t), k), t)[:, 0] - chord)
 
 
 def write_cad_vtu(path, contours, chord_tol: float) -> int:
