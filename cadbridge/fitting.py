@@ -315,7 +315,17 @@ def face_base(points: np.ndarray, model: Model, face: int | None = None) -> Para
         base, what = model.faces[0].surface, "CAD face"
     else:
         base, what = join_strip([f.surface for f in model.faces]), f"{len(model.faces)} CAD faces joined"
-    res = project_to_surface(base, points, tol=1e-10)
+    # Newton from the nearest base sample; the global local-minimum check (3/4 of the time on a
+    # million points) only for the points that came out far from the base
+    res = project_to_surface(base, points, tol=1e-10, global_check=False)
+    far = ~(res.distance <= 10.0 * max(float(np.nanmedian(res.distance)), 1e-12 * model.size())) | (res.status == FAILED)
+    if far.any():
+        again = project_to_surface(base, points[far], tol=1e-10)
+        take = (again.status != FAILED) & ~(again.distance >= np.where(np.isfinite(res.distance[far]),
+                                                                       res.distance[far], np.inf))
+        idx = np.nonzero(far)[0][take]
+        for name in ("u", "v", "distance", "status"):
+            getattr(res, name)[idx] = getattr(again, name)[take]
     bad = res.status == FAILED
     if bad.all():
         raise FitInputError("no point could be projected onto the base surface")
