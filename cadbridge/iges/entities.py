@@ -20,7 +20,7 @@ from cadbridge.iges.analytic import (ArcMap, Frame, MappedLoops, ParamMap, cylin
 from cadbridge.iges.trimcheck import DeltaBatch, loop_deltas
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record
-from cadbridge.iges.parameters import Params, prepare_params, read_params
+from cadbridge.iges.parameters import FastTokens, Params, prepare_params, read_params
 from cadbridge.model import Diagnostic, Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
@@ -187,6 +187,11 @@ class Builder:
         self._delta_lazy: dict[int, tuple] = {}  # face DE -> (surface, pairs) for a deferred delta (mapped faces)
         self.deltas = DeltaBatch()  # every other face's delta: computed on first access of any (`Face.trim_delta`)
         prepare_params(entries, precs, pdelim, rdelim)  # compiled scan of the plain records (fast path)
+        bulk = getattr(precs, "derived", None)
+        fast = getattr(bulk, "fast", None)
+        ok = fast is not None and bulk.n == len(precs) and fast.delims == (pdelim, rdelim)
+        self._fast = fast if ok else None
+        self._scanned: dict = fast.entity if ok else {}  # DE -> (entry, first token, count, last record, numeric)
 
     # ------------------------------------------------------------------ infrastructure
     def note(self, message: str, de: int | None = None, line: int | None = None) -> None:
@@ -197,7 +202,13 @@ class Builder:
     def params(self, de: int) -> Params:
         p = self._params.get(de)
         if p is None:
-            p = read_params(self.entries[de], self.precs, self.pdelim, self.rdelim, self.filename)
+            e = self.entries[de]
+            hit = self._scanned.get(de)
+            if hit is not None and hit[0] is e:  # `read_params`'s first fast path, inlined (once per entity)
+                _, a, c, r, ok = hit
+                p = Params._scanned(e, FastTokens(self._fast, a, c, ok), self.filename, self._fast.lines[r])
+            else:
+                p = read_params(e, self.precs, self.pdelim, self.rdelim, self.filename)
             self._params[de] = p
         return p
 
@@ -303,6 +314,8 @@ class Builder:
     def transform(self, de: int) -> Affine | None:
         """The full transformation of entity ``de`` (its DE field 7 and the 124 chain behind
         it: a 124 that points to another 124 is applied first, the pointed-to one after)."""
+        if self.entries[de].transform == 0:  # most entities: no matrix
+            return None
         key = ("xf", de)
         if key in self._cache:
             return self._cache[key]
@@ -360,7 +373,7 @@ class Builder:
         elif t == 110:
             v = p.reals(1, 6, "X1..Z2")
             self._own_end[de] = 7
-            if np.array_equal(v[:3], v[3:]):
+            if (v[:3] == v[3:]).all():
                 raise p.error("line with coincident end points", 1, "X1")
             # `construct.line(v[:3], v[3:])`, built directly: `Params.reals` values are finite,
             # so its NurbsCurve checks pass (same knots, points, unit weights and domain)
