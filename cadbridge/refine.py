@@ -11,8 +11,10 @@ One pass of `refine_mesh`:
    crease lines); elsewhere, nodes of edges that straddle an inflection are moved onto it
    (`cadbridge.inflection_nodes`).
 3. **Mesh** with gmsh (`cadbridge.mesh.generate.mesh_cad`).
-4. **Measure**: Nagata patches with exact CAD normals, shape error = surface error of
-   `cadbridge.tool_errors` (distance to the underlying faces) on a ``grid`` per patch, the
+4. **Measure**: Nagata patches with exact CAD normals, shape error = the larger of the
+   surface error of `cadbridge.tool_errors` (normal distance to the element's underlying
+   face) and its boundary error (distance to the trimmed CAD: a patch whose straight
+   boundary leaves a curved trim edge sideways is that far off) on a ``grid`` per patch, the
    normal error, and the admissibility of every edge (`cadbridge.nagata.admissibility`).
 5. **Refine** only the elements above the tolerance: refinement marks at their corners and
    centroid lower the size field there by the law's factor (t / e)^(1/4) (clipped to
@@ -203,10 +205,14 @@ def shape_check(tools: list, model, projector, grid: int) -> tuple[dict, dict[st
         if len(miss):
             err = tool_errors(nm, g.elem[miss], g.eta[miss], g.zeta[miss], t.element_face, model, projector.project)
             d[miss], n_err[miss] = err.surface, err.normal
+        # and the distance to the trimmed CAD: beyond a curved trim edge the patch's straight
+        # boundary leaves the face sideways, which the normal distance to the surface misses
+        bnd = np.linalg.norm(g.points - projector.project(g.points).foot, axis=1)
+        shape = np.maximum(np.abs(d), bnd)
         e = np.zeros(nm.n_elements)
-        np.maximum.at(e, g.elem, np.abs(d))
+        np.maximum.at(e, g.elem, shape)
         per[t.name] = e
-        surf.append(d)
+        surf.append(shape)
         nrm.append(n_err)
     s = np.concatenate(surf)
     n = np.concatenate(nrm)
@@ -388,7 +394,7 @@ def refine_mesh(
                 mesh.nodes, [np.asarray(b.data) for b in mesh.cells], cn.corner_normals))
         tools = _tools_from_mesh(mesh, model, "cad", None, grid, None, False, False, projector, progress,
                                  orient=True, meshed_per_face=True)
-        surf = np.concatenate([t.grid["surface_error"] for t in tools])
+        surf = np.concatenate([_shape_error(t.grid) for t in tools])
         nerr = np.concatenate([t.grid["normal_error"] for t in tools])
         marks_p, marks_h = [], []
         above_all: list[tuple[str, int, float]] = []
@@ -415,7 +421,7 @@ def refine_mesh(
 
         for t in tools:
             e = np.zeros(t.nagata.n_elements)
-            np.maximum.at(e, t.grid["element"], np.abs(t.grid["surface_error"]))
+            np.maximum.at(e, t.grid["element"], _shape_error(t.grid))
             adm = edge_admissibility(t.nagata)
             adm_bad = set(adm.bad_elements().tolist())
             n_inadm += len(adm_bad)
@@ -468,6 +474,12 @@ def refine_mesh(
     met = not above_all
     return AdaptiveResult(mesh, tools, passes, tolerance, met, check_best, floor, actions, above_all, h_min,
                           time.perf_counter() - t_start)
+
+
+def _shape_error(grid: dict) -> np.ndarray:
+    """Shape error (M,) at the samples of a tool grid: the larger of |surface error| (normal
+    distance to the element's face) and the boundary error (distance to the trimmed CAD)."""
+    return np.maximum(np.abs(grid["surface_error"]), grid["boundary_error"])
 
 
 def _floor_reason(t, elem: int, err: float, adm_bad: set, tolerance: float, h_min: float) -> str:
