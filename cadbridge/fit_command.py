@@ -36,6 +36,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
         raise UsageError(f"--smoothing must be >= 0, got {args.smoothing}")
     if not 1 <= args.degree <= 9:
         raise UsageError(f"--degree must be 1..9, got {args.degree}")
+    if args.max_distance is not None and not args.max_distance > 0:
+        raise UsageError(f"--max-distance must be > 0, got {args.max_distance}")
     if args.noise is not None and args.noise < 0:
         raise UsageError(f"--noise must be >= 0, got {args.noise}")
     p = args.degree
@@ -64,6 +66,7 @@ def cmd_fit(args: argparse.Namespace) -> int:
             report = fit_points(pts, base=base, face=args.face, degree=p, tolerance=args.tolerance,
                                 smoothing=args.smoothing, max_ctrl=tuple(args.max_ctrl), trim=args.trim,
                                 rational=args.rational, noise=noise, robust=None if args.no_robust else "tukey",
+                                max_distance=args.max_distance,
                                 source=f"{kind} of {Path(args.points).name}", name=args.name, progress=progress)
             progress.stage("writing")
             written = write_fit_outputs(report, out, units=units, extras=not args.no_report)
@@ -104,6 +107,9 @@ def register(sub, fmt) -> None:
                    help="take degrees, knots and weights from the --base surface (conics, fillets)")
     p.add_argument("--noise", type=float, default=None,
                    help="noise sigma of the points (default: estimated; 0 for tool files)")
+    p.add_argument("--max-distance", type=float, default=None,
+                   help="points farther than this from the base are stray and left out "
+                        "(default 1%% of the base CAD's size with --base; no limit with --plane)")
     p.add_argument("--nagata-samples", type=int, default=0,
                    help="tool file input: sample each Nagata patch with N points per edge (default 0: nodes)")
     p.add_argument("--no-robust", action="store_true", help="plain least squares (no Huber/Tukey reweighting)")

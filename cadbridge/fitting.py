@@ -436,6 +436,7 @@ class FitReport:
     source: str
     base: str
     seconds: float
+    ignored: int = 0  # points left out as stray (farther than max_distance from the base)
 
     def as_dict(self) -> dict:
         f = self.fit
@@ -451,6 +452,7 @@ class FitReport:
                     outliers_down_weighted=int(np.count_nonzero(f.outliers)),
                     partly_down_weighted=int(np.count_nonzero((f.weight > 0) & (f.weight < 0.5))),
                     beyond_tolerance_inliers=beyond, trimmed=self.face.trims is not None,
+                    ignored_far_from_base=self.ignored,
                     levels=[dict(h, ctrl=list(h["ctrl"])) for h in f.history], seconds=self.seconds)
 
     def format(self) -> str:
@@ -460,7 +462,8 @@ class FitReport:
                 "no improvement": "refinement stopped improving before the tolerance",
                 "fixed knots": "fixed knots (no refinement asked); tolerance not met"}.get(d["stop"], d["stop"])
         lines = [
-            f"points        {d['points']} ({d['source']}), parametrised on the {d['base']}",
+            f"points        {d['points']} ({d['source']}), parametrised on the {d['base']}"
+            + (f"; {d['ignored_far_from_base']} more left out as stray (far from the base)" if d['ignored_far_from_base'] else ""),
             f"surface       degree {d['degree'][0]}x{d['degree'][1]}, control net {d['control_net'][0]}x"
             f"{d['control_net'][1]}, {'rational' if d['rational'] else 'polynomial'}"
             f"{', trimmed by the data outline' if d['trimmed'] else ''}",
@@ -489,13 +492,17 @@ def fit_points(
     rational: bool = False,
     noise: float | None = None,
     robust: str | None = "tukey",
+    max_distance: float | None = None,
     source: str = "points",
     name: str = "FIT",
     progress=None,
 ) -> FitReport:
     """Fit one NURBS surface to (N, 3) points; see the module doc. base: "plane", a Model (its
     face ``face`` or all faces joined) or a NurbsSurface; rational: take degrees, knots and
-    weights from the base surface (conics, fillets), else a polynomial fit of ``degree``."""
+    weights from the base surface (conics, fillets), else a polynomial fit of ``degree``;
+    max_distance: points farther than this from the base are stray (fixtures, the press bed,
+    a neighbouring part) and left out (default: 1 % of the base's size for a CAD base, no
+    limit for the plane)."""
     import time
 
     t0 = time.perf_counter()
@@ -521,6 +528,21 @@ def fit_points(
         par = Parametrisation(res.u, res.v, res.distance, base, "given base surface")
         if np.any(res.status == FAILED):
             raise FitInputError("points could not be projected onto the base surface")
+    ignored = 0
+    if par.base is not None:
+        limit = 0.01 * float(np.linalg.norm(np.ptp(par.base.bbox(), axis=0))) if max_distance is None else max_distance
+        near = par.distance <= limit
+        ignored = int(np.count_nonzero(~near))
+        if ignored:
+            if near.sum() == 0:
+                raise FitInputError(f"no point is within {limit:g} of the base surface (--max-distance)")
+            x = x[near]
+            par = Parametrisation(par.u[near], par.v[near], par.distance[near], par.base, par.what)
+    elif max_distance is not None:
+        near = par.distance <= max_distance
+        ignored = int(np.count_nonzero(~near))
+        x = x[near]
+        par = Parametrisation(par.u[near], par.v[near], par.distance[near], None, par.what)
     if rational and par.base is None:
         raise FitInputError("rational fitting takes its weights from a base surface: give --base CAD.igs")
     p = int(degree)
@@ -536,7 +558,7 @@ def fit_points(
         stage("tracing the data outline")
         trims = Trim(data_outline(fit.u[~fit.outliers], fit.v[~fit.outliers], surf.domain))
     out = Face(surf, de=1, name=name, trims=trims, entity_type=144 if trims else 128)
-    return FitReport(out, fit, x, source, par.what, time.perf_counter() - t0)
+    return FitReport(out, fit, x, source, par.what, time.perf_counter() - t0, ignored)
 
 
 def write_fit_outputs(report: FitReport, iges_path, *, units=None, extras: bool = True) -> list[Path]:

@@ -319,3 +319,17 @@ def test_tool_file_nodes_and_nagata_samples(tmp_path):
     u, v = rep.face.surface.grid(400, 20)
     pr = project_points(rep.face.surface.evaluate(u, v), model)
     assert pr.distance[pr.status == 0].max() <= nagata_err + 0.005
+
+
+def test_stray_region_is_left_out():
+    # a scanned fixture: a 10 mm patch of 3000 points 6 mm above the land (not die surface); the
+    # fit must ignore it (beyond 1 % of the base size) and stay within 3 sigma + tol of the CAD
+    model, strip, x, bad = die_scan(30000)
+    rng = np.random.default_rng(9)
+    blob = np.column_stack([rng.uniform(140, 150, 3000), rng.uniform(5, 15, 3000), np.full(3000, 6.0)])
+    rep = fit_points(np.vstack([x, blob]), base=model, tolerance=0.01)
+    assert rep.ignored == 3000 and len(rep.points) == len(x)
+    assert "left out as stray" in rep.format()
+    u, v = rep.face.surface.grid(400, 40)
+    pr = project_points(rep.face.surface.evaluate(u, v), model)
+    assert pr.distance[pr.status == 0].max() <= 0.04
