@@ -398,7 +398,7 @@ class Builder:
         else:
             raise Unsupported(f"curve entity {t} is not supported", de, t, e.line)
         xf = self.transform(de)
-        return [apply_curve(c, xf) for c in pieces]
+        return pieces if xf is None else [apply_curve(c, xf) for c in pieces]
 
     def curve(self, de: int) -> NurbsCurve:
         """Curve entity ``de`` as one NURBS curve (composites joined by construct)."""

@@ -216,16 +216,20 @@ class _PSection:
 
     __slots__ = ("n", "body", "back", "lines", "fast")
 
-    def __init__(self, precs: list[Record], back: list[int] | None = None) -> None:
+    def __init__(self, precs: list[Record], back: list[int] | None = None, body: str | None = None) -> None:
         self.n = len(precs)
-        self.body = "".join([r.text[:64] for r in precs])
+        self.body = "".join([r.text[:64] for r in precs]) if body is None else body
         if back is None:
             self.back = [_back_int(r.text[65:72]) for r in precs]
         else:  # from the scan: -3 where it left the decision to `_back_int`
             for j in [j for j, v in enumerate(back) if v == -3]:
                 back[j] = _back_int(precs[j].text[65:72])
             self.back = back
-        self.lines = [r.line for r in precs]
+        n = self.n
+        if n and precs[-1].line - precs[0].line == n - 1:  # increasing line numbers without gaps
+            self.lines = list(range(precs[0].line, precs[0].line + n))
+        else:
+            self.lines = [r.line for r in precs]
         self.fast = None
 
 
@@ -312,11 +316,14 @@ def prepare_params(entries: dict[int, DirectoryEntry], precs: list[Record], pdel
     except ImportError:  # pragma: no cover - numba missing: the Python path alone
         return
     ents = list(entries.values())
+    raw_b = raw.encode("latin-1")
     (back, status, t_first, t_count, last_rec, all_ok, tstart, tend, trec, kind, exact, ival,
-     fval) = scan_parameters(raw.encode("latin-1"), len(precs), [e.param_pointer - 1 for e in ents],
+     fval) = scan_parameters(raw_b, len(precs), [e.param_pointer - 1 for e in ents],
                              [e.param_count for e in ents], [e.de for e in ents], [e.entity_type for e in ents],
                              pdelim, rdelim, MAX_TOKEN)
-    bulk = _PSection(precs, back.tolist())
+    # columns 1-64 joined, from the bytes the scan read (latin-1: one character per byte)
+    body = np.frombuffer(raw_b, dtype=np.uint8).reshape(len(precs), 72)[:, :64].tobytes().decode("latin-1")
+    bulk = _PSection(precs, back.tolist(), body)
     f = _Fast()
     f.body = bulk.body
     f.lines = bulk.lines
