@@ -471,7 +471,9 @@ class FitReport:
             f"deviation     max {d['max_deviation']:.6g}, RMS {d['rms_deviation']:.6g}, 99 % {d['p99_deviation']:.6g}"
             f" (all points, projected onto the fit)",
             f"inliers       max {d['max_deviation_inliers']:.6g}, RMS {d['rms_deviation_inliers']:.6g}; "
-            f"{d['beyond_tolerance_inliers']} beyond the tolerance {d['tolerance']:g}",
+            f"{d['beyond_tolerance_inliers']} beyond the tolerance {d['tolerance']:g}"
+            + (" (noise: the tolerance is checked on local means of the points)"
+               if d["noise_sigma"] > 0.05 * d["tolerance"] else ""),
             f"noise sigma   {d['noise_sigma']:.3g} (estimated from the data unless given)",
             f"outliers      {d['outliers_down_weighted']} down-weighted to 0, {d['partly_down_weighted']} below half weight",
             f"time          {d['seconds']:.1f} s",
