@@ -252,6 +252,12 @@ def test_cli_fit_height_field_writes_outputs(tmp_path, capsys):
     model = cadbridge.read_iges(out)
     face = model.faces[0]
     assert face.entity_type == 144
+    pytest.importorskip("OCP")
+    from cadbridge.occ.reference import occ_read
+
+    assert len(occ_read(out)) == 1  # OpenCASCADE reads the trimmed surface (144 over 128)
+    assert main(["verify", str(out)]) == 0  # and evaluates it as we do
+    capsys.readouterr()
     u, v = face.surface.grid(60, 60)
     ins = face.contains(u, v)
     s = face.surface.evaluate(u[ins], v[ins])
