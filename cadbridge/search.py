@@ -45,7 +45,6 @@ from cadbridge.nurbs.project import (
     FAILED,
     ON_BOUNDARY,
     STATUS_NAMES,
-    project_to_surface,
     surface_samples,
 )
 from cadbridge.nurbs.ops import bezier_patches, curve_bezier_segments
