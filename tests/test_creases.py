@@ -207,3 +207,28 @@ def test_folded_elements_are_found():
     assert folded_elements(NagataMesh(x, t, up)).tolist() == [1]
     x[3] = [0.2, 0.7, 0.0]  # the other side of 0-2: no fold
     assert folded_elements(NagataMesh(x, t, up)).tolist() == []
+
+
+
+def test_straddling_counts_only_where_the_crease_is_sharp():
+    """A crease whose angle varies along its knot line: the surface is bilinear in u and
+    piecewise linear in v, flat at u = 0 and bent by atan(0.5) = 26.6 degrees across v = 1
+    at u = 1 (the jump grows with u). An element across the knot near u = 0 crosses a crease
+    of under 2 degrees (no patch is harmed: the production die has such knot lines of
+    0.0015 degrees), one near u = 1 a crease of over 20 degrees. Reference: the jump of the
+    two planar pieces' normals, worked out by hand from the control net."""
+    from cadbridge.creases import straddling_elements
+    from cadbridge.model import Face, Model
+    from cadbridge.nurbs.surface import NurbsSurface
+
+    cp = np.array([[[0, 0, 0], [0, 1, 0], [0, 2, 0]], [[1, 0, 0], [1, 1, 0], [1, 2, 0.5]]], dtype=float)
+    s = NurbsSurface(1, 1, [0, 0, 1, 1], [0, 0, 1, 2, 2], cp)
+    assert np.degrees(s.knot_jump("v", 1.0, np.array([1.0]))[0]) == pytest.approx(np.degrees(np.arctan(0.5)), abs=1e-6)
+    assert np.degrees(s.knot_jump("v", 1.0, np.array([0.05]))[0]) < 2.0
+    model = Model(faces=[Face(s, de=1)])
+    # two triangles across v = 1: one at u in [0, 0.1], one at u in [0.8, 0.9]
+    uv = np.array([[0.0, 0.9], [0.1, 0.9], [0.05, 1.1], [0.8, 0.9], [0.9, 0.9], [0.85, 1.1]])
+    tri = np.array([[0, 1, 2], [3, 4, 5]])
+    face = np.zeros(len(uv), dtype=np.int64)
+    got = straddling_elements([tri], model, face, uv[:, 0], uv[:, 1])
+    np.testing.assert_array_equal(got, [1])
