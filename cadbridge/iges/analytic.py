@@ -784,7 +784,12 @@ class MappedLoops:
 
 
 def _exact_natural(c: NurbsCurve, fn) -> NurbsCurve:
-    return NurbsCurve(c.degree, c.knots, fn(c.control_points), c.weights, c.domain)
+    """c with the affine map fn applied to its control points (knots, weights, domain kept:
+    those of a valid curve, so only finiteness is left to check)."""
+    cp = np.asarray(fn(c.control_points), dtype=float)
+    if cp.ndim != 2 or cp.shape != (len(c.control_points), 2) or not np.isfinite(cp).all():
+        return NurbsCurve(c.degree, c.knots, cp, c.weights, c.domain)  # its error
+    return NurbsCurve._trusted(c.degree, c.knots, cp, c.weights, c.domain, c.rational)
 
 
 def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurves: bool) -> MappedLoops:
