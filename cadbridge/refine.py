@@ -443,7 +443,8 @@ def refine_mesh(
             checked = check["max_error"]
             above_all = []
             for t in tools:
-                bad = np.flatnonzero(per[t.name] > tolerance)
+                # 2 % margin: a still denser sampling finds up to ~0.5 % more (OCC, 15 divisions)
+                bad = np.flatnonzero(per[t.name] > 0.98 * tolerance)
                 above_all += [(t.name, int(i) + 1, float(per[t.name][i])) for i in bad]
                 if len(bad):
                     adm_bad = set(edge_admissibility(t.nagata).bad_elements().tolist())
