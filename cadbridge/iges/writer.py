@@ -77,7 +77,14 @@ class _File:
 
 
 def _reals(a: Iterable[float]) -> list[str]:
-    return [format_real(x) for x in np.ravel(np.asarray(a, dtype=float))]
+    """`format_real` of every value, vectorised (a Nagata export writes millions)."""
+    arr = np.ravel(np.asarray(a, dtype=float))
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"cannot write non-finite real {arr[~np.isfinite(arr)][0]!r}")
+    if arr.size == 0:
+        return []
+    # repr of a finite float always has a '.' or an exponent: only 'e' -> 'E' is left to do
+    return ",".join(map(repr, arr.tolist())).replace("e", "E").split(",")
 
 
 def _surface_params(s: NurbsSurface) -> list[str]:
@@ -85,10 +92,9 @@ def _surface_params(s: NurbsSurface) -> list[str]:
     k1, k2, m1, m2 = nu - 1, nv - 1, s.degree_u, s.degree_v
     poly = 0 if s.rational else 1
     out = [str(v) for v in (k1, k2, m1, m2, 0, 0, poly, 0, 0)]
-    out += _reals(s.knots_u) + _reals(s.knots_v)
-    out += _reals(s.weights.T)  # IGES order: first index (u) fastest
-    out += _reals(s.control_points.transpose(1, 0, 2))
-    out += _reals(s.domain)
+    # knots u, knots v, weights, control points (IGES order: first index (u) fastest), domain
+    out += _reals(np.concatenate([np.ravel(s.knots_u), np.ravel(s.knots_v), np.ravel(s.weights.T),
+                                  np.ravel(s.control_points.transpose(1, 0, 2)), np.ravel(s.domain)]))
     return out
 
 
