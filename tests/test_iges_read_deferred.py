@@ -59,3 +59,27 @@ def test_revolution_delta_deferred_and_equal_to_eager(path: Path, pref_equal: bo
     noted = {d.de for d in m.diagnostics if "revolution surface disagree" in d.message}
     expect = {rev[k].de for k, d, s in zip(pc, want, sizes) if d > DISAGREE_REL * s} if pref_equal else set()
     assert noted == expect
+
+
+def test_long_mantissa_reals_match_python_float() -> None:
+    """The P-section scan converts 17-18 digit mantissas (OCC's %.17g) itself: bit-identical to
+    correctly rounded division (Python's Fraction -> float), on random values, on decimals
+    next to halfway points between doubles and on exact ties (round half to even)."""
+    from fractions import Fraction
+    import random
+
+    from cadbridge.iges.pscan import _div_pow5_pow2
+
+    rng = random.Random(7)
+    cases = [(rng.randrange(2 ** 53 + 1, 10 ** 18), rng.randint(0, 22)) for _ in range(20000)]
+    for _ in range(2000):  # the decimal just below / above a halfway point x + ulp/2
+        x = rng.uniform(1e-5, 1e3)
+        h = (Fraction(x) + Fraction(float(np.nextafter(x, np.inf)))) / 2
+        k = rng.randint(0, 22)
+        m = int(h * 10 ** k)
+        cases += [(q, k) for q in (m, m + 1) if 2 ** 53 < q < 10 ** 18]
+    for j in range(500):  # exact ties t 2^p / 10^s, t odd above 2^53
+        t = 2 ** 53 + 2 * j + 1
+        cases += [(t * 2 ** p * 5 ** s, s) for p in range(4) for s in range(3) if t * 2 ** p * 5 ** s < 10 ** 18]
+    bad = [(m, k) for m, k in cases if _div_pow5_pow2(m, k) != float(Fraction(m, 10 ** k))]
+    assert not bad, bad[:5]

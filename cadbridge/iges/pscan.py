@@ -18,11 +18,15 @@ Numbers: a field matching the IGES real syntax ``[+-]?(\\d+\\.?\\d*|\\.\\d+)([Ee
 most ``MAX_TOKEN`` characters is converted here when the result is exactly what Python's
 ``float`` gives: at most 18 significant digits forming an integer m <= 2**53 and a decimal
 exponent e with |e| <= 22, so that m * 10**e (or m / 10**-e) is one correctly rounded IEEE
-operation on exact operands (Clinger's fast path, as in CPython's own conversion). Other
-valid numbers are marked for conversion by Python (``float``), in one batch.
+operation on exact operands (Clinger's fast path, as in CPython's own conversion). A mantissa
+of more than 53 bits (OCC writes 17 significant digits) with -22 <= e <= 0 is converted by exact
+integer long division by 5**-e, rounded half to even (`_div_pow5_pow2`). Other valid numbers are
+marked for conversion by Python (``float``), in one batch.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
@@ -39,6 +43,38 @@ def _pow10(k):
     for _ in range(k):
         r *= 10.0  # exact up to 1e22
     return r
+
+
+@njit(cache=True, nogil=True)
+def _div_pow5_pow2(m, k):
+    """m / 10**k correctly rounded (round half to even), for 0 < m < 2**63 and 0 <= k <= 22:
+    m / 5**k by exact integer long division (5**22 < 2**52, so every remainder fits an int64)
+    until the quotient has 55 bits, the remainder kept as a sticky bit; then rounded to 53
+    bits and scaled by the exact power of two 2**-(k + bits appended)."""
+    d = 1
+    for _ in range(k):
+        d *= 5
+    q = m // d
+    r = m - q * d
+    shift = 0  # bits appended to the quotient
+    while q < 36028797018963968:  # 2**55
+        r <<= 1
+        q <<= 1
+        if r >= d:
+            r -= d
+            q |= 1
+        shift += 1
+    sticky = r != 0
+    nb = 0  # bit length of q
+    while (q >> nb) > 0:
+        nb += 1
+    drop = nb - 53
+    low = q & ((1 << drop) - 1)
+    q >>= drop
+    half = 1 << (drop - 1)
+    if low > half or (low == half and (sticky or (q & 1) == 1)):
+        q += 1
+    return math.ldexp(float(q), drop - shift - k)
 
 
 @njit(cache=True, nogil=True)
@@ -143,6 +179,11 @@ def _number(body, s, e, max_token):
         if neg:
             iv = -iv
         iexact = True
+    if m > _TWO53 and -22 <= e10 <= 0:  # 17-18 significant digits (OCC's %.17g): exact division
+        v = _div_pow5_pow2(m, -e10)
+        if neg:
+            v = -v
+        return kind, True, iexact, iv, v
     if m > _TWO53 or e10 > 22 or e10 < -22:
         return kind, False, iexact, iv, 0.0
     if e10 >= 0:
