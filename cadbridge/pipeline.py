@@ -277,7 +277,7 @@ def build_tool(
         progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
         err = tool_errors(nm, g.elem, g.eta, g.zeta, ef, model, projector.project)
         sample.update(surface_error=err.surface, boundary_error=err.boundary,
-                      flat_surface_error=err.flat_surface, normal_error=err.normal)
+                      flat_surface_error=err.flat_surface, normal_error=err.normal, face=err.face)
         stats = err.stats()
         stats["grid"] = grid
         if straddling is not None and remap is not None:
@@ -375,6 +375,20 @@ def _straddling_ids(nm, straddling, element_face=None) -> np.ndarray:
 
 SAMPLE_BUDGET = 400_000
 """Most patch sample points the error measurement takes (the grid is coarsened to fit)."""
+
+
+def _grid_rows(grid: dict, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray) -> np.ndarray | None:
+    """Rows of the sample ``grid`` at the points (elem, eta, zeta), (V,); None unless every
+    point is one of its samples (exactly the same patch parameters)."""
+    ge = np.asarray(grid["element"], dtype=np.int64)
+    gk = np.rec.fromarrays([ge, np.asarray(grid["eta"]), np.asarray(grid["zeta"])])
+    q = np.rec.fromarrays([np.asarray(elem, dtype=np.int64), np.asarray(eta), np.asarray(zeta)])
+    order = np.argsort(gk, order=("f0", "f1", "f2"), kind="stable")
+    i = np.searchsorted(gk[order], q)
+    i = np.minimum(i, len(order) - 1)
+    rows = order[i]
+    ok = (ge[rows] == q.f0) & (np.asarray(grid["eta"])[rows] == q.f1) & (np.asarray(grid["zeta"])[rows] == q.f2)
+    return rows if len(q) and ok.all() else None
 
 
 def sample_divisions(nm, grid: int, budget: int = SAMPLE_BUDGET) -> int:
@@ -507,7 +521,12 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
     verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(min(4, sample_divisions(nm, 4)), return_params=True)
     _, vnorm = nm.evaluate(pe, peta, pzeta)
     surface_data = {"normal": vnorm, "element": pe.astype(np.int32)}
-    if projector is not None and tool.element_face is not None:
+    at = _grid_rows(g, pe, peta, pzeta) if errors else None
+    if at is not None and all(k in g for k in names) and "face" in g:
+        # the VTU's vertices are points of the error grid (same divisions, as on big models
+        # where the sample budget sets both to 2): its errors, not a second measurement
+        surface_data.update({k: np.asarray(g[k])[at] for k in names}, face_id=np.asarray(g["face"])[at].astype(np.int32))
+    elif projector is not None and tool.element_face is not None:
         from cadbridge.tool_errors import tool_errors
 
         err = tool_errors(nm, pe, peta, pzeta, tool.element_face, projector.model, projector.project)
