@@ -82,3 +82,13 @@ def test_a_face_that_folds_back_stops_convert_naming_it(tmp_path):
     with pytest.raises(ToolQualityError, match=r"the CAD normal reverses inside elements .* on face 0 \(FACE\(274\)\)"):
         convert(path, tmp_path / "out", element="tri")
     assert not (tmp_path / "out").exists()
+
+
+def test_merge_drops_a_quad_whose_diagonal_collapsed():
+    # nodes 0 and 2 (opposite corners of the first quad) 1e-12 apart: (0, 1, 0, 3) has no area
+    x = np.array([[0, 0, 0], [1, 0, 0], [1e-12, 0, 0], [0, 1, 0], [2, 0, 0], [2, 1, 0], [1, 1, 0]], dtype=float)
+    quads = np.array([[0, 1, 2, 3], [1, 4, 5, 6]])
+    m = Mesh(x, [CellBlock("quad", quads)])
+    out, rep = merge_close_nodes(m, 1e-9)
+    assert rep.dropped == 1 and rep.to_triangles == 0
+    assert [b.type for b in out.cells] == ["quad"] and len(out.cells[0].data) == 1

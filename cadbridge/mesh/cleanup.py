@@ -88,13 +88,14 @@ def merge_close_nodes(mesh: Mesh, tol: float) -> tuple[Mesh, MergeReport]:
         blocks.append(CellBlock(b.type, c[ok]))
         cell_take.append(ids[ok])
         if b.type == "quad":
-            three = distinct == 3
-            q = c[three]
-            # drop the repeated corner, keeping the cyclic order of the other three
-            rep_next = q == np.roll(q, -1, axis=1)
-            tri = np.array([r[~m] if m.any() else r[:3] for r, m in zip(q, rep_next)], dtype=np.int64).reshape(-1, 3)
+            # one edge collapsed (two cyclically adjacent corners merged): a triangle of the
+            # other three in their cyclic order; a merged diagonal (a, b, a, d) has no area
+            rep_next = c == np.roll(c, -1, axis=1)
+            three = (distinct == 3) & rep_next.any(axis=1)
+            q, m = c[three], rep_next[three]
+            tri = q[~m].reshape(-1, 3)
             tri_from_quad.append((tri, ids[three]))
-            dropped += int((distinct < 3).sum())
+            dropped += int(len(c) - ok.sum() - three.sum())
         else:
             dropped += int((~ok).sum())
     to_tri = 0
