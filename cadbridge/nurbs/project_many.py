@@ -51,7 +51,6 @@ _ON_SURFACE = 1e-10
 # the foot already found for its point stops: Newton is then converging onto that same foot
 # (quadratically, from well inside its basin), so the restart cannot be nearer
 _SAME_FOOT = 1e-3
-_PARALLEL_MIN = 4096  # fewer pairs: serial
 
 
 class SurfacePack:
@@ -208,19 +207,6 @@ def _run_tasks(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, d
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _run_tasks_serial(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
-                      tol, pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop, tu, tv,
-                      reach, same):  # pragma: no cover - compiled
-    for k in range(tstart.shape[0]):
-        if kind == 0:
-            _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
-                         pts, noise, u, v, iters, max_iter, tstart[k], tstop[k], tu, tv, reach, same)
-        else:
-            _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1,
-                           tol, pts, noise, u, v, foot, dist, normal, status, degen, tstart[k], tstop[k])
-
-
-@numba.njit(cache=True, error_model="numpy")
 def _inward(t, grid, lo, hi, frac):  # pragma: no cover - compiled
     """`_edge_check`'s start ``frac`` grid cells inside the domain from an edge parameter."""
     n = grid.shape[0]
@@ -293,10 +279,10 @@ class _Run:
             tu, tv = np.ascontiguousarray(known[0], dtype=float), np.ascontiguousarray(known[1], dtype=float)
             reach = self.pack.reach
         if n:
-            run = _run_tasks if n >= _PARALLEL_MIN else _run_tasks_serial
-            for kind in (0, 1):
-                run(kind, *self.pack.kernel_args(), self.sid, self.eps1, self.tol, self.pts, self.noise, u, v, iters,
-                    int(self.max_iter), foot, dist, normal, status, degen, *self.tasks, tu, tv, reach, same)
+            for kind in (0, 1):  # one parallel kernel (a serial twin would double the first-run compile)
+                _run_tasks(kind, *self.pack.kernel_args(), self.sid, self.eps1, self.tol, self.pts, self.noise, u, v,
+                           iters, int(self.max_iter), foot, dist, normal, status, degen, *self.tasks, tu, tv, reach,
+                           same)
             bad = np.flatnonzero(degen & (status != FAILED))
             for s in np.unique(self.sid[bad]):  # poles, collapsed edges: the limit normal
                 sel = bad[self.sid[bad] == s]
