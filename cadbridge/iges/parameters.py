@@ -134,8 +134,8 @@ class Params:
                 return default
             raise self.error("missing parameter", k, name)
         f = self._f
-        if f is not None and k >= 0 and f.iex[self._t0 + k]:  # a plain integer, converted by the scan
-            return f.ival[self._t0 + k]
+        if f is not None and k >= 0 and f.iex.item(self._t0 + k):  # a plain integer, converted by the scan
+            return f.ival.item(self._t0 + k)
         try:
             return parse_int_text(self._texts[k], self._strings is not None and self._strings[k],
                                   0 if default is None else default)
@@ -148,8 +148,8 @@ class Params:
                 return default
             raise self.error("missing parameter", k, name)
         f = self._f
-        if f is not None and k >= 0 and f.nonempty_ok[self._t0 + k]:  # a number, converted by the scan
-            return f.fval[self._t0 + k]
+        if f is not None and k >= 0 and f.nonempty_ok.item(self._t0 + k):  # a number, converted by the scan
+            return f.fval.item(self._t0 + k)
         try:
             return parse_real_text(self._texts[k], self._strings is not None and self._strings[k],
                                    0.0 if default is None else default)
@@ -234,7 +234,7 @@ class _PSection:
 
 
 class _Fast:
-    """The compiled scan (`cadbridge.iges.pscan`) of one P section, as plain lists indexed by
+    """The compiled scan (`cadbridge.iges.pscan`) of one P section, as numpy arrays indexed by
     token: ``ival``/``iex`` integer value and whether it is exact (a plain integer field);
     ``fval``/``nonempty_ok`` real value and whether it is a number converted exactly (not
     empty); ``ok`` (numpy) the same but empty fields allowed (read as 0.0 by `Params.reals`);
@@ -342,10 +342,12 @@ def prepare_params(entries: dict[int, DirectoryEntry], precs: list[Record], pdel
     ok = fexact & (kind != 3)
     f.ok = ok
     f.values = fval
-    f.fval = fval.tolist()
-    f.nonempty_ok = (ok & (kind != 0)).tolist()
-    f.iex = ((exact & 2) != 0).tolist()
-    f.ival = ival.tolist()
+    # numpy arrays read one item at a time (`.item`: Python scalars); lists of every token's
+    # value would cost more to build and free than the few fields the builder reads one by one
+    f.fval = fval
+    f.nonempty_ok = ok & (kind != 0)
+    f.iex = (exact & 2) != 0
+    f.ival = ival
     f.tstart, f.tend, f.trec = tstart, tend, trec  # numpy: sliced per record when texts are needed
     sel = np.flatnonzero(status)
     if redo.size and sel.size:  # the batch may have turned a record non-numeric (overflow)
