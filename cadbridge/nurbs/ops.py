@@ -324,7 +324,10 @@ def restrict_curve(curve: NurbsCurve, t0: float | None = None, t1: float | None 
     a, b = curve.domain
     t0 = a if t0 is None else t0
     t1 = b if t1 is None else t1
-    kn, cw = restrict(curve.knots, curve.degree, curve._pw, t0, t1)
+    k, p = curve.knots, curve.degree
+    if (t0 == k[0] == k[p] and t1 == k[-1] == k[-p - 1]):
+        return curve  # already clamped over exactly [t0, t1] (the usual IGES generatrix)
+    kn, cw = restrict(k, p, curve._pw, t0, t1)
     return curve_from_homogeneous(curve.degree, kn, cw)
 
 
