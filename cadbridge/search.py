@@ -239,14 +239,12 @@ def _face_cells(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     return _face_cells_slabs(face)[:4]
 
 
-def _face_cells_slabs(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Sub-patch boxes of ``face`` that meet its trimmed region.
+def _crossed_cells(face: Face):
+    """The sub-patches of ``face`` on their uv grid, and which cells a trim curve crosses.
 
-    Returns xyz boxes (K, 2, 3), the uv grid breaks of the sub-patches (bu (Mu+1,),
-    bv (Mv+1,)) and a cell state grid (Mu, Mv) int8: 0 outside the face, 1 inside, 2 crossed by
-    a trim curve (its control-point boxes, widened by 1e-9 of the domain, meet the cell).
-    Cells without a trim curve lie wholly on one side: their centre decides (`Face.contains`).
-    Also the slabs (K, 5) of the kept sub-patches (`_slabs`).
+    Returns (xyz boxes (K, 2, 3), slabs (K, 5), bu (Mu+1,), bv (Mv+1,), iu, iv (K,) the cell
+    of each sub-patch, crossed (Mu, Mv) bool or None for a face without trim loops). A cell
+    is crossed when a trim curve's control-point box, widened by 1e-9 of the domain, meets it.
     """
     uvb, xyz, slab = _subpatches(face.surface)
     bu = np.unique(np.concatenate([uvb[:, 0], uvb[:, 1]]))
@@ -254,60 +252,87 @@ def _face_cells_slabs(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, n
     iu = np.searchsorted(bu, uvb[:, 0])
     iv = np.searchsorted(bv, uvb[:, 2])
     mu, mv = len(bu) - 1, len(bv) - 1
+    if not _trim_loops(face):
+        return xyz, slab, bu, bv, iu, iv, None
+    u0, u1, v0, v1 = face.surface.domain
+    tb = _trim_curve_boxes(face)
+    m = 1e-9 * max(u1 - u0, v1 - v0)
+    # cells [bu[i], bu[i+1]] x [bv[j], bv[j+1]] met by each curve box: index ranges, then
+    # a 2D difference array marks them all at once
+    i0 = np.clip(np.searchsorted(bu, tb[:, 0, 0] - m, side="right") - 1, 0, mu)
+    i1 = np.clip(np.searchsorted(bu, tb[:, 1, 0] + m, side="left"), 0, mu)
+    j0 = np.clip(np.searchsorted(bv, tb[:, 0, 1] - m, side="right") - 1, 0, mv)
+    j1 = np.clip(np.searchsorted(bv, tb[:, 1, 1] + m, side="left"), 0, mv)
+    ok = (i1 > i0) & (j1 > j0)
+    diff = np.zeros((mu + 1, mv + 1), dtype=np.int64)
+    np.add.at(diff, (i0[ok], j0[ok]), 1)
+    np.add.at(diff, (i0[ok], j1[ok]), -1)
+    np.add.at(diff, (i1[ok], j0[ok]), -1)
+    np.add.at(diff, (i1[ok], j1[ok]), 1)
+    crossed = np.cumsum(np.cumsum(diff, axis=0), axis=1)[:mu, :mv] > 0
+    return xyz, slab, bu, bv, iu, iv, crossed
+
+
+def _face_cells_slabs(face: Face) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Sub-patch boxes of ``face`` that meet its trimmed region.
+
+    Returns xyz boxes (K, 2, 3), the uv grid breaks of the sub-patches (bu (Mu+1,),
+    bv (Mv+1,)) and a cell state grid (Mu, Mv) int8: 0 outside the face, 1 inside, 2 crossed by
+    a trim curve (`_crossed_cells`). Cells without a trim curve lie wholly on one side: their
+    centre decides (`Face.contains`). Also the slabs (K, 5) of the kept sub-patches (`_slabs`).
+    """
+    b, slab, _, bu, bv, state, _, _ = _face_index_parts(face, None)
+    return b, bu, bv, state, slab
+
+
+def _face_index_parts(face: Face, smp: SurfaceSamples | None):
+    """What the search index keeps of ``face``, with one `Face.contains` call for all its
+    trim decisions (three calls per face cost the bearing's index 1 s).
+
+    Returns boxes (K, 2, 3) and slabs (K, 5) of the sub-patches meeting the trimmed region,
+    the inside mask (M,) of the start-value samples ``smp`` (None: not asked), bu, bv and the
+    cell state (see `_face_cells_slabs`), and the surface points (C, 3) at the centres of the
+    cells whose centre lies inside the face: extra index samples where the start-value grid
+    is coarse (a large plane has a 5 x 5 grid, so a point on it was nearer the dense grid of
+    a neighbouring fillet: the wrong first face, a loose bound and wasted Newton restarts on
+    that neighbour). The last value is the number of uv points classified."""
+    xyz, slab, bu, bv, iu, iv, crossed = _crossed_cells(face)
+    mu, mv = len(bu) - 1, len(bv) - 1
     state = np.ones((mu, mv), dtype=np.int8)
-    loops = _trim_loops(face)
-    if loops:
-        u0, u1, v0, v1 = face.surface.domain
-        tb = _trim_curve_boxes(face)
-        m = 1e-9 * max(u1 - u0, v1 - v0)
-        # cells [bu[i], bu[i+1]] x [bv[j], bv[j+1]] met by each curve box: index ranges, then
-        # a 2D difference array marks them all at once
-        i0 = np.clip(np.searchsorted(bu, tb[:, 0, 0] - m, side="right") - 1, 0, mu)
-        i1 = np.clip(np.searchsorted(bu, tb[:, 1, 0] + m, side="left"), 0, mu)
-        j0 = np.clip(np.searchsorted(bv, tb[:, 0, 1] - m, side="right") - 1, 0, mv)
-        j1 = np.clip(np.searchsorted(bv, tb[:, 1, 1] + m, side="left"), 0, mv)
-        ok = (i1 > i0) & (j1 > j0)
-        diff = np.zeros((mu + 1, mv + 1), dtype=np.int64)
-        np.add.at(diff, (i0[ok], j0[ok]), 1)
-        np.add.at(diff, (i0[ok], j1[ok]), -1)
-        np.add.at(diff, (i1[ok], j0[ok]), -1)
-        np.add.at(diff, (i1[ok], j1[ok]), 1)
-        crossed = np.cumsum(np.cumsum(diff, axis=0), axis=1)[:mu, :mv] > 0
-        cu = 0.5 * (bu[:-1] + bu[1:])
-        cv = 0.5 * (bv[:-1] + bv[1:])
-        ii, jj = np.nonzero(~crossed)
-        state[:] = 2
-        state[ii, jj] = face.contains(cu[ii], cv[jj]).astype(np.int8)
+    n_asked = 0
+    if smp is not None:
+        si = np.clip(np.searchsorted(bu, smp.uv[:, 0], side="right") - 1, 0, mu - 1)
+        sj = np.clip(np.searchsorted(bv, smp.uv[:, 1], side="right") - 1, 0, mv - 1)
+    if crossed is None:
+        inside = np.ones(len(smp.uv), dtype=bool) if smp is not None else None
+        cu, cv = np.meshgrid(0.5 * (bu[:-1] + bu[1:]), 0.5 * (bv[:-1] + bv[1:]), indexing="ij")
+        cpts = face.surface.evaluate(cu.ravel(), cv.ravel())
+        return xyz, slab, inside, bu, bv, state, cpts, n_asked
+    cu_all, cv_all = 0.5 * (bu[:-1] + bu[1:]), 0.5 * (bv[:-1] + bv[1:])
+    ii, jj = np.nonzero(~crossed)   # their centre decides the whole cell
+    ci, cj = np.nonzero(crossed)    # their centre is an index sample if inside
+    qu = [cu_all[ii], cu_all[ci]]
+    qv = [cv_all[jj], cv_all[cj]]
+    edge = np.flatnonzero(crossed[si, sj]) if smp is not None else np.zeros(0, dtype=np.int64)
+    qu.append(smp.uv[edge, 0] if smp is not None else np.zeros(0))
+    qv.append(smp.uv[edge, 1] if smp is not None else np.zeros(0))
+    qu, qv = np.concatenate(qu), np.concatenate(qv)
+    n_asked = len(qu)
+    ins = face.contains(qu, qv) if n_asked else np.zeros(0, dtype=bool)
+    a, b = len(ii), len(ii) + len(ci)
+    state[:] = 2
+    state[ii, jj] = ins[:a].astype(np.int8)
     keep = state[iu, iv] > 0
-    return xyz[keep], bu, bv, state, slab[keep]
-
-
-def _inside_samples(face: Face, uv: np.ndarray, bu: np.ndarray, bv: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """(M,) bool: samples (M, 2) inside the face; `Face.contains` only for those in cells
-    crossed by a trim curve (the others take their cell's state)."""
-    i = np.clip(np.searchsorted(bu, uv[:, 0], side="right") - 1, 0, state.shape[0] - 1)
-    j = np.clip(np.searchsorted(bv, uv[:, 1], side="right") - 1, 0, state.shape[1] - 1)
-    st = state[i, j]
-    inside = st == 1
-    edge = np.nonzero(st == 2)[0]
-    if len(edge):
-        inside[edge] = face.contains(uv[edge, 0], uv[edge, 1])
-    return inside
-
-
-def _cell_centres(face: Face, bu: np.ndarray, bv: np.ndarray, state: np.ndarray) -> np.ndarray:
-    """Surface points (K, 3) at the centres of the sub-patch cells whose centre lies inside the
-    face: extra index samples where the start-value grid is coarse (a large plane has a 5 x 5
-    grid, so a point on it was nearer the dense grid of a neighbouring fillet: the wrong first
-    face, a loose bound and wasted Newton restarts on that neighbour)."""
-    ci, cj = np.nonzero(state > 0)
-    cu = 0.5 * (bu[ci] + bu[ci + 1])
-    cv = 0.5 * (bv[cj] + bv[cj + 1])
-    ok = state[ci, cj] == 1
-    edge = np.flatnonzero(~ok)
-    if len(edge):
-        ok[edge] = face.contains(cu[edge], cv[edge])
-    return face.surface.evaluate(cu[ok], cv[ok]) if np.any(ok) else np.zeros((0, 3))
+    centre_in = np.zeros((mu, mv), dtype=bool)
+    centre_in[ii, jj] = ins[:a]
+    centre_in[ci, cj] = ins[a:b]
+    oi, oj = np.nonzero(centre_in)
+    cpts = face.surface.evaluate(cu_all[oi], cv_all[oj]) if len(oi) else np.zeros((0, 3))
+    inside = None
+    if smp is not None:
+        inside = state[si, sj] == 1
+        inside[edge] = ins[b:]
+    return xyz[keep], slab[keep], inside, bu, bv, state, cpts, n_asked
 
 
 @dataclass
@@ -349,10 +374,8 @@ def build_search_index(model: Model) -> SearchIndex:
     los, his, fids, spts, sfid, slabs = [], [], [], [], [], []
     for k, face in enumerate(model.faces):
         try:
-            b, bu, bv, state, slab = _face_cells_slabs(face)
             smp = surface_samples(face.surface)
-            inside = _inside_samples(face, smp.uv, bu, bv, state)
-            cpts = _cell_centres(face, bu, bv, state)
+            b, slab, inside, _, _, _, cpts, _ = _face_index_parts(face, smp)
         except Exception as exc:  # noqa: BLE001 - re-raised with the face named
             raise ValueError(f"search index: face {k} (DE {face.de}): {exc}") from exc
         los.append(b[:, 0])
