@@ -770,6 +770,7 @@ def convert(
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.io import write_mesh
 
+    cad = str(cad)  # a Path as well (the tool file records the source as text)
     progress = progress or NoProgress()
     progress.stage(f"reading {cad}")
     model = read_iges(cad)  # fails early, before anything is meshed or written, on a bad file

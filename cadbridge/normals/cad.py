@@ -295,6 +295,17 @@ def cad_normals(
             turn = at & (sign * np.einsum("ekj,ej->ek", cn, en) < 0)
             cn[turn] = -cn[turn]
             crease[c[turn]] = True
+        # a corner normal against its own element's winding, where most corners of that
+        # element agree, follows its element: its node's sign, from the summed windings
+        # around it, is ill-determined where those cancel (the apex node of SolidEdge face 0,
+        # DE 101) or belongs to another sheet (a knife edge, two faces at 180 degrees).
+        # Elements against all their corners are left as they are: a mesh that folds over
+        # itself, which the pipeline's guard reports.
+        agree = sign * np.einsum("ekj,ej->ek", cn, en) >= 0
+        minority = ~agree & (2 * agree.sum(axis=1) > c.shape[1])[:, None]
+        if np.any(minority):
+            cn[minority] = -cn[minority]
+            crease[c[minority]] = True
         corner_normals.append(cn)
 
     # every corner at a crease node takes its own element's face normal, including the
