@@ -333,8 +333,8 @@ def test_points_near_a_pole_find_their_azimuth():
     assert np.ptp(s.evaluate(np.full(5, s.domain[0]), np.linspace(*s.domain[2:], 5)), axis=0).max() < 1e-12
     rng = np.random.default_rng(3)
     az = rng.uniform(0, 2 * np.pi, 40)
-    polar = rng.uniform(0.005, 0.1, 40)      # 0.035 .. 0.7 mm from the pole on the sphere
-    rad = r + rng.uniform(-0.05, 0.05, 40)
+    polar = rng.uniform(0.005, 0.15, 40)     # 0.035 .. 1.05 mm from the pole on the sphere
+    rad = r + rng.uniform(-0.1, 0.05, 40)    # inside and outside the sphere
     p = rad[:, None] * np.column_stack([np.sin(polar) * np.cos(az), np.sin(polar) * np.sin(az), np.cos(polar)])
     res = project_to_surface(s, p)
     np.testing.assert_allclose(res.distance, np.abs(rad - r), atol=1e-9)

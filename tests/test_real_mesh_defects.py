@@ -112,3 +112,23 @@ def test_an_ill_oriented_apex_node_follows_its_elements(tmp_path):
     t = r.tools[0]
     assert len(reversed_normal_elements(t.nagata)) == 0
     assert t.stats["max_abs_surface_error"] <= 0.25 * t.stats["max_abs_flat_surface_error"]
+
+
+@pytest.mark.skipif(not (REAL / "occt_bug22566_SolidWorks2010.igs").is_file(), reason="corpus not present")
+def test_a_point_whose_newton_fails_at_a_pole_is_restarted():
+    """A flat-mesh sample 0.96 mm from the pole of the SolidWorks part's R10 sphere face
+    (face 0): Newton from the pole's samples stalled there (FAILED), and the error
+    measurement of `convert --element quad` stopped. Reference: the analytic sphere of that
+    face, centre (0, -115, 0), radius 10 (its control net's circle), distance |p - c| - 10."""
+    from cadbridge.iges import read_iges
+    from cadbridge.nurbs.project import CONVERGED, project_to_surface
+    from cadbridge.search import project_points
+
+    model = read_iges(REAL / "occt_bug22566_SolidWorks2010.igs")
+    p = np.array([[0.3354439, -105.13427562, -0.89789149]])
+    ref = np.linalg.norm(p[0] - [0.0, -115.0, 0.0]) - 10.0
+    r = project_to_surface(model.faces[0].surface, p)
+    assert r.status[0] == CONVERGED
+    assert abs(r.distance[0] - abs(ref)) < 1e-6  # the file's sphere is a rational fit, ~1e-7 off
+    pr = project_points(p, model)
+    assert abs(pr.distance[0] - abs(ref)) < 1e-6

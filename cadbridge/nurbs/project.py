@@ -506,7 +506,9 @@ def _edge_check(
     the edge (the edge sample is then the nearest sample and the discrete local-minimum test
     of `_global_check` cannot see the interior one). Updates ``res`` in place where nearer."""
     rows = np.nonzero(res.status == ON_BOUNDARY)[0]
-    if rows.size == 0:
+    # a foot that FAILED (Newton stalled) on a pole gets the pole restarts as well
+    pole_rows = np.nonzero((res.status == ON_BOUNDARY) | (res.status == FAILED))[0]
+    if pole_rows.size == 0:
         return
     u0, u1, v0, v1 = surface.domain
     us, vs = samples.us, samples.vs
@@ -541,13 +543,14 @@ def _edge_check(
         starts_u.append(uv[:, 0])
         starts_v.append(uv[:, 1])
         owner.append(rows[rr])
-    pu, pv, pi = pole_starts(samples, surface.domain, pts[rows], ur, vr)
+    pu, pv, pi = pole_starts(samples, surface.domain, pts[pole_rows], res.u[pole_rows], res.v[pole_rows])
     starts_u.append(pu)
     starts_v.append(pv)
-    owner.append(rows[pi])
+    owner.append(pole_rows[pi])
     su, sv, owner = np.concatenate(starts_u), np.concatenate(starts_v), np.concatenate(owner)
     extra = _newton(surface, samples, pts[owner], su, sv, tol, max_iter)
     d = res.distance[owner]
+    d = np.where((res.status[owner] == FAILED) | np.isnan(d), np.inf, d)  # any valid foot beats a failed one
     better = (extra.status != FAILED) & (extra.distance < d - 1e-3 * tol * samples.size)
     if not np.any(better):
         return

@@ -423,7 +423,9 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     # edge check: feet clamped to a domain edge restart half / one cell inside and from the
     # nearby samples within sqrt(d^2 + (2h)^2)
     rows = np.flatnonzero((res.status == ON_BOUNDARY) & (res.distance > _ON_SURFACE * pack.size[sid]))
-    if len(rows):
+    # a foot that FAILED (Newton stalled) on a pole gets the pole restarts as well
+    prows = np.union1d(rows, np.flatnonzero(res.status == FAILED))
+    if len(prows):
         su = np.empty((2, len(rows)))
         sv = np.empty((2, len(rows)))
         _inward_starts(rows, sid, res.u, res.v, pack.us, pack.us_off, pack.vs, pack.vs_off, pack.domain, su, sv)
@@ -443,8 +445,8 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
             starts_u.append(uv[:, 0])
             starts_v.append(uv[:, 1])
             owners.append(r[rr])
-        for s_ in np.unique(sid[rows]):  # feet on a pole: restarts carrying the point's azimuth
-            r = rows[sid[rows] == s_]
+        for s_ in np.unique(sid[prows]):  # feet on a pole: restarts carrying the point's azimuth
+            r = prows[sid[prows] == s_]
             pu, pv, pi = pole_starts(pack.samples[s_], pack.surfaces[s_].domain, p[r], res.u[r], res.v[r])
             if len(pi):
                 starts_u.append(pu)
@@ -456,6 +458,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         eu, ev = np.concatenate(starts_u)[order], np.concatenate(starts_v)[order]
         extra, same = _Run(pack, sid[owner], p[owner], tol, max_iter)(eu, ev, (res.u[owner], res.v[owner]))
         dd = res.distance[owner]
+        dd = np.where((res.status[owner] == FAILED) | np.isnan(dd), np.inf, dd)  # any valid foot beats a failed one
         better = ~same & (extra.status != FAILED) & (extra.distance < dd - 1e-3 * tol * pack.size[sid[owner]])
         _replace(res, owner, extra, better)
     return res
