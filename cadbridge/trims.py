@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 from cadbridge.nurbs.curve import NurbsCurve
-from cadbridge.nurbs.project import _ders2_one
+from cadbridge.nurbs.project import _ders2_one, _ders2_scratch
 
 __all__ = ["LoopBoundary", "loop_contains", "polygon_contains", "polygon_distance", "project_to_trims", "trim_contains"]
 
@@ -98,17 +98,7 @@ def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, 
     """The Newton iterations of `project_to_trims` on one NURBS trim curve, point by point
     (same steps and stopping test as its vectorised loop): f(t) = (C - P).C', C = S(c(t)),
     f' = C'.C' + (C - P).C'', t wrapped (closed curve) or clamped; updates t (N,) in place."""
-    ndu_u = np.empty((p + 1, p + 1))
-    ndu_v = np.empty((q + 1, q + 1))
-    lu = np.empty(p + 1)
-    ru = np.empty(p + 1)
-    lv = np.empty(q + 1)
-    rv = np.empty(q + 1)
-    au = np.empty((2, p + 1))
-    av = np.empty((2, q + 1))
-    bu = np.empty((3, p + 1))
-    bv = np.empty((3, q + 1))
-    aw = np.empty((3, 3, 4))
+    scratch = _ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     cndu = np.empty((cdeg + 1, cdeg + 1))
     cl = np.empty(cdeg + 1)
@@ -125,7 +115,7 @@ def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, 
             _curve_ders_one(cpw, cknots, cdeg, crat, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
             uu = min(max(cd[0, 0], u0), u1)
             vv = min(max(cd[0, 1], v0), v1)
-            _ders2_one(spw, sku, skv, p, q, srat, uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+            _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
             up, vp, upp, vpp = cd[1, 0], cd[1, 1], cd[2, 0], cd[2, 1]
             f = 0.0
             c11 = 0.0

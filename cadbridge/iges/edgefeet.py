@@ -30,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from cadbridge.nurbs.project import FAILED, _ders2_one, project_to_surface, surface_samples
+from cadbridge.nurbs.project import FAILED, _ders2_one, _ders2_scratch, project_to_surface, surface_samples
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["edge_feet", "FAR_REL"]
@@ -63,17 +63,7 @@ def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, 
     pu = u1 - u0
     pv = v1 - v0
     tiny = 1e-300
-    ndu_u = np.empty((p + 1, p + 1))
-    ndu_v = np.empty((q + 1, q + 1))
-    lu = np.empty(p + 1)
-    ru = np.empty(p + 1)
-    lv = np.empty(q + 1)
-    rv = np.empty(q + 1)
-    au = np.empty((2, p + 1))
-    av = np.empty((2, q + 1))
-    bu = np.empty((3, p + 1))
-    bv = np.empty((3, q + 1))
-    aw = np.empty((3, 3, 4))
+    scratch = _ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     for k in range(len(starts) - 1):
         a0, b0 = starts[k], starts[k + 1]
@@ -100,7 +90,7 @@ def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, 
             f = g = lsu = lsv = 0.0
             act_u = act_v = False
             for it in range(max_iter + 1):
-                _ders2_one(pw, ku, kv, p, q, rational, uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+                _ders2_one(pw, ku, kv, p, q, rational, uu, vv, scratch, der)
                 rx, ry, rz = der[0, 0, 0] - px, der[0, 0, 1] - py, der[0, 0, 2] - pz
                 sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
                 svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]

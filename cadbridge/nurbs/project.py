@@ -563,13 +563,21 @@ def _edge_check(
     res.iterations[tgt] += extra.iterations[idx]
 
 
+@numba.njit(cache=True)
+def _ders2_scratch(p, q):  # pragma: no cover - compiled
+    """The work arrays of `_ders2_one` for degrees (p, q), allocated once per kernel call."""
+    return (np.empty((p + 1, p + 1)), np.empty((q + 1, q + 1)), np.empty(p + 1), np.empty(p + 1),
+            np.empty(q + 1), np.empty(q + 1), np.empty((2, p + 1)), np.empty((2, q + 1)),
+            np.empty((3, p + 1)), np.empty((3, q + 1)), np.empty((3, 3, 4)))
+
+
 @numba.njit(cache=True, error_model="numpy")
-def _ders2_one(pw, ku, kv, p, q, rational, u, v, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, out
-               ):  # pragma: no cover - compiled
+def _ders2_one(pw, ku, kv, p, q, rational, u, v, scratch, out):  # pragma: no cover - compiled
     """S and its derivatives of total order <= 2 at one (u, v) into out (3, 3, 3): out[k, l] =
     d^(k+l) S / du^k dv^l for k + l <= 2 (what Newton uses; out[2, 1], out[1, 2], out[2, 2] are
     not computed), the same sums in the same order as `NurbsSurface.derivatives` (its
-    compiled kernel), scratch passed in."""
+    compiled kernel); ``scratch`` from `_ders2_scratch(p, q)`."""
+    ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw = scratch
     nu, nv = pw.shape[0], pw.shape[1]
     su = find_span_one(ku, p, nu, u)
     sv = find_span_one(kv, q, nv, v)
@@ -644,17 +652,7 @@ def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2
     tiny = 1e-300
     pu = u1 - u0
     pv = v1 - v0
-    ndu_u = np.empty((p + 1, p + 1))
-    ndu_v = np.empty((q + 1, q + 1))
-    lu_ = np.empty(p + 1)
-    ru_ = np.empty(p + 1)
-    lv_ = np.empty(q + 1)
-    rv_ = np.empty(q + 1)
-    au = np.empty((2, p + 1))
-    av = np.empty((2, q + 1))
-    bu = np.empty((3, p + 1))
-    bv = np.empty((3, q + 1))
-    aw = np.empty((3, 3, 4))
+    scratch = _ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     for t in range(start, stop):
         px, py, pz = pts[t, 0], pts[t, 1], pts[t, 2]
@@ -671,7 +669,7 @@ def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2
             if ru >= 0.0 and it > 0 and abs(uu - tu[t]) <= ru and abs(vv - tv[t]) <= rv:
                 same[t] = True
                 break
-            _ders2_one(pw, ku, kv, p, q, rational, uu, vv, ndu_u, ndu_v, lu_, ru_, lv_, rv_, au, av, bu, bv, aw, der)
+            _ders2_one(pw, ku, kv, p, q, rational, uu, vv, scratch, der)
             it += 1
             rx, ry, rz = der[0, 0, 0] - px, der[0, 0, 1] - py, der[0, 0, 2] - pz
             sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]

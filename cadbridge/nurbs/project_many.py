@@ -30,6 +30,7 @@ from cadbridge.nurbs.project import (
     ON_BOUNDARY,
     SurfaceProjection,
     _ders2_one,
+    _ders2_scratch,
     _global_seeds,
     _newton_range,
     _wrap_clamp,
@@ -146,21 +147,11 @@ def _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, dom
     cu, cv = closed[s, 0], closed[s, 1]
     e1 = eps1[s]
     tiny = 1e-300
-    ndu_u = np.empty((p + 1, p + 1))
-    ndu_v = np.empty((q + 1, q + 1))
-    lu = np.empty(p + 1)
-    ru = np.empty(p + 1)
-    lv = np.empty(q + 1)
-    rv = np.empty(q + 1)
-    au = np.empty((2, p + 1))
-    av = np.empty((2, q + 1))
-    bu = np.empty((3, p + 1))
-    bv = np.empty((3, q + 1))
-    aw = np.empty((3, 3, 4))
+    scratch = _ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     for t in range(a, b):
         uu, vv = u[t], v[t]
-        _ders2_one(net, kku, kkv, p, q, rational[s], uu, vv, ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw, der)
+        _ders2_one(net, kku, kkv, p, q, rational[s], uu, vv, scratch, der)
         rx, ry, rz = der[0, 0, 0] - pts[t, 0], der[0, 0, 1] - pts[t, 1], der[0, 0, 2] - pts[t, 2]
         sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
         svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]
