@@ -183,16 +183,17 @@ def _projector(model, projector):
     return projector if projector is not None else CadProjector(model)
 
 
-def shape_check(tools: list, model, projector, grid: int) -> tuple[dict, dict[str, np.ndarray]]:
+def shape_check(tools: list, model, projector, grid: int, orders: bool = False):
     """Independent measurement of the tools on ``grid`` divisions per patch: summary dict
     (max / RMS shape error, max / RMS normal error, samples, grid) and per tool the max
-    |shape error| of every element (E,)."""
+    |shape error| of every element (E,); with ``orders`` also per tool the convergence
+    order of every element's error (E,) (`_error_order`)."""
     from cadbridge.tool_errors import tool_errors
 
     from cadbridge.nagata.errors import angle_deg
     from cadbridge.tool_errors import _on_faces
 
-    per, surf, nrm = {}, [], []
+    per, per_order, surf, nrm = {}, {}, [], []
     for t in tools:
         nm = t.nagata
         g = nm.sample_grid(grid)
@@ -212,13 +213,15 @@ def shape_check(tools: list, model, projector, grid: int) -> tuple[dict, dict[st
         e = np.zeros(nm.n_elements)
         np.maximum.at(e, g.elem, shape)
         per[t.name] = e
+        per_order[t.name] = _error_order(nm.n_elements, g.elem, {"surface_error": d, "boundary_error": bnd})
         surf.append(shape)
         nrm.append(n_err)
     s = np.concatenate(surf)
     n = np.concatenate(nrm)
-    return ({"grid": grid, "samples": int(len(s)), "max_error": float(np.max(np.abs(s))),
-             "rms_error": float(np.sqrt(np.mean(s ** 2))), "max_normal_error": float(np.max(n)),
-             "rms_normal_error": float(np.sqrt(np.mean(n ** 2)))}, per)
+    summary = {"grid": grid, "samples": int(len(s)), "max_error": float(np.max(np.abs(s))),
+               "rms_error": float(np.sqrt(np.mean(s ** 2))), "max_normal_error": float(np.max(n)),
+               "rms_normal_error": float(np.sqrt(np.mean(n ** 2)))}
+    return (summary, per, per_order) if orders else (summary, per)
 
 
 def _element_sizes(nm) -> np.ndarray:
@@ -401,14 +404,17 @@ def refine_mesh(
         n_above = n_inadm = 0
         floor_p: list[FloorElement] = []
 
-        def mark(t, elems, e, factor_cap):
-            """Refinement marks at the elements' corners and centroids; floor elements noted."""
+        def mark(t, elems, e, factor_cap, order):
+            """Refinement marks at the elements' corners and centroids; floor elements noted.
+            ``order`` (K,): the rate at which each element's error falls with its size (4 for
+            the surface error, 2 where the boundary error of a chord along a curved border
+            dominates)."""
             nonlocal floor_p
             hs = _element_sizes(t.nagata)[elems]
             cen = _centroids(t.mesh)[elems]
             # the element's own size (its most curved edge) scaled by the law's factor; where
             # the field already asks for less (min in the field), the mark changes nothing
-            f = np.clip(0.9 * (t_loop / np.maximum(e, 1e-300)) ** 0.25, 0.3, factor_cap)
+            f = np.clip(0.9 * (t_loop / np.maximum(e, 1e-300)) ** (1.0 / order), 0.3, factor_cap)
             h_new = np.maximum(hs * f, h_min)
             at_floor = hs <= 1.3 * h_min
             for k in np.flatnonzero(at_floor):  # loop over the (few) floor elements
@@ -422,6 +428,7 @@ def refine_mesh(
         for t in tools:
             e = np.zeros(t.nagata.n_elements)
             np.maximum.at(e, t.grid["element"], _shape_error(t.grid))
+            order = _error_order(t.nagata.n_elements, t.grid["element"], t.grid)
             adm = edge_admissibility(t.nagata)
             adm_bad = set(adm.bad_elements().tolist())
             n_inadm += len(adm_bad)
@@ -429,7 +436,7 @@ def refine_mesh(
             n_above += len(bad)
             above_all += [(t.name, int(i) + 1, float(e[i])) for i in bad]
             if len(bad):
-                mark(t, bad, e[bad], 0.75)
+                mark(t, bad, e[bad], 0.75, order[bad])
         if inflections:
             n_inadm = len(bad_full)
             if bad_full and (p == 1 or p == max_passes):
@@ -439,7 +446,7 @@ def refine_mesh(
         checked = math.nan
         if n_above == 0:
             progress.stage(f"pass {p}: independent check on {check_grid} divisions per patch")
-            check, per = shape_check(tools, model, projector, check_grid)
+            check, per, per_order = shape_check(tools, model, projector, check_grid, orders=True)
             checked = check["max_error"]
             above_all = []
             for t in tools:
@@ -448,7 +455,7 @@ def refine_mesh(
                 above_all += [(t.name, int(i) + 1, float(per[t.name][i])) for i in bad]
                 if len(bad):
                     adm_bad = set(edge_admissibility(t.nagata).bad_elements().tolist())
-                    mark(t, bad, per[t.name][bad] / 0.95 * 1.05, 0.75)
+                    mark(t, bad, per[t.name][bad] / 0.95 * 1.05, 0.75, per_order[t.name][bad])
             met = not above_all
         passes.append(PassReport(p, len(mesh.nodes), int(mesh.n_elements), float(np.max(np.abs(surf))),
                                  float(np.sqrt(np.mean(surf ** 2))), float(np.max(nerr)),
@@ -475,6 +482,18 @@ def refine_mesh(
     met = not above_all
     return AdaptiveResult(mesh, tools, passes, tolerance, met, check_best, floor, actions, above_all, h_min,
                           time.perf_counter() - t_start)
+
+
+def _error_order(n_elements: int, elem: np.ndarray, grid: dict) -> np.ndarray:
+    """Convergence order (E,) of each element's shape error with its size: 2 where its
+    boundary error (distance to the trimmed CAD) is above its surface error, the sag of a
+    patch boundary that cuts a curved border (a chord of geodesic curvature k_g sags
+    k_g h^2 / 8), else 4 (the Nagata law e = C h^4 / R^3)."""
+    s = np.zeros(n_elements)
+    b = np.zeros(n_elements)
+    np.maximum.at(s, elem, np.abs(grid["surface_error"]))
+    np.maximum.at(b, elem, grid["boundary_error"])
+    return np.where(b > s, 2.0, 4.0)
 
 
 def _shape_error(grid: dict) -> np.ndarray:

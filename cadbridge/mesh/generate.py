@@ -160,12 +160,16 @@ class FaceInfo:
     """Classification of one gmsh surface for structured meshing.
 
     tag: gmsh surface tag; curves: boundary curve tags in loop order (4 for a structured
-    face); kind: "fillet", "four-sided" or "other"; radius_pair / length_pair: for fillets,
-    the index (0 -> curves 0 and 2, 1 -> curves 1 and 3) of the arc pair and of the other
-    pair; radius: arc radius (model units) for fillets.
+    face); kind: "fillet", "four-sided", "chained" or "other"; radius_pair / length_pair: for
+    fillets, the index (0 -> curves 0 and 2, 1 -> curves 1 and 3) of the arc pair and of the
+    other pair; radius: arc radius (model units) for fillets. A "chained" face has four
+    corners but sides made of several curves (e.g. OCC splits a torus' tube arc at its
+    equator): corners are its four corner point tags, pairs the (curve, opposite curve)
+    pairs that must get equal counts (opposite sides have as many curves, paired in order).
     """
 
-    __slots__ = ("tag", "surface_type", "curves", "kind", "radius_pair", "length_pair", "radius")
+    __slots__ = ("tag", "surface_type", "curves", "kind", "radius_pair", "length_pair", "radius", "corners",
+                 "pairs")
 
     def __init__(self, tag: int, surface_type: str, curves: list[int]) -> None:
         self.tag = tag
@@ -174,6 +178,8 @@ class FaceInfo:
         self.kind = "four-sided" if len(curves) == 4 and len(set(curves)) == 4 else "other"
         self.radius_pair: int | None = None
         self.length_pair: int | None = None
+        self.corners: list[int] = []
+        self.pairs: list[tuple[int, int]] = []
         self.radius: float | None = None
 
     def __repr__(self) -> str:
@@ -195,6 +201,43 @@ def _curve_shape(gmsh, c: int) -> tuple[str, float, float]:
     return "curve", math.nan, length
 
 
+def _chained_sides(gmsh, loop: list[int], corner_deg: float = 20.0):
+    """Four corners of a face whose single boundary ``loop`` (signed curve tags in order) has
+    more than four curves: the points where the boundary turns by more than ``corner_deg``.
+    Returns (corner point tags (4,), [(curve, opposite curve), ...]) when there are exactly
+    four and opposite sides have as many curves (paired in order, the opposite side walked
+    backwards), else None."""
+    ends = []
+    for c in loop:  # loop over the (few) boundary curves
+        (_, p0), (_, p1) = gmsh.model.getBoundary([(1, abs(c))], combined=False, oriented=True)
+        lo, hi = gmsh.model.getParametrizationBounds(1, abs(c))
+        d = np.asarray(gmsh.model.getDerivative(1, abs(c), [lo[0], hi[0]]), dtype=float).reshape(2, 3)
+        if c < 0:
+            p0, p1, d = p1, p0, -d[::-1]
+        ends.append((abs(p0), abs(p1), d[0], d[1]))
+    n = len(loop)
+    corners = []
+    for i in range(n):
+        a, b = ends[i - 1], ends[i]
+        if a[1] != b[0]:
+            return None  # not one closed chain (several loops, e.g. a hole)
+        ta, tb = a[3], b[2]
+        cos = float(ta @ tb) / max(float(np.linalg.norm(ta) * np.linalg.norm(tb)), 1e-300)
+        if cos < math.cos(math.radians(corner_deg)):
+            corners.append(i)
+    if len(corners) != 4:
+        return None
+    sides = [[abs(loop[j % n]) for j in range(corners[k], corners[k + 1] if k < 3 else corners[0] + n)]
+             for k in range(4)]
+    pairs = []
+    for k in (0, 1):
+        a, b = sides[k], sides[k + 2][::-1]
+        if len(a) != len(b):
+            return None
+        pairs += list(zip(a, b))
+    return [ends[i][0] for i in corners], pairs
+
+
 def _classify(gmsh, fillet_max_radius: float | None) -> tuple[list[FaceInfo], dict[int, tuple[str, float, float]]]:
     faces: list[FaceInfo] = []
     shapes: dict[int, tuple[str, float, float]] = {}
@@ -202,6 +245,10 @@ def _classify(gmsh, fillet_max_radius: float | None) -> tuple[list[FaceInfo], di
         loops = gmsh.model.getBoundary([(2, s)], combined=False, oriented=True, recursive=False)
         curves = [abs(t) for d, t in loops if d == 1]
         fi = FaceInfo(s, gmsh.model.getType(2, s), curves)
+        if fi.kind == "other" and len(curves) > 4 and len(set(curves)) == len(curves):
+            chain = _chained_sides(gmsh, [t for d, t in loops if d == 1])
+            if chain is not None:
+                fi.kind, fi.corners, fi.pairs = "chained", chain[0], chain[1]
         for c in curves:
             if c not in shapes:
                 shapes[c] = _curve_shape(gmsh, c)
@@ -258,6 +305,9 @@ def _structured_counts(
             c = f.curves
             union(c[0], c[2])
             union(c[1], c[3])
+        elif f.kind == "chained":
+            for a, b in f.pairs:
+                union(a, b)
     role: dict[int, set[str]] = {}
     for f in faces:
         if f.kind == "fillet":
@@ -480,8 +530,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         for c, n in counts.items():
             g.model.mesh.setTransfiniteCurve(c, n + 1)
         for f in faces:
-            if f.kind in ("four-sided", "fillet"):
-                g.model.mesh.setTransfiniteSurface(f.tag)
+            if f.kind in ("four-sided", "fillet", "chained"):
+                g.model.mesh.setTransfiniteSurface(f.tag, cornerTags=f.corners)
                 if kw["element"] == "quad":
                     g.model.mesh.setRecombine(2, f.tag)
     g.model.mesh.generate(2)
