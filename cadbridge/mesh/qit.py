@@ -50,7 +50,10 @@ class QitOptions:
     edge_tol / surface_tol : dC- / dS-mesh tolerances; beta_amp : initial AIP arc
     amplitude (degrees); n_lines : NL; aip_tol : AIP convergence (percent of the arc
     radius in parameter space); match_tol : 3D distance under which two faces' edges are one
-    edge (default 1e-5 x model size); max_depth : dS/dC refinement levels at most.
+    edge (default 1e-5 x model size); max_depth : dS/dC refinement levels at most;
+    valence_opt : beyond the paper, off by default -- valence flips and spring relocation
+    after the edge-strip amendment (`cadbridge.mesh.qit_relax`, docs/qit.md): higher Q, wider
+    angle spread.
     """
 
     size: float
@@ -64,6 +67,7 @@ class QitOptions:
     max_depth: int = 14
     edge_flips: bool = True
     chord_polish: bool = True
+    valence_opt: bool = False
 
 
 @dataclass
@@ -83,6 +87,8 @@ class QitFaceReport:
     flips: int = 0
     ds_partitions: int = 0
     seam_dropped: int = 0
+    valence_flips: int = 0
+    relaxed: int = 0
 
 
 # ---------------------------------------------------------------------------------------
@@ -1154,23 +1160,10 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
         seg_a.append(arr)
         seg_b.append(np.roll(arr, -1, axis=0))
     seg_a, seg_b = np.concatenate(seg_a), np.concatenate(seg_b)
+    edge_dist = _EdgeDistance(seg_a, seg_b, dx_th)
     dist = np.full(len(uv), np.inf)
     if inside.any():
-        mid = 0.5 * (seg_a + seg_b)
-        half = 0.5 * np.linalg.norm(seg_b - seg_a, axis=1).max()
-        tree = cKDTree(mid)
-        k_in = np.flatnonzero(inside)
-        kk = min(16, len(mid))
-        dm, nn = tree.query(x[k_in], k=kk)
-        dm, nn = dm.reshape(len(k_in), kk), nn.reshape(len(k_in), kk)
-        p = x[k_in][:, None]
-        a, ab = seg_a[nn], seg_b[nn] - seg_a[nn]
-        t = np.clip(np.einsum("kij,kij->ki", p - a, ab) / np.maximum(np.einsum("kij,kij->ki", ab, ab), 1e-300), 0, 1)
-        dist[k_in] = np.linalg.norm(p - (a + t[..., None] * ab), axis=2).min(axis=1)
-        # a segment within dx_th may be farther than the kk-th midpoint only if that one is near
-        for k in k_in[dm[:, -1] < dx_th + half] if kk < len(mid) else []:
-            c = np.array(tree.query_ball_point(x[k], dx_th + half))
-            dist[k] = _dist_to_polyline_pairs(x[k], seg_a[c], seg_b[c])
+        dist[inside] = edge_dist(x[inside])
     si = inside & (dist >= dx_th)
     # the front must have reached every edge vertex (else the CDT would bridge the gap with
     # slivers): a long face narrower than a few R can starve the hexagon rings
@@ -1226,6 +1219,12 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
         local, rep.flips = _edge_strip_flips(local, is_edge, all_x, all_uv, {(min(p, q), max(p, q)) for p, q in cons})
     local, fixed = _fix_slivers(local, all_x, all_uv, {(min(p, q), max(p, q)) for p, q in cons})
     rep.flips += fixed
+    if opt.valence_opt and n_si:
+        local, all_uv, all_x = _relax_strip(local, all_uv, all_x, n_si, s, face, opt, edge_dist, dx_th,
+                                            {(min(p, q), max(p, q)) for p, q in cons}, rep)
+        for k in range(n_si):  # the relaxed SI vertices replace their registry entries
+            node_x[base + k] = all_x[k]
+            node_uv[base + k] = all_uv[k]
     out = gid[local]
     # two loop vertices may be one node (the two sides of a seam meet in 3D): a triangle on
     # both has two coincident corners, zero area; dropping it joins its neighbours there
@@ -1247,6 +1246,37 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
                        f"first near {np.round(p[k].mean(axis=0), 6).tolist()}; R = {R:g} is too large for the "
                        "curvature or the parametrisation too uneven there); use a smaller --size or --mesher gmsh")
     return out[~rep_node]
+
+
+def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist, dx_th, constrained, rep):
+    """Beyond the paper (``opt.valence_opt``, docs/qit.md): two passes of valence flips and
+    spring relocation of the SI vertices within 2 mesh edges of the face's edge vertices
+    (`cadbridge.mesh.qit_relax`). Local vertices 0..n_si-1 are the SI ones; every other
+    vertex stays. Returns triangles, uv and x."""
+    from cadbridge.mesh.qit_relax import relax_vertices, valence_flips, vertex_angle_sums
+
+    is_edge = np.zeros(len(all_uv), dtype=bool)
+    is_edge[n_si:] = True
+    near = is_edge.copy()
+    e = np.concatenate([local[:, [0, 1]], local[:, [1, 2]], local[:, [2, 0]]])
+    for _ in range(2):
+        near[e[near[e[:, 0]] | near[e[:, 1]]].ravel()] = True
+    free = near & ~is_edge
+    trimmed = face.trims is not None and face.trims.outer is not None
+
+    def admissible(uv, x):
+        ok = edge_dist(x) >= dx_th
+        if trimmed and ok.any():
+            ok[ok] = face.contains(uv[ok, 0], uv[ok, 1])
+        return ok
+
+    for _ in range(2):
+        alpha = vertex_angle_sums(local, all_x, is_edge)
+        local, nf = valence_flips(local, all_uv, all_x, alpha, constrained)
+        rep.valence_flips += nf
+        all_uv, all_x, nm = relax_vertices(local, all_uv, all_x, free, s, opt.size, admissible)
+        rep.relaxed = max(rep.relaxed, nm)
+    return local, all_uv, all_x
 
 
 def _interpolate_pattern(p: np.ndarray, r: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -1278,6 +1308,33 @@ def _interpolate_pattern(p: np.ndarray, r: np.ndarray, q: np.ndarray) -> np.ndar
     rows = np.arange(len(q))
     tri = ct[rows, best]
     return np.einsum("ki,kij->kj", lam[rows, best], r[simp[tri]])
+
+
+class _EdgeDistance:
+    """Distance in 3D from points to the chords (seg_a[i], seg_b[i]) of a face's edge
+    polylines, exact wherever it is below ``dx_th`` (KD-tree of chord midpoints; the 16
+    nearest chords, all chords within dx_th + half the longest chord where that is not enough)."""
+
+    def __init__(self, seg_a: np.ndarray, seg_b: np.ndarray, dx_th: float) -> None:
+        self.a, self.b, self.dx_th = seg_a, seg_b, dx_th
+        self.half = 0.5 * np.linalg.norm(seg_b - seg_a, axis=1).max()
+        self.tree = cKDTree(0.5 * (seg_a + seg_b))
+        self.kk = min(16, len(seg_a))
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """(M,) distances of the points x (M, 3)."""
+        kk = self.kk
+        dm, nn = self.tree.query(x, k=kk)
+        dm, nn = dm.reshape(len(x), kk), nn.reshape(len(x), kk)
+        p = x[:, None]
+        a, ab = self.a[nn], self.b[nn] - self.a[nn]
+        t = np.clip(np.einsum("kij,kij->ki", p - a, ab) / np.maximum(np.einsum("kij,kij->ki", ab, ab), 1e-300), 0, 1)
+        dist = np.linalg.norm(p - (a + t[..., None] * ab), axis=2).min(axis=1)
+        # a chord within dx_th may be farther than the kk-th midpoint only if that one is near
+        for k in np.flatnonzero(dm[:, -1] < self.dx_th + self.half) if kk < len(self.a) else []:
+            c = np.array(self.tree.query_ball_point(x[k], self.dx_th + self.half))
+            dist[k] = _dist_to_polyline_pairs(x[k], self.a[c], self.b[c])
+        return dist
 
 
 def _dist_to_polyline_pairs(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
