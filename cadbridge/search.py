@@ -45,10 +45,11 @@ from cadbridge.nurbs.project import (
     FAILED,
     ON_BOUNDARY,
     STATUS_NAMES,
+    SurfaceProjection,
     surface_samples,
 )
 from cadbridge.nurbs.ops import bezier_patches, curve_bezier_segments
-from cadbridge.nurbs.project_many import SurfacePack, project_to_surfaces
+from cadbridge.nurbs.project_many import SurfacePack, newton_is_final, newton_to_surfaces, project_to_surfaces
 from cadbridge.nurbs.surface import NurbsSurface
 from cadbridge.trims import project_to_trims
 
@@ -485,30 +486,92 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
     return key % n, key // n
 
 
-def _project_pairs(model: Model, index: SearchIndex, pts: np.ndarray, cp: np.ndarray, cf: np.ndarray, tol: float):
-    """Project the points ``pts[cp]`` onto the surfaces of faces ``cf`` (pairs sorted by face;
-    all pairs in one `project_to_surfaces` call). Returns per pair u, v, foot (M, 3),
-    distance, normal (M, 3), status, inside (foot not FAILED and inside the face's trims) and
-    out (foot not FAILED but outside the trims: the face's nearest point is on its loops)."""
-    m = len(cp)
-    inside = np.zeros(m, dtype=bool)
+def _trim_flags(model: Model, cf: np.ndarray, u: np.ndarray, v: np.ndarray, status: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Trim decisions of feet (u, v) on faces ``cf`` (sorted by face): inside (M,) (foot not
+    FAILED and inside the face's trims) and out (M,) (not FAILED but outside the trims: that
+    face's nearest point is on its loops). One `Face.contains` call per face."""
+    m = len(cf)
+    inside = status != FAILED
     out = np.zeros(m, dtype=bool)
-    r = project_to_surfaces(index.surface_pack(model), cf, pts[cp], tol=tol)
     if m == 0:
-        return r.u, r.v, r.foot, r.distance, r.normal, r.status, inside, out
-    ok = r.status != FAILED
+        return inside, out
     cuts = np.flatnonzero(np.diff(cf)) + 1
     for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [m]])):
         face = model.faces[int(cf[a])]
-        okf = ok[a:b]
+        okf = inside[a:b]
         if face.trims is not None and np.any(okf):
             oi = np.nonzero(okf)[0]
-            isin = face.contains(r.u[a + oi], r.v[a + oi])
+            isin = face.contains(u[a + oi], v[a + oi])
             okf[oi[~isin]] = False
             if face.trims.outer is not None or face.trims.inner:
                 out[a + oi[~isin]] = True
-        inside[a:b] = okf
-    return r.u, r.v, r.foot, r.distance, r.normal, r.status, inside, out
+    return inside, out
+
+
+class _Pairs:
+    """(point, face) pairs of one search step (sorted by face), projected in two stages.
+
+    On creation every pair gets its Newton foot (`newton_to_surfaces`, one compiled pass;
+    faces with internal crease lines get the whole `project_to_surfaces` at once) and its
+    trim decision. ``final`` marks the pairs whose result is already that of
+    `project_to_surfaces` (a foot on its point: the global and edge checks would not run);
+    `finish` runs the checks for the rest, only for the pairs still needed (a mesh node whose
+    first face is a neighbour's never pays for that face's restarts).
+    cp, cf (M,) point and face of each pair; u, v, foot, dist, normal, status as in
+    `SurfaceProjection`; inside / out as `_trim_flags`."""
+
+    def __init__(self, model: Model, index: SearchIndex, pts: np.ndarray, cp: np.ndarray, cf: np.ndarray,
+                 tol: float) -> None:
+        self.model, self.pack, self.pts, self.tol = model, index.surface_pack(model), pts, tol
+        m = len(cp)
+        self.cp, self.cf = cp, cf
+        self.u, self.v, self.dist = np.empty(m), np.empty(m), np.empty(m)
+        self.foot, self.normal = np.empty((m, 3)), np.empty((m, 3))
+        self.status = np.empty(m, dtype=np.int8)
+        self.first = np.zeros(m, dtype=np.int64)
+        self.final = np.ones(m, dtype=bool)
+        single = self.pack.single[cf] if m else np.zeros(0, dtype=bool)
+        si, mi = np.flatnonzero(single), np.flatnonzero(~single)
+        if len(si):
+            r, self.first[si] = newton_to_surfaces(self.pack, cf[si], pts[cp[si]], tol=tol)
+            self._put(si, r)
+            self.final[si] = newton_is_final(self.pack, cf[si], r)
+        if len(mi):
+            self._put(mi, project_to_surfaces(self.pack, cf[mi], pts[cp[mi]], tol=tol))
+        self.inside, self.out = _trim_flags(model, cf, self.u, self.v, self.status)
+
+    def _put(self, rows: np.ndarray, r) -> None:
+        self.u[rows], self.v[rows], self.foot[rows] = r.u, r.v, r.foot
+        self.dist[rows], self.normal[rows], self.status[rows] = r.distance, r.normal, r.status
+
+    def on_model(self, size: float) -> np.ndarray:
+        """(M,) bool: feet inside their face, CONVERGED, within _ON_MODEL x size of the point
+        after the checks (no other face can be nearer by more than that: the search ends
+        there). Newton feet that near but not final (a small surface: within _ON_MODEL x the
+        model's size, not within _ON_SURFACE x its own) are finished first."""
+        near = self.inside & (self.status == CONVERGED) & (self.dist <= _ON_MODEL * size)
+        self.finish(near & ~self.final)
+        return self.final & self.inside & (self.status == CONVERGED) & (self.dist <= _ON_MODEL * size)
+
+    def finish(self, rows: np.ndarray) -> None:
+        """Complete the pairs ``rows`` (bool mask or indices) with the checks."""
+        rows = np.flatnonzero(rows) if rows.dtype == bool else rows
+        rows = rows[~self.final[rows]]
+        if not len(rows):
+            return
+        prev = SurfaceProjection(self.u[rows], self.v[rows], self.foot[rows], self.dist[rows], self.normal[rows],
+                                 self.status[rows], np.zeros(len(rows), dtype=np.int32))
+        r = project_to_surfaces(self.pack, self.cf[rows], self.pts[self.cp[rows]], tol=self.tol,
+                                resume=(prev, self.first[rows]))
+        self._put(rows, r)
+        self.final[rows] = True
+        self.inside[rows], self.out[rows] = _trim_flags(self.model, self.cf[rows], r.u, r.v, r.status)
+
+    def take(self, rows: np.ndarray) -> tuple:
+        """cp, cf, u, v, foot, dist, normal, status, inside, out of ``rows``."""
+        return (self.cp[rows], self.cf[rows], self.u[rows], self.v[rows], self.foot[rows], self.dist[rows],
+                self.normal[rows], self.status[rows], self.inside[rows], self.out[rows])
 
 
 _ON_MODEL = 1e-10  # a foot inside its face this near its point (x model size) ends the search
@@ -565,25 +628,33 @@ def project_points(
     else:
         ub = np.full(n, np.inf)
         cp1 = cf1 = np.zeros(0, dtype=np.int64)
-    r1 = _project_pairs(model, index, pts, cp1, cf1, tol)
-    # a foot inside the nearest sample's face is a point of the model: a tighter bound
+    p1 = _Pairs(model, index, pts, cp1, cf1, tol)
+    # a foot inside the nearest sample's face is a point of the model: a tighter bound (from
+    # its Newton foot; the checks can only bring it nearer)
     bound = ub.copy()
-    good = r1[6] & (r1[5] != FAILED)
-    np.minimum.at(bound, cp1[good], r1[3][good] * (1.0 + 1e-9) + 1e-9 * size)
+    np.minimum.at(bound, cp1[p1.inside], p1.dist[p1.inside] * (1.0 + 1e-9) + 1e-9 * size)
 
     # 2. the other candidate (point, face) pairs: sub-patch boxes within the bound; not for
     # points on the model: a foot inside its face within _ON_MODEL x size of the point (no
     # other face can be nearer by more than that; mesh nodes are such points)
+    on1 = p1.on_model(size)
     open_ = np.ones(n, dtype=bool)
-    on = good & (r1[5] == CONVERGED) & (r1[3] <= _ON_MODEL * size)
-    open_[cp1[on]] = False
+    open_[cp1[on1]] = False
     sub = np.flatnonzero(open_)
     cp2, cf2 = _candidate_pairs(index, pts[sub], bound[sub], exclude=f0[sub] if len(cp1) else None)
     cp2 = sub[cp2]
-    r2 = _project_pairs(model, index, pts, cp2, cf2, tol)
-    cp, cf = np.concatenate([cp1, cp2]), np.concatenate([cf1, cf2])
-    pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate([x, y]) for x, y in zip(r1, r2))
-    candidates = np.bincount(cp, minlength=n)
+    p2 = _Pairs(model, index, pts, cp2, cf2, tol)
+    # a point that the first face missed but another face holds (a mesh node next to a face
+    # border whose nearest sample lies on the neighbour) ends there too: its feet on the model
+    # are the candidates; the first face's restarts are not needed
+    on2 = p2.on_model(size)
+    open_[cp2[on2]] = False
+    p1.finish(open_[cp1])
+    p2.finish(open_[cp2])
+    keep1, keep2 = np.flatnonzero(open_[cp1] | on1), np.flatnonzero(open_[cp2] | on2)
+    cp, cf, pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (
+        np.concatenate([x, y]) for x, y in zip(p1.take(keep1), p2.take(keep2)))
+    candidates = np.bincount(np.concatenate([cp1, cp2]), minlength=n)
 
     # 3. feet outside a face's trims: the nearest point of that face lies on its trim loops,
     # no nearer than the untrimmed foot; needed only where that could beat the best valid foot

@@ -41,7 +41,7 @@ from cadbridge.nurbs.project import (
 )
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["SurfacePack", "project_to_surfaces"]
+__all__ = ["SurfacePack", "newton_is_final", "newton_to_surfaces", "project_to_surfaces"]
 
 _TASK = 256  # pairs per parallel task at most
 # feet nearer their point than this x surface size get no restarts (global / edge check): a
@@ -294,15 +294,58 @@ def _replace(res: SurfaceProjection, tgt: np.ndarray, extra: SurfaceProjection, 
     np.add.at(res.iterations, rows, extra.iterations[idx])
 
 
-def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: float = 1e-12, max_iter: int = 30
-                        ) -> SurfaceProjection:
+_FIELDS = ("u", "v", "foot", "distance", "normal", "status", "iterations")
+
+
+def newton_to_surfaces(pack: SurfacePack, which, points, *, tol: float = 1e-12, max_iter: int = 30
+                       ) -> tuple[SurfaceProjection, np.ndarray]:
+    """The first stage of `project_to_surfaces` alone: Newton from the nearest grid sample,
+    classified, without the global and edge checks (restarts). Only for surfaces without
+    internal crease lines (``pack.single``; ValueError otherwise).
+
+    Returns the projection of the M pairs and first (M,) the global index of each pair's
+    start sample; ``project_to_surfaces(..., resume=(result, first))`` completes the same
+    pairs with the checks, exactly as if run in one call. A pair that is CONVERGED within
+    ``ON_SURFACE x pack.size`` of its point is already final (the checks skip it).
+    """
+    which = np.asarray(which, dtype=np.int64).ravel()
+    pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
+    m = len(which)
+    if len(pts) != m:
+        raise ValueError(f"newton_to_surfaces: {m} surface ids for {len(pts)} points")
+    if m and not np.all(pack.single[which]):
+        raise ValueError("newton_to_surfaces: surfaces with internal crease lines need project_to_surfaces")
+    out = SurfaceProjection(np.empty(m), np.empty(m), np.empty((m, 3)), np.empty(m), np.empty((m, 3)),
+                            np.empty(m, dtype=np.int8), np.zeros(m, dtype=np.int32))
+    first = np.zeros(m, dtype=np.int64)
+    if m == 0:
+        return out, first
+    order = np.argsort(which, kind="stable")
+    res, fi = _sorted_pairs(pack, which[order], np.ascontiguousarray(pts[order]), tol, max_iter, None, checks=False)
+    for name in _FIELDS:
+        getattr(out, name)[order] = getattr(res, name)
+    first[order] = fi
+    return out, first
+
+
+def newton_is_final(pack: SurfacePack, which, res: SurfaceProjection) -> np.ndarray:
+    """(M,) bool: pairs of a `newton_to_surfaces` result that the checks would leave as they
+    are (CONVERGED within ``_ON_SURFACE`` x surface size of the point: no restart runs)."""
+    which = np.asarray(which, dtype=np.int64).ravel()
+    return (res.status == CONVERGED) & (res.distance <= _ON_SURFACE * pack.size[which])
+
+
+def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: float = 1e-12, max_iter: int = 30,
+                        resume: tuple[SurfaceProjection, np.ndarray] | None = None) -> SurfaceProjection:
     """Nearest point of surface ``pack.surfaces[which[i]]`` to ``points[i]`` for every pair i.
 
     which (M,) int surface ids, points (M, 3). Same result as
     ``project_to_surface(pack.surfaces[which[i]], points[i], tol=tol, max_iter=max_iter)``
     (start from the nearest sample, Newton, global check, edge check; every foot checked for
     orthogonality, FAILED otherwise). uv0 (M, 2): start parameters instead of the nearest
-    grid sample (the checks still use the grid). Returns a `SurfaceProjection` of M pairs.
+    grid sample (the checks still use the grid). resume: the `newton_to_surfaces` result of
+    these same pairs (single surfaces only): its Newton stage is reused, only the checks
+    run. Returns a `SurfaceProjection` of M pairs.
     """
     which = np.asarray(which, dtype=np.int64).ravel()
     pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
@@ -315,6 +358,16 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: floa
         return out
     order = np.argsort(which, kind="stable")
     sid = which[order]
+    if resume is not None:
+        prev, first = resume
+        if len(first) != m or not np.all(pack.single[sid]):
+            raise ValueError("project_to_surfaces: resume needs the newton_to_surfaces result of single surfaces")
+        res0 = SurfaceProjection(*(np.array(getattr(prev, name)[order]) for name in _FIELDS))
+        res, _ = _sorted_pairs(pack, sid, np.ascontiguousarray(pts[order]), tol, max_iter, None,
+                               resume=(res0, np.asarray(first, dtype=np.int64)[order]))
+        for name in _FIELDS:
+            getattr(out, name)[order] = getattr(res, name)
+        return out
     multi = ~pack.single[sid]
     rows_m, faces_m, piece_k = [], [], []
     if np.any(multi):  # surfaces with internal creases: every pair on each smooth piece
@@ -333,7 +386,7 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: floa
         order, sid = order[o2], sid[o2]
     p = np.ascontiguousarray(pts[order])
     start = None if uv0 is None else np.asarray(uv0, dtype=float).reshape(m, 2)[order]
-    res = _sorted_pairs(pack, sid, p, tol, max_iter, start)
+    res, _ = _sorted_pairs(pack, sid, p, tol, max_iter, start)
     single = pack.single[np.minimum(sid, len(pack.single) - 1)] & (sid < len(pack.single))
     for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
         getattr(out, name)[order[single]] = getattr(res, name)[single]
@@ -353,22 +406,30 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: floa
 
 
 def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float, max_iter: int,
-                  start: np.ndarray | None) -> SurfaceProjection:
+                  start: np.ndarray | None, *, checks: bool = True,
+                  resume: tuple[SurfaceProjection, np.ndarray] | None = None) -> tuple[SurfaceProjection, np.ndarray]:
+    """Pairs sorted by surface id: Newton (or its ``resume`` (result, first)), then the checks
+    (``checks=False``: none). Returns the projection and the start samples' global indices."""
     n = len(p)
     # the nearest sample of each pair's surface starts Newton; the k nearest (global and edge
     # checks) are queried afterwards, only for the pairs that get restarts
     k = _CHECK_K
     cuts = np.flatnonzero(np.diff(sid)) + 1
     starts, stops = np.concatenate([[0], cuts]), np.concatenate([cuts, [n]])
-    first = pack.s_off[sid].astype(np.int64)  # global sample index (pack.suv, pack.spts)
-    if start is None:
-        for a, b in zip(starts, stops):
-            s = int(sid[a])
-            _, i_ = pack.samples[s].tree.query(p[a:b])
-            first[a:b] = np.asarray(i_).reshape(b - a) + pack.s_off[s]
-        start = pack.suv[first]
-    run = _Run(pack, sid, p, tol, max_iter)
-    res, _ = run(start[:, 0], start[:, 1])
+    if resume is not None:
+        res, first = resume
+    else:
+        first = pack.s_off[sid].astype(np.int64)  # global sample index (pack.suv, pack.spts)
+        if start is None:
+            for a, b in zip(starts, stops):
+                s = int(sid[a])
+                _, i_ = pack.samples[s].tree.query(p[a:b])
+                first[a:b] = np.asarray(i_).reshape(b - a) + pack.s_off[s]
+            start = pack.suv[first]
+        run = _Run(pack, sid, p, tol, max_iter)
+        res, _ = run(start[:, 0], start[:, 1])
+        if not checks:
+            return res, first
 
     # global check: restarts from other discrete local minima of the sampled distance; not
     # for feet within _ON_SURFACE x size of their point (a restart could gain at most that)
@@ -452,4 +513,4 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         dd = np.where((res.status[owner] == FAILED) | np.isnan(dd), np.inf, dd)  # any valid foot beats a failed one
         better = ~same & (extra.status != FAILED) & (extra.distance < dd - 1e-3 * tol * pack.size[sid[owner]])
         _replace(res, owner, extra, better)
-    return res
+    return res, first
