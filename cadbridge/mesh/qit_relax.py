@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["vertex_angle_sums", "valence_flips", "relax_vertices"]
+__all__ = ["vertex_angle_sums", "valence_flips", "relax_vertices", "max_angle_flips"]
 
 
 def _edges(tris: np.ndarray) -> np.ndarray:
@@ -114,6 +114,48 @@ def valence_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, alpha: np.nda
                     adj[(tt[i], tt[(i + 1) % 3])] = t
             val[[a, b]] -= 1
             val[[c, d]] += 1
+            changed += 1
+        flips += changed
+        if not changed:
+            break
+    return np.array(tris, dtype=np.int64), flips
+
+
+def max_angle_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, constrained: set, max_angle: float,
+                    max_sweeps: int = 10) -> tuple[np.ndarray, int]:
+    """Clean-up: a triangle with an angle above ``max_angle`` (degrees) has its longest edge
+    (opposite that angle, not in ``constrained``) flipped where that lowers the largest 3D
+    angle of the pair and keeps both new triangles positive in (u, v). tris (T, 3) CCW in
+    ``uv`` (N, 2), points ``x`` (N, 3). Returns the triangles and the flip count."""
+    tris = [list(map(int, t)) for t in tris]
+    thr = np.radians(max_angle)
+    flips = 0
+    for _ in range(max_sweeps):
+        adj = {(t[i], t[(i + 1) % 3]): n for n, t in enumerate(tris) for i in range(3)}
+        ang = _tri_angles(x, np.array(tris))
+        changed = 0
+        for t1 in np.flatnonzero(ang.max(axis=1) > thr):
+            tt = tris[t1]
+            k = int(np.argmax(_tri_angles(x, np.array([tt]))[0]))
+            c, a, b = tt[k], tt[(k + 1) % 3], tt[(k + 2) % 3]
+            t2 = adj.get((b, a))
+            if (min(a, b), max(a, b)) in constrained or t2 is None:
+                continue
+            d = [v for v in tris[t2] if v != a and v != b][0]
+            if (c, d) in adj or (d, c) in adj:
+                continue
+            n1, n2 = [c, a, d], [c, d, b]
+            if _orient_uv(uv, np.array([n1, n2])).min() <= 0:
+                continue
+            if _tri_angles(x, np.array([n1, n2])).max() >= _tri_angles(x, np.array([tris[t1], tris[t2]])).max() - 1e-12:
+                continue
+            for t in (t1, t2):
+                for i in range(3):
+                    adj.pop((tris[t][i], tris[t][(i + 1) % 3]), None)
+            tris[t1], tris[t2] = n1, n2
+            for t in (t1, t2):
+                for i in range(3):
+                    adj[(tris[t][i], tris[t][(i + 1) % 3])] = t
             changed += 1
         flips += changed
         if not changed:
