@@ -640,21 +640,36 @@ def project_points(
     on1 = p1.on_model(size)
     open_ = np.ones(n, dtype=bool)
     open_[cp1[on1]] = False
+    excl = f0 if len(cp1) else None
+    # 2a. points that the first face missed (foot on its edge or outside its trims: a mesh
+    # node next to a face border whose nearest sample lies on the neighbour) first try the
+    # faces whose boxes hold them (bound 2 x _ON_MODEL x size: every face that could have a
+    # foot on the model): a foot on the model there ends the search, the nearest of them
+    # wins, and the first face's restarts are never needed. The box query at that bound
+    # costs a fraction of the one at the full bound.
+    missed = np.zeros(n, dtype=bool)
+    missed[cp1] = ~(p1.inside & (p1.status == CONVERGED))
+    sub = np.flatnonzero(open_ & missed)
+    cpa, cfa = _candidate_pairs(index, pts[sub], np.full(len(sub), 2.0 * _ON_MODEL * size),
+                                exclude=excl[sub] if excl is not None else None)
+    cpa = sub[cpa]
+    pa = _Pairs(model, index, pts, cpa, cfa, tol)
+    ona = pa.on_model(size)
+    open_[cpa[ona]] = False
+    # 2b. the rest: every face with a box within the bound (the pairs of 2a not again)
     sub = np.flatnonzero(open_)
-    cp2, cf2 = _candidate_pairs(index, pts[sub], bound[sub], exclude=f0[sub] if len(cp1) else None)
+    cp2, cf2 = _candidate_pairs(index, pts[sub], bound[sub], exclude=excl[sub] if excl is not None else None)
     cp2 = sub[cp2]
+    if len(cpa) and len(cp2):
+        fresh = ~np.isin(cf2 * n + cp2, cfa * n + cpa)
+        cp2, cf2 = cp2[fresh], cf2[fresh]
     p2 = _Pairs(model, index, pts, cp2, cf2, tol)
-    # a point that the first face missed but another face holds (a mesh node next to a face
-    # border whose nearest sample lies on the neighbour) ends there too: its feet on the model
-    # are the candidates; the first face's restarts are not needed
-    on2 = p2.on_model(size)
-    open_[cp2[on2]] = False
-    p1.finish(open_[cp1])
-    p2.finish(open_[cp2])
-    keep1, keep2 = np.flatnonzero(open_[cp1] | on1), np.flatnonzero(open_[cp2] | on2)
-    cp, cf, pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (
-        np.concatenate([x, y]) for x, y in zip(p1.take(keep1), p2.take(keep2)))
-    candidates = np.bincount(np.concatenate([cp1, cp2]), minlength=n)
+    for pp in (p1, pa, p2):
+        pp.finish(open_[pp.cp])
+    parts = [p1.take(np.flatnonzero(open_[cp1] | on1)), pa.take(np.flatnonzero(open_[cpa] | ona)),
+             p2.take(np.flatnonzero(open_[cp2]))]
+    cp, cf, pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate(x) for x in zip(*parts))
+    candidates = np.bincount(np.concatenate([cp1, cpa, cp2]), minlength=n)
 
     # 3. feet outside a face's trims: the nearest point of that face lies on its trim loops,
     # no nearer than the untrimmed foot; needed only where that could beat the best valid foot

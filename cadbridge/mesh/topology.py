@@ -93,10 +93,18 @@ def edge_table(mesh: Mesh) -> EdgeTable:
         return EdgeTable(np.empty((0, 2), np.int64), z, np.zeros(1, np.int64), z, z.astype(bool), z, z)
     n = max(int(mesh.n_nodes), 1)
     key = lo * n + hi  # unique int key per sorted pair (N^2 < 2^63 for N < 3e9)
-    uniq, inv = np.unique(key, return_inverse=True)
+    # one stable sort: sides grouped by edge, and within an edge in side order, which is
+    # ascending element (sides are element-major)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    new = np.empty(len(ks), dtype=bool)
+    new[0] = True
+    new[1:] = ks[1:] != ks[:-1]
+    uniq = ks[new]
+    inv = np.empty(len(key), dtype=np.int64)
+    inv[order] = np.cumsum(new) - 1
     edges = np.column_stack([uniq // n, uniq % n]).astype(np.int64)
     counts = np.bincount(inv, minlength=len(uniq)).astype(np.int64)
-    order = np.lexsort((elem, inv))  # group by edge, then ascending element
     ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     return EdgeTable(
         edges=edges,

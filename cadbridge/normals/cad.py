@@ -122,10 +122,25 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
         offset += len(c)
     todo = np.concatenate(todo)
     if len(todo):
-        cent = np.concatenate([nodes[c].mean(axis=1) for c in blocks])[todo]
+        cells = np.concatenate([c.astype(np.int64) for c in blocks]) if len({c.shape[1] for c in blocks}) == 1 else None
+        if cells is not None:  # one element kind: only the centroids needed
+            cent = nodes[cells[todo]].mean(axis=1)
+        else:
+            cent = np.concatenate([nodes[c].mean(axis=1) for c in blocks])[todo]
         cp = project_points(cent, model, max_distance=None)
         face[todo], u[todo], v[todo] = cp.face, cp.u, cp.v
     return face, u, v
+
+
+def _summed_normals(n: int, blocks: list[np.ndarray], elem_normals: list[np.ndarray]) -> np.ndarray:
+    """(n, 3) sum of the element normals around every node: one `np.bincount` per coordinate
+    over all corners, in the order block, corner k, element (the order of a loop of
+    ``np.add.at``, so the same sums to the last bit)."""
+    if not blocks:
+        return np.zeros((n, 3))
+    idx = np.concatenate([c.T.ravel() for c in blocks])
+    w = np.concatenate([np.tile(en, (c.shape[1], 1)) for c, en in zip(blocks, elem_normals)])
+    return np.column_stack([np.bincount(idx, weights=w[:, j], minlength=n) for j in range(3)])
 
 
 def _on_c0_knot_lines(model: Model, proj: Projection) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -138,10 +153,15 @@ def _on_c0_knot_lines(model: Model, proj: Projection) -> tuple[np.ndarray, np.nd
     on_u = np.zeros(len(proj.face), dtype=bool)
     on_v = np.zeros(len(proj.face), dtype=bool)
     uu, vv = np.array(proj.u, dtype=float), np.array(proj.v, dtype=float)
-    for f in np.unique(proj.face[proj.face >= 0]):
+    fc = np.asarray(proj.face)
+    order = np.argsort(fc, kind="stable")
+    fs = fc[order]
+    for f in np.unique(fs[fs >= 0]):
         s = model.faces[f].surface
+        if not any(len(k) for k in s.crease_knots()):
+            continue
         u0, u1, v0, v1 = s.domain
-        sel = np.flatnonzero(proj.face == f)
+        sel = order[np.searchsorted(fs, f, side="left") : np.searchsorted(fs, f, side="right")]
         for k, lo, hi, par, out in zip(s.crease_knots(), (u0, v0), (u1, v1), (uu, vv), (on_u, on_v)):
             if len(k):
                 gap = np.abs(par[sel, None] - k[None, :])
@@ -235,11 +255,8 @@ def cad_normals(
     elem_face_all, elem_u, elem_v = _element_faces(nodes, blocks, model, proj)
 
     # orient node normals with the winding: sum of element normals around each node
-    acc = np.zeros_like(nodes)
     elem_normals = [_element_normals(nodes, c) for c in blocks]
-    for c, en in zip(blocks, elem_normals):
-        for k in range(c.shape[1]):
-            np.add.at(acc, c[:, k], en)
+    acc = _summed_normals(len(nodes), blocks, elem_normals)
     dots = np.einsum("ij,ij->i", node_n, acc)
     node_n = node_n * np.where(dots < 0, -1.0, 1.0)[:, None] * sign
 
