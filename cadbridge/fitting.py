@@ -59,21 +59,11 @@ def _read_text(path: Path) -> np.ndarray:
 
 def _tool_samples(path: Path, per_edge: int) -> np.ndarray:
     from cadbridge.io.toolfile import read_toolfile
-    from cadbridge.nagata.mesh import NagataMesh
 
     tool = read_toolfile(path)
     if per_edge <= 0:
         return tool.nodes
-    blocks = [b for b in (tool.triangles, tool.quads) if len(b)]
-    corner = [tool.normals[b] for b in blocks]
-    # corner-normal overrides (sharp edges): element numbering is triangles first, then quads
-    et = len(tool.triangles)
-    for e, loc, nrm in zip(tool.corner_element, tool.corner_local, tool.corner_normals):
-        if e < et:
-            corner[0][e, loc] = nrm
-        else:
-            corner[-1][e - et, loc] = nrm
-    nm = NagataMesh(tool.nodes, blocks, corner)
+    nm = tool.nagata_mesh()  # node normals, corner overrides and edge normals (docs/toolfile.md)
     pts = nm.sample_grid(per_edge).points  # patch edges are shared: one point per position
     return np.unique(np.round(pts, 12), axis=0)
 
@@ -141,11 +131,9 @@ class Parametrisation:
     what: str
 
 
-def plane_base(points: np.ndarray) -> Parametrisation:
-    """Best-fit plane (principal axes): u, v the coordinates along its two largest axes (model
-    units, so the parameters are lengths). Raises FitInputError for coincident or collinear
-    points (nothing to span a surface)."""
-    x = np.asarray(points, dtype=float)
+def _principal_axes(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid (3,) and principal axes (3, 3) (rows, largest first) of points (N, 3). Raises
+    FitInputError for coincident or collinear points (nothing to span a surface)."""
     c = x.mean(axis=0)
     _, s, vt = np.linalg.svd(x - c, full_matrices=False)
     scale = s[0] if s.size else 0.0
@@ -153,6 +141,15 @@ def plane_base(points: np.ndarray) -> Parametrisation:
         raise FitInputError("all points coincide: nothing to fit")
     if len(s) < 2 or s[1] <= 1e-9 * scale:
         raise FitInputError("the points are collinear (they lie on one line): a surface needs points spanning an area")
+    return c, vt
+
+
+def plane_base(points: np.ndarray) -> Parametrisation:
+    """Best-fit plane (principal axes): u, v the coordinates along its two largest axes (model
+    units, so the parameters are lengths). Raises FitInputError for coincident or collinear
+    points (nothing to span a surface)."""
+    x = np.asarray(points, dtype=float)
+    c, vt = _principal_axes(x)
     d = x - c
     a, b = d @ vt[0], d @ vt[1]
     # in-plane axes along the minimum-area rectangle of the points (rotating calipers over the
@@ -303,7 +300,8 @@ def face_base(points: np.ndarray, model: Model, face: int | None = None) -> Para
     """Parameters by projection onto a CAD face (``face``), or onto all faces of ``model``
     joined into one strip (`join_strip`). Feet on the base's edge are kept (the fit extends
     over the data; parameter correction moves them onto the fit)."""
-    from cadbridge.nurbs.project import FAILED, project_to_surface
+    from cadbridge.nurbs.fit import reproject
+    from cadbridge.nurbs.project import FAILED, project_to_surface, surface_samples
 
     if not model.faces:
         raise FitInputError("the base CAD has no faces")
@@ -315,23 +313,24 @@ def face_base(points: np.ndarray, model: Model, face: int | None = None) -> Para
         base, what = model.faces[0].surface, "CAD face"
     else:
         base, what = join_strip([f.surface for f in model.faces]), f"{len(model.faces)} CAD faces joined"
-    # Newton from the nearest base sample; the global local-minimum check (3/4 of the time on a
-    # million points) only for the points that came out far from the base
-    res = project_to_surface(base, points, tol=1e-10, global_check=False)
-    far = ~(res.distance <= 10.0 * max(float(np.nanmedian(res.distance)), 1e-12 * model.size())) | (res.status == FAILED)
+    # Newton from the nearest base sample (one compiled pass, `reproject`); the global
+    # local-minimum check (3/4 of the time on a million points) only for the points that came
+    # out far from the base or whose Newton did not end on an orthogonal foot
+    smp = surface_samples(base)
+    first = np.asarray(smp.tree.query(points, workers=-1)[1]).reshape(len(points))
+    u, v, dist, _, ok = reproject(base, points, smp.uv[first, 0], smp.uv[first, 1], tol=1e-10, max_iter=30)
+    far = ~(dist <= 10.0 * max(float(np.nanmedian(dist)), 1e-12 * model.size())) | ~ok
     if far.any():
         again = project_to_surface(base, points[far], tol=1e-10)
-        take = (again.status != FAILED) & ~(again.distance >= np.where(np.isfinite(res.distance[far]),
-                                                                       res.distance[far], np.inf))
+        take = (again.status != FAILED) & (~ok[far] | ~(again.distance >= dist[far]))
         idx = np.nonzero(far)[0][take]
-        for name in ("u", "v", "distance", "status"):
-            getattr(res, name)[idx] = getattr(again, name)[take]
-    bad = res.status == FAILED
+        u[idx], v[idx], dist[idx] = again.u[take], again.v[take], again.distance[take]
+        ok[idx] = True
+    bad = ~ok
     if bad.all():
         raise FitInputError("no point could be projected onto the base surface")
-    u, v = res.u.copy(), res.v.copy()
-    u[bad], v[bad] = np.nanmedian(u), np.nanmedian(v)
-    d = np.where(bad, np.inf, res.distance)
+    u[bad], v[bad] = np.nanmedian(u[ok]), np.nanmedian(v[ok])
+    d = np.where(bad, np.inf, dist)
     return Parametrisation(u, v, d, base, what)
 
 
@@ -516,7 +515,7 @@ def fit_points(
         raise FitInputError(f"{int(bad.sum())} points have NaN or infinite coordinates (first: point {int(np.argmax(bad))})")
     stage = getattr(progress, "stage", None) or (lambda text: None)
     stage(f"parametrising {len(x)} points")
-    plane_base(x)  # coincident / collinear points: one clear error whatever the base
+    _principal_axes(x)  # coincident / collinear points: one clear error whatever the base
     if isinstance(base, str):
         if base != "plane":
             raise FitInputError(f"unknown base {base!r}")

@@ -47,7 +47,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from cadbridge.nurbs.basis import ders_basis_funs, ders_basis_one, find_span, find_span_one, validate_knots
-from cadbridge.nurbs.surface import NurbsSurface
+from cadbridge.nurbs.project import _newton_range
+from cadbridge.nurbs.surface import NurbsSurface, _d01_range
 
 __all__ = [
     "FitError",
@@ -57,6 +58,7 @@ __all__ = [
     "estimate_noise",
     "fit_surface",
     "gram_matrix",
+    "reproject",
     "solve_control_points",
     "uniform_knots",
 ]
@@ -313,7 +315,7 @@ def estimate_noise(points: np.ndarray, k: int = 12, sample: int = 20000, seed: i
         return 0.0
     rng = np.random.default_rng(seed)
     pick = rng.choice(len(pts), size=min(sample, len(pts)), replace=False)
-    tree = cKDTree(pts)
+    tree = cKDTree(pts, balanced_tree=False, compact_nodes=False)  # half the build time; same neighbours
     _, nbr = tree.query(pts[pick], k=k, workers=-1)
     out = np.empty(len(pick))
     _local_scales(pts, np.ascontiguousarray(nbr, dtype=np.int64), out)
@@ -365,17 +367,154 @@ class SurfaceFit:
         return (float(d.max()), float(np.sqrt(np.mean(d**2)))) if d.size else (0.0, 0.0)
 
 
+_CORRECT_BLOCK = 2048  # points per task of the parallel correction kernel
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _residual_at(der, k, px, py, pz):  # pragma: no cover - compiled
+    """(|x - S|, (x - S) . unit Su x Sv, or the distance where the normal is undefined) from
+    der[k] = (S, Sv; Su, Suv) of `_d01_range`."""
+    rx, ry, rz = px - der[k, 0, 0, 0], py - der[k, 0, 0, 1], pz - der[k, 0, 0, 2]
+    d = np.sqrt(rx * rx + ry * ry + rz * rz)
+    sux, suy, suz = der[k, 1, 0, 0], der[k, 1, 0, 1], der[k, 1, 0, 2]
+    svx, svy, svz = der[k, 0, 1, 0], der[k, 0, 1, 1], der[k, 0, 1, 2]
+    nx = suy * svz - suz * svy
+    ny = suz * svx - sux * svz
+    nz = sux * svy - suy * svx
+    ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+    s = (rx * nx + ry * ny + rz * nz) / ln if ln > 0.0 else np.nan
+    return d, (s if np.isfinite(s) else d)
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts, noise, u, v, near, movable, edge,
+                    max_iter, dist, signed, moved):  # pragma: no cover - compiled
+    """Parameter correction and residuals in one pass over the points (`reproject`).
+
+    Point t with movable[t] and |x_t - S(u_t, v_t)| <= near (near < 0: no correction) gets the
+    projected Newton iterations of `cadbridge.nurbs.project` (`_newton_range`, the kernel of
+    `project_to_surface`) from its (u_t, v_t); the new foot is taken (moved[t] = True) if it passes
+    that module's orthogonality check and is not farther than the old one; a taken foot with
+    edge flags (bits 1, 2, 4, 8: u = u0, u1, v = v0, v1) is put back on its edge. Then
+    dist[t] = |x - S|, signed[t] = (x - S) . Su x Sv / |Su x Sv| (dist where the normal is
+    undefined), S and its first derivatives by `NurbsSurface.derivatives`' kernel (`_d01_range`)."""
+    n = pts.shape[0]
+    nblk = (n + _CORRECT_BLOCK - 1) // _CORRECT_BLOCK
+    for blk in numba.prange(nblk):
+        a = blk * _CORRECT_BLOCK
+        b = min(n, a + _CORRECT_BLOCK)
+        m = b - a
+        der = np.empty((m, 2, 2, 3))
+        _d01_range(pw, ku, kv, p, q, 1, rational, u[a:b], v[a:b], der, 0, m)
+        for k in range(m):
+            dist[a + k], signed[a + k] = _residual_at(der, k, pts[a + k, 0], pts[a + k, 1], pts[a + k, 2])
+        if near < 0.0:
+            continue
+        # the block's points to correct, gathered for one `_newton_range` call
+        idx = np.empty(m, dtype=np.int64)
+        pb = np.empty((m, 3))
+        eb = np.empty(m)
+        ub = np.empty(m)
+        vb = np.empty(m)
+        itb = np.zeros(m, dtype=np.int32)
+        same = np.zeros(1, dtype=np.bool_)
+        c = 0
+        for t in range(a, b):
+            if movable[t] and dist[t] <= near:
+                idx[c] = t
+                pb[c, 0], pb[c, 1], pb[c, 2] = pts[t, 0], pts[t, 1], pts[t, 2]
+                eb[c] = noise[t]
+                ub[c] = u[t]
+                vb[c] = v[t]
+                c += 1
+        if c == 0:
+            continue
+        _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, False, False, eps1, eps2, pb, eb, ub, vb,
+                      itb, max_iter, 0, c, ub, vb, -1.0, -1.0, same)
+        _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
+        clamped = 0
+        for k in range(c):
+            t = idx[k]
+            un, vn = ub[k], vb[k]
+            rx, ry, rz = der[k, 0, 0, 0] - pb[k, 0], der[k, 0, 0, 1] - pb[k, 1], der[k, 0, 0, 2] - pb[k, 2]
+            dn = np.sqrt(rx * rx + ry * ry + rz * rz)
+            f = der[k, 1, 0, 0] * rx + der[k, 1, 0, 1] * ry + der[k, 1, 0, 2] * rz
+            g = der[k, 0, 1, 0] * rx + der[k, 0, 1, 1] * ry + der[k, 0, 1, 2] * rz
+            lsu = np.sqrt(der[k, 1, 0, 0] ** 2 + der[k, 1, 0, 1] ** 2 + der[k, 1, 0, 2] ** 2)
+            lsv = np.sqrt(der[k, 0, 1, 0] ** 2 + der[k, 0, 1, 1] ** 2 + der[k, 0, 1, 2] ** 2)
+            edge_u = (un <= u0 and f > 0) or (un >= u1 and f < 0)
+            edge_v = (vn <= v0 and g > 0) or (vn >= v1 and g < 0)
+            off_u = 0.0 if edge_u else abs(f) / max(lsu, 1e-300)
+            off_v = 0.0 if edge_v else abs(g) / max(lsv, 1e-300)
+            ok = max(off_u, off_v) <= 1e3 * eps1 + eb[k]
+            if not (ok and np.isfinite(dn) and np.isfinite(un) and np.isfinite(vn) and dn <= dist[t]):
+                continue
+            moved[t] = True
+            e = edge[t]
+            uc = u0 if e & 1 else (u1 if e & 2 else un)
+            vc = v0 if e & 4 else (v1 if e & 8 else vn)
+            u[t] = uc
+            v[t] = vc
+            if uc != un or vc != vn:  # back on its edge: residuals evaluated there below
+                idx[clamped] = t
+                ub[clamped] = uc
+                vb[clamped] = vc
+                clamped += 1
+            else:
+                dist[t], signed[t] = _residual_at(der, k, pb[k, 0], pb[k, 1], pb[k, 2])
+        if clamped:
+            _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, clamped)
+            for k in range(clamped):
+                t = idx[k]
+                dist[t], signed[t] = _residual_at(der, k, pts[t, 0], pts[t, 1], pts[t, 2])
+
+
+def reproject(surface: NurbsSurface, points: np.ndarray, u, v, *, near: float = np.inf, movable=None, edge=None,
+              tol: float = 1e-10, max_iter: int = 12
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points (N, 3) projected onto ``surface`` by Newton from their parameters u, v (N,), in one
+    compiled parallel pass (`_correct_kernel`: the iterations of `cadbridge.nurbs.project`,
+    P&T §6.1, its orthogonality check; a foot farther than the start is not taken).
+
+    Only points within ``near`` of S(u, v) and ``movable`` ((N,) bool, None: all) are moved
+    (near < 0: none, residuals only); edge (N,) uint8 flags (1, 2, 4, 8: u = u0, u1, v = v0, v1)
+    keep parameters on the domain edges. Returns (u, v, dist, signed, moved), each (N,): the new
+    parameters, |x - S|, (x - S) . unit Su x Sv (dist where the normal is undefined), and which
+    points were moved. The inputs are not modified. No global search: the start must lie in the
+    basin of the foot (a fit from its own points' parameters, a nearest sample of a base).
+    """
+    x = np.asarray(points, dtype=float)
+    n = len(x)
+    u = np.array(u, dtype=float).ravel()
+    v = np.array(v, dtype=float).ravel()
+    dist, signed, moved = np.empty(n), np.empty(n), np.zeros(n, dtype=np.bool_)
+    if n == 0:
+        return u, v, dist, signed, moved
+    pts = np.ascontiguousarray(x)
+    size = max(float(np.linalg.norm(np.ptp(surface.control_points.reshape(-1, 3), axis=0))), 1e-300)
+    noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + size)
+    mv = np.ones(n, dtype=np.bool_) if movable is None else np.ascontiguousarray(movable, dtype=np.bool_)
+    ed = np.zeros(n, dtype=np.uint8) if edge is None else np.ascontiguousarray(edge, dtype=np.uint8)
+    u0, u1, v0, v1 = surface.domain
+    u = np.clip(u, u0, u1)
+    v = np.clip(v, v0, v1)
+    _correct_kernel(surface._pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v,
+                    surface.rational, float(u0), float(u1), float(v0), float(v1), tol * size, tol, pts, noise, u, v,
+                    float(min(near, 1e300)), mv, ed, int(max_iter), dist, signed, moved)
+    return u, v, dist, signed, moved
+
+
+def _correct(surf: NurbsSurface, x: np.ndarray, u: np.ndarray, v: np.ndarray, *, near: float = -1.0,
+             movable: np.ndarray | None = None, edge: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, dist, signed) of `reproject` (default: residuals only)."""
+    return reproject(surf, x, u, v, near=near, movable=movable, edge=edge)[:4]
+
+
 def _residuals(surf: NurbsSurface, x: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Distances |x - S(u, v)| (N,) and signed distances (x - S) . n (N,), n = Su x Sv / |.|
-    (the distance where the normal is undefined), from one first-derivative evaluation."""
-    der = surf.derivatives(u, v, order=1)
-    r = x - der[:, 0, 0]
-    nrm = np.cross(der[:, 1, 0], der[:, 0, 1])
-    ln = np.linalg.norm(nrm, axis=1)
-    dist = np.linalg.norm(r, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        signed = np.einsum("ij,ij->i", r, nrm) / ln
-    return dist, np.where(np.isfinite(signed) & (ln > 0), signed, dist)
+    (the distance where the normal is undefined), one compiled pass."""
+    return _correct(surf, x, u, v)[2:]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -459,6 +598,7 @@ def fit_surface(
     max_levels: int = 40,
     robust_iterations: int = 4,
     max_points_per_level: int = 100000,
+    project_final: bool = True,
     progress=None,
 ) -> SurfaceFit:
     """Fit one NURBS surface to points with start parameters, refining knots to a tolerance.
@@ -476,7 +616,9 @@ def fit_surface(
     ``stage(text)`` (cadbridge.cli.Progress); robust_iterations: further reweighting solves on
     the final net (each phase stops when no weight changes by 0.01); max_points_per_level: more points
     than this choose their knots on a random subset of this size, then the final net is solved
-    on all of them.
+    on all of them; project_final: project every point onto the final fit with
+    `project_to_surface` for the reported deviations (False: the parameters and residuals of the
+    last correction, as for the subset of a large input whose points are re-projected anyway).
     """
     x = np.asarray(points, dtype=float)
     if x.ndim != 2 or x.shape[1] != 3:
@@ -545,35 +687,19 @@ def fit_surface(
         return NurbsSurface(p, q, ku, kv, cp, cw if base is not None else None)
 
     near = 10.0 * tolerance + 5.0 * sigma  # parameters are corrected only on a fit this close
-    on_u0, on_u1 = u <= dom[0], u >= dom[1]
-    on_v0, on_v1 = v <= dom[2], v >= dom[3]
+
+    edge = ((u <= dom[0]) * 1 + (u >= dom[1]) * 2 + (v <= dom[2]) * 4 + (v >= dom[3]) * 8).astype(np.uint8)
 
     def correct(surf, u, v, movable=None):
-        """Foot parameters, distances and signed distances of all points on surf. Only points
-        within ``near`` of the fit (and ``movable``, (N,) bool) get corrected parameters: on a
-        coarse fit that cuts a corner, projection would slide the points along it and spoil a
-        good base parametrisation."""
-        dist = np.linalg.norm(x - surf.evaluate(u, v), axis=1)
-        if correct_parameters:
-            from cadbridge.nurbs.project import FAILED, project_to_surface
-
-            sel = dist <= near
-            if movable is not None:
-                sel &= movable
-            idx = np.nonzero(sel)[0]
-            if idx.size:
-                res = project_to_surface(surf, x[idx], uv0=np.column_stack([u[idx], v[idx]]), tol=1e-10,
-                                         max_iter=12, global_check=False)
-                ok = (res.status != FAILED) & (res.distance <= dist[idx])
-                u, v = u.copy(), v.copy()
-                u[idx[ok]], v[idx[ok]] = res.u[ok], res.v[ok]
-                # points on the domain's edge stay on it (else they slide inward and the fit's
-                # edge floats past the data: 0.006 mm at the end of an FE-node die strip)
-                u[on_u0] = dom[0]
-                u[on_u1] = dom[1]
-                v[on_v0] = dom[2]
-                v[on_v1] = dom[3]
-        return (u, v) + _residuals(surf, x, u, v)
+        """Foot parameters, distances and signed distances of all points on surf (one compiled
+        pass, `_correct`). Only points within ``near`` of the fit (and ``movable``, (N,) bool)
+        get corrected parameters: on a coarse fit that cuts a corner, projection would slide the
+        points along it and spoil a good base parametrisation. Points on the domain's edge stay
+        on it (else they slide inward and the fit's edge floats past the data: 0.006 mm at the
+        end of an FE-node die strip)."""
+        if not correct_parameters:
+            return (u, v) + _residuals(surf, x, u, v)
+        return _correct(surf, x, u, v, near=near, movable=movable, edge=edge)
 
     if robust is not None:
         # the residual a point is judged by is its contrast to its 8 nearest neighbours on the
@@ -590,8 +716,15 @@ def fit_surface(
                 sv = float(np.mean(np.linalg.norm(der[:, 0, 1], axis=1))) or 1.0
                 stage(f"neighbours of {n} points")
                 k_nb = min(9, n)
-                state["nbr"] = cKDTree(np.column_stack([u0_par * su, v0_par * sv])).query(
-                    np.column_stack([u0_par * su, v0_par * sv]), k=k_nb, workers=-1)[1][:, 1:]
+                uv = np.column_stack([u0_par * su, v0_par * sv])
+                tree = cKDTree(uv)
+                # queried in the tree's own order (neighbouring queries walk the same nodes:
+                # 3x faster on a million scattered points than in their random order)
+                order = tree.indices
+                nbr = np.empty((n, k_nb - 1), dtype=np.int64)
+                nbr[order] = tree.query(uv[order], k=k_nb, workers=-1)[1][:, 1:]
+                state["nbr"] = nbr
+                del tree, uv
             nbr = state["nbr"]
             if not nbr.shape[1]:
                 return r
@@ -599,17 +732,15 @@ def fit_surface(
             _median_contrast(np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(nbr, dtype=np.int64), out)
             return out
     u0_par, v0_par = u.copy(), v.copy()
-    def final_projection(surf, u, v):
-        """Every point projected onto the final fit (Newton from its parameters, the existing
-        point inversion with its global check), for the reported deviations."""
-        from cadbridge.nurbs.project import FAILED, project_to_surface
-
+    def final_projection(surf, u, v, dist, signed):
+        """Every point projected onto the final fit for the reported deviations: the point
+        inversion of `cadbridge.nurbs.project` (its Newton kernel and orthogonality check, as
+        `project_to_surface` from given start parameters) from its parameters, tol 1e-12, in one
+        compiled pass (`reproject`)."""
+        if not project_final:
+            return u, v, dist, signed
         stage(f"projecting all {n} points onto the fit")
-        res = project_to_surface(surf, x, uv0=np.column_stack([u, v]), tol=1e-12, max_iter=30)
-        ok = res.status != FAILED
-        u = np.where(ok, res.u, u)
-        v = np.where(ok, res.v, v)
-        return (u, v) + _residuals(surf, x, u, v)
+        return reproject(surf, x, u, v, tol=1e-12, max_iter=30)[:4]
 
     history: list[dict] = []
     stop = "tolerance"
@@ -657,14 +788,17 @@ def fit_surface(
     if refine and n > max_points_per_level:
         # knots from a random subset (a net of at most max_ctrl needs far fewer points than a
         # dense scan has), then the final net solved on all points: parameters of all points
-        # corrected onto the subset's fit, weights from their residuals, two more solves
+        # corrected onto the subset's fit, weights from their residuals, two more solves. No
+        # further correction between them: the net is the subset's, its solution moves by the
+        # subset's sampling error (~sigma / sqrt(points per control point), microns), and the
+        # final projection puts every point on the final fit anyway.
         rng = np.random.default_rng(0)
         sub = np.sort(rng.choice(n, size=max_points_per_level, replace=False))
         f0 = fit_surface(x[sub], u[sub], v[sub], degree=(p, q), tolerance=tolerance, knots=(ku, kv),
                          max_ctrl=max_ctrl, smoothing=smoothing, robust=robust, correct_parameters=correct_parameters,
                          refine=True, rational_base=rational_base, domain=dom, noise=sigma,
                          point_weights=pw_user[sub], max_levels=max_levels, robust_iterations=robust_iterations,
-                         max_points_per_level=max_points_per_level, progress=progress)
+                         max_points_per_level=max_points_per_level, project_final=False, progress=progress)
         ku, kv = f0.surface.knots_u, f0.surface.knots_v
         if base is not None:
             from cadbridge.nurbs.ops import refine_surface
@@ -682,13 +816,13 @@ def fit_surface(
             if robust is not None:
                 rob_w = _robust_weights(contrast(signed), robust, tolerance)
             surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"all {n} points, solve {it + 1}",
-                                             correct_now=it + 1 < n_full)
+                                             correct_now=False)
         if robust is not None:
             rob_w = _robust_weights(contrast(signed), robust, tolerance)
         history.append(dict(ctrl=surf.shape, max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
                             worst_cell=float("nan"), outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
         final_w = rob_w if robust is not None else np.ones(n)
-        u, v, dist, signed = final_projection(surf, u, v)
+        u, v, dist, signed = final_projection(surf, u, v, dist, signed)
         return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), f0.stop, float(tolerance), sigma,
                           history)
 
@@ -810,5 +944,5 @@ def fit_surface(
         history[-1].update(max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
                            outliers=int(np.count_nonzero(rob_w <= 0)))
     final_w = rob_w if robust is not None else np.ones(n)
-    u, v, dist, signed = final_projection(surf, u, v)
+    u, v, dist, signed = final_projection(surf, u, v, dist, signed)
     return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), stop, float(tolerance), sigma, history)
