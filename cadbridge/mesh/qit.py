@@ -92,6 +92,7 @@ class QitFaceReport:
     seam_dropped: int = 0
     valence_flips: int = 0
     relaxed: int = 0
+    strip_reverted: bool = False
 
 
 # ---------------------------------------------------------------------------------------
@@ -1258,6 +1259,7 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
     ones; the edge vertices stay. Returns triangles, uv and x."""
     from cadbridge.mesh.qit_relax import max_angle_flips, relax_vertices, valence_flips, vertex_angle_sums
 
+    local0, uv0, x0 = local, all_uv, all_x
     is_edge = np.zeros(len(all_uv), dtype=bool)
     is_edge[n_si:] = True
     near = is_edge.copy()
@@ -1281,7 +1283,22 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
         rep.relaxed = max(rep.relaxed, nm)
     local, nf = max_angle_flips(local, all_uv, all_x, constrained, opt.strip_max_angle)
     rep.flips += nf
+    if _n_folded(s, all_uv, all_x, local) > _n_folded(s, uv0, x0, local0):
+        # the flips keep (u, v) orientation, not always the 3D one on a strongly curved face:
+        # then the face keeps the paper's triangulation
+        rep.strip_reverted = True
+        return local0, uv0, x0
     return local, all_uv, all_x
+
+
+def _n_folded(s, uv: np.ndarray, x: np.ndarray, tris: np.ndarray) -> int:
+    """Triangles whose 3D normal is against Su x Sv at their (u, v) centroid."""
+    u0, u1, v0, v1 = s.domain
+    c = np.clip(uv[tris].mean(axis=1), [u0, v0], [u1, v1])
+    d = s.derivatives(c[:, 0], c[:, 1], order=1)
+    p = x[tris]
+    tn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return int(np.sum(np.einsum("kj,kj->k", tn, np.cross(d[:, 1, 0], d[:, 0, 1])) <= 0))
 
 
 def _interpolate_pattern(p: np.ndarray, r: np.ndarray, q: np.ndarray) -> np.ndarray:

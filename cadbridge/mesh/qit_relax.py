@@ -77,9 +77,16 @@ def valence_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, alpha: np.nda
     adj = {(t[i], t[(i + 1) % 3]): n for n, t in enumerate(tris) for i in range(3)}
     lo, hi = np.radians(min_angle), np.radians(max_angle)
     flips = 0
+    third = np.pi / 3
     for _ in range(max_sweeps):
         changed = 0
-        for key in sorted({(min(a, b), max(a, b)) for (a, b) in adj}):
+        # only a quadrilateral with a vertex off its ideal mean angle can gain: edges with an
+        # end point or an opposite vertex deviating by more than 1 degree
+        off = np.abs(alpha / np.maximum(val, 1) - third) > np.radians(1.0)
+        t_off = [n for n, t in enumerate(tris) if off[t[0]] or off[t[1]] or off[t[2]]]
+        keys = {(min(tris[n][i], tris[n][(i + 1) % 3]), max(tris[n][i], tris[n][(i + 1) % 3]))
+                for n in t_off for i in range(3)}
+        for key in sorted(keys):
             if key in constrained:
                 continue
             a, b = key
@@ -130,11 +137,16 @@ def max_angle_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, constrained
     tris = [list(map(int, t)) for t in tris]
     thr = np.radians(max_angle)
     flips = 0
+    adj = None
     for _ in range(max_sweeps):
-        adj = {(t[i], t[(i + 1) % 3]): n for n, t in enumerate(tris) for i in range(3)}
         ang = _tri_angles(x, np.array(tris))
+        over = np.flatnonzero(ang.max(axis=1) > thr)
+        if over.size == 0:
+            break
+        if adj is None:  # kept up to date by the flips below
+            adj = {(t[i], t[(i + 1) % 3]): n for n, t in enumerate(tris) for i in range(3)}
         changed = 0
-        for t1 in np.flatnonzero(ang.max(axis=1) > thr):
+        for t1 in over:
             tt = tris[t1]
             k = int(np.argmax(_tri_angles(x, np.array([tt]))[0]))
             c, a, b = tt[k], tt[(k + 1) % 3], tt[(k + 2) % 3]
@@ -231,7 +243,10 @@ def relax_vertices(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, free: np.nda
             moved[back] = False
         if not moved.any():
             break
+        shift = float(np.linalg.norm(cand_x[moved] - x[moved], axis=1).max())
         uv, x = cand_uv, cand_x
+        if shift < 1e-6 * R:  # converged
+            break
     return uv, x, int(np.sum(np.any(uv != uv_start, axis=1)))
 
 
