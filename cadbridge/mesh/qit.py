@@ -1283,9 +1283,14 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
         rep.relaxed = max(rep.relaxed, nm)
     local, nf = max_angle_flips(local, all_uv, all_x, constrained, opt.strip_max_angle)
     rep.flips += nf
-    if _n_folded(s, all_uv, all_x, local) > _n_folded(s, uv0, x0, local0):
-        # the flips keep (u, v) orientation, not always the 3D one on a strongly curved face:
-        # then the face keeps the paper's triangulation
+    from cadbridge.mesh.quality import triangle_angles
+
+    a0, a1 = triangle_angles(x0, local0), triangle_angles(all_x, local)
+    if (_n_folded(s, all_uv, all_x, local) > _n_folded(s, uv0, x0, local0) or a1.min() < a0.min() - 1e-9
+            or a1.max() > max(a0.max(), opt.strip_max_angle) + 1e-9):
+        # the flips keep (u, v) orientation, not always the 3D one on a strongly curved
+        # face; and the step must not make the face's worst angles worse: else the face
+        # keeps the paper's triangulation
         rep.strip_reverted = True
         return local0, uv0, x0
     return local, all_uv, all_x
