@@ -209,29 +209,16 @@ def _trim_loops(face: Face) -> list:
 
 
 def _trim_curve_boxes(face: Face) -> np.ndarray:
-    """uv boxes (T, 2, 2) [min, max] covering every trim curve of ``face``: for NURBS curves
-    the control polygons of their Bezier pieces cut into 8 (each contains its piece of curve:
-    convex hull property); for exactly mapped
-    curves without a control polygon (`cadbridge.iges.analytic`), the chords of 32 samples per
-    span widened by twice their largest midpoint deviation."""
+    """uv boxes (T, 2, 2) [min, max] covering every trim curve of ``face``: one per edge of
+    each loop's `LoopBoundary` polygon (the same one `Face.contains` decides on), its chord
+    widened by the edge's chord bound (the arc lies within that bound of its chord: for NURBS
+    curves rigorous, from the Bezier net of the piece; for exactly mapped curves without a
+    control net, `cadbridge.trims`' sampled estimate)."""
     out = []
     for loop in _trim_loops(face):
-        for c in loop.curves:
-            if hasattr(c, "control_points"):
-                # Bezier pieces of every span, each cut into 8: boxes of their control polygons
-                _, bp, bw = curve_bezier_segments(c)
-                hw = np.concatenate([bp[..., :2] * bw[..., None], bw[..., None]], axis=-1)  # (K, p+1, 3)
-                sub = np.einsum("sij,kjc->ksic", _split_matrices(c.degree, _TRIM_SPLITS), hw)
-                xy = (sub[..., :2] / sub[..., 2:]).reshape(-1, c.degree + 1, 2)
-                out.append(np.stack([xy.min(axis=1), xy.max(axis=1)], axis=1))
-            else:
-                t = c.sample_parameters(32)
-                x = c.evaluate(t)[:, :2]
-                mid = c.evaluate(0.5 * (t[:-1] + t[1:]))[:, :2]
-                dev = 2.0 * float(np.max(np.linalg.norm(mid - 0.5 * (x[:-1] + x[1:]), axis=1), initial=0.0))
-                lo = np.minimum(x[:-1], x[1:]) - dev
-                hi = np.maximum(x[:-1], x[1:]) + dev
-                out.append(np.stack([lo, hi], axis=1))
+        bd = loop.boundary
+        r = bd.band[:, None]
+        out.append(np.stack([np.minimum(bd.a, bd.b) - r, np.maximum(bd.a, bd.b) + r], axis=1))
     return np.concatenate(out) if out else np.zeros((0, 2, 2))
 
 

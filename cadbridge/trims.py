@@ -23,6 +23,7 @@ rigorous convex-hull chord bound from the Bezier net of each edge's piece.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from math import comb
 
 import numba
@@ -168,6 +169,17 @@ def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
     return np.linalg.norm(p - (a + t[..., None] * ab), axis=-1)
 
 
+@lru_cache(maxsize=64)
+def _taylor_to_bernstein(p: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """j = 0..p, j! and the matrix C(k, j) / C(p, j) (j <= k) of `_bezier_bounds` (cached)."""
+    j = np.arange(p + 1)
+    fact = np.array([float(np.prod(np.arange(1, k + 1))) for k in j])
+    tm = np.array([[comb(k, i) / comb(p, i) if i <= k else 0.0 for i in j] for k in j])
+    for a in (j, fact, tm):
+        a.setflags(write=False)
+    return j, fact, tm
+
+
 def _bezier_bounds(c: NurbsCurve, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.ndarray):
     """Rigorous chord bound and graph test of the pieces [ta, tb] (M,) of a NURBS curve with
     chords pa -> pb (M, 2). The Bezier net of each piece comes from the homogeneous
@@ -179,23 +191,66 @@ def _bezier_bounds(c: NurbsCurve, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray
     p = c.degree
     if p == 1:  # a (rational) linear piece is its chord
         return np.zeros(len(ta)), np.ones(len(ta), dtype=bool)
-    pw = np.ascontiguousarray(c._pw[:, [0, 1, -1]])
-    hom = NurbsCurve._trusted(p, c.knots, pw, np.ones(len(pw)), c.domain, False)
-    d = _curve_ders(hom, ta, p)  # (M, p+1, 3)
-    j = np.arange(p + 1)
-    fact = np.array([float(np.prod(np.arange(1, k + 1))) for k in j])
-    h = (tb - ta)[:, None] ** j / fact
-    tm = np.array([[comb(k, i) / comb(p, i) if i <= k else 0.0 for i in j] for k in j])
-    b = np.einsum("ki,mic->mkc", tm, d * h[:, :, None])
-    w = b[..., 2]
-    good_w = np.all(w > 0, axis=1)
-    net = b[..., :2] / np.where(w > 0, w, 1.0)[..., None]
-    band = np.max(_segment_distance(net, pa[:, None], pb[:, None]), axis=1)
-    chord = pb - pa
-    dp = np.einsum("mkj,mj->mk", np.diff(net, axis=1), chord)
-    slack = 1e-13 * np.linalg.norm(np.diff(net, axis=1), axis=2) * np.linalg.norm(chord, axis=1)[:, None]
-    graph = good_w & np.all(dp >= -slack, axis=1)
-    return np.where(good_w, band, np.inf), graph
+    hom = c.__dict__.get("_trim_hom")  # the (x w, y w, w) curve, built once per curve
+    if hom is None:
+        pw = np.ascontiguousarray(c._pw[:, [0, 1, -1]])
+        hom = c.__dict__["_trim_hom"] = NurbsCurve._trusted(p, c.knots, pw, np.ones(len(pw)), c.domain, False)
+    j, fact, tm = _taylor_to_bernstein(p)
+    m = len(ta)
+    band, graph = np.empty(m), np.empty(m, dtype=np.bool_)
+    if m:
+        _bezier_bounds_kernel(hom._pw, hom.knots, p, np.ascontiguousarray(ta, dtype=float),
+                              np.ascontiguousarray(tb, dtype=float), np.ascontiguousarray(pa, dtype=float),
+                              np.ascontiguousarray(pb, dtype=float), fact, tm, band, graph)
+    return band, graph
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _bezier_bounds_kernel(hpw, knots, p, ta, tb, pa, pb, fact, tm, band, graph):  # pragma: no cover - compiled
+    """`_bezier_bounds` piece by piece (its docstring): the homogeneous derivatives at ta (hpw
+    (n, 4): the (x w, y w, w) net as a non-rational curve), the Bezier net, band and graph."""
+    ndu = np.empty((p + 1, p + 1))
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    a = np.empty((2, p + 1))
+    nd = np.empty((p + 1, p + 1))
+    aw = np.empty((p + 1, 4))
+    d = np.empty((p + 1, 3))
+    h = np.empty(p + 1)
+    net = np.empty((p + 1, 2))
+    for i in range(ta.shape[0]):
+        _curve_ders_one(hpw, knots, p, False, ta[i], p, ndu, left, right, a, nd, aw, d)
+        dt = tb[i] - ta[i]
+        for k in range(p + 1):
+            h[k] = dt ** k / fact[k]
+        good = True
+        for k in range(p + 1):
+            bx = 0.0
+            by = 0.0
+            bw = 0.0
+            for m in range(k + 1):
+                c = tm[k, m] * h[m]
+                bx += c * d[m, 0]
+                by += c * d[m, 1]
+                bw += c * d[m, 2]
+            if not bw > 0:
+                good = False
+                bw = 1.0
+            net[k, 0] = bx / bw
+            net[k, 1] = by / bw
+        ax, ay, bx_, by_ = pa[i, 0], pa[i, 1], pb[i, 0], pb[i, 1]
+        cx, cy = bx_ - ax, by_ - ay
+        lc = np.sqrt(cx * cx + cy * cy)
+        bd = 0.0
+        mono = True
+        for k in range(p + 1):
+            bd = max(bd, _seg_dist(net[k, 0], net[k, 1], ax, ay, bx_, by_))
+            if k < p:
+                ex, ey = net[k + 1, 0] - net[k, 0], net[k + 1, 1] - net[k, 1]
+                if ex * cx + ey * cy < -1e-13 * np.sqrt(ex * ex + ey * ey) * lc:
+                    mono = False
+        band[i] = bd if good else np.inf
+        graph[i] = good and mono
 
 
 def _sampled_bounds(c, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.ndarray):
