@@ -237,13 +237,16 @@ def build_tool(
     progress=None,
     element_face: list[np.ndarray] | np.ndarray | None = None,
     straddling: np.ndarray | None = None,
+    boundary_curves: bool = True,
 ) -> ToolResult:
     """Nagata patches over ``mesh`` with the given normals and their errors against the CAD
     (`cadbridge.tool_errors`: surface, boundary, flat surface and normal errors).
 
     element_face: face of each element (per block, or (E,) in block order); where None the
     element centroids are projected. straddling: global element ids (block order) that
-    straddle a crease (`cadbridge.creases.straddling_elements`), named in the diagnosis."""
+    straddle a crease (`cadbridge.creases.straddling_elements`), named in the diagnosis.
+    boundary_curves: free boundary edges follow their faces' trim curves
+    (`cadbridge.boundary_edges`; needs ``model``)."""
     from cadbridge.nagata import NagataMesh
 
     progress = progress or NoProgress()
@@ -254,17 +257,9 @@ def build_tool(
         starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
         remap = np.concatenate([starts[i] + np.arange(sizes[i]) for i in order])  # new -> old element id
     mesh, corner_normals = _triangles_first(mesh, corner_normals)
-    progress.stage(f"{name}: Nagata patches")
-    nm = NagataMesh(mesh.nodes, _blocks(mesh), corner_normals)
-    grid = sample_divisions(nm, grid)
-    g = nm.sample_grid(grid)
-    sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
-    stats: dict = {}
     ef = None
-    diagnosis: list[str] = []
+    edge_normals = None
     if model is not None:
-        from cadbridge.tool_errors import tool_errors
-
         projector = projector or CadProjector(model, progress)
         if element_face is None:
             cent = np.concatenate([mesh.nodes[b].mean(axis=1) for b in _blocks(mesh)])
@@ -274,6 +269,21 @@ def build_tool(
             ef = ef.astype(np.int64)
             if remap is not None:
                 ef = ef[remap]
+        if boundary_curves:
+            from cadbridge.boundary_edges import boundary_conormals
+
+            progress.stage(f"{name}: boundary edges along the trim curves")
+            edge_normals = boundary_conormals(mesh.nodes, _blocks(mesh), corner_normals, ef, model).as_edge_normals()
+    progress.stage(f"{name}: Nagata patches")
+    nm = NagataMesh(mesh.nodes, _blocks(mesh), corner_normals, edge_normals=edge_normals)
+    grid = sample_divisions(nm, grid)
+    g = nm.sample_grid(grid)
+    sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
+    stats: dict = {}
+    diagnosis: list[str] = []
+    if model is not None:
+        from cadbridge.tool_errors import tool_errors
+
         progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
         err = tool_errors(nm, g.elem, g.eta, g.zeta, ef, model, projector.project)
         sample.update(surface_error=err.surface, boundary_error=err.boundary,
@@ -477,6 +487,8 @@ def tool_data(tool: ToolResult, units: str, cad: str | None = None):
         corner_element=ce,
         corner_local=cl,
         corner_normals=cn,
+        edge_nodes=nm.edge_normals[0],
+        edge_normals=np.stack([nm.edge_normals[1], nm.edge_normals[2]], 1),
         tri_coefficients=nm.tri_coefficients if tri else None,
         quad_coefficients=nm.quad_coefficients if quad else None,
         source=cad or "",

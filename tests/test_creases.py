@@ -102,22 +102,34 @@ def test_errors_are_named_in_summary_csv_and_vtu(converted):
         assert np.all(np.isfinite(vtu.point_data[k]))
 
 
-def test_trimmed_hole_surface_and_boundary_errors(tmp_path):
-    """A plate with a hole: the patches are exactly on the plane (surface error 0) but bridge
-    the hole's chords (boundary error = how far the chords cut into the hole). Reference:
-    the analytic circle R10 about (30, 25): for every sample, boundary error = its distance
-    to the trimmed plate, i.e. R - |p - centre| for samples inside the hole, else 0."""
-    from cadbridge.pipeline import convert
+def test_trimmed_hole_surface_and_boundary_errors(tmp_path, monkeypatch):
+    """A plate with a hole: the patches are exactly on the plane (surface error 0). With
+    straight chords along the hole (boundary edges left to the two-normal formula) they bridge
+    into it, and the boundary error is how far they cut in; with the trim circle's conormals
+    (the default, `cadbridge.boundary_edges`) the hole edges follow the circle. Reference: the
+    analytic circle R10 about (30, 25): for every sample, boundary error = its distance to the
+    trimmed plate, i.e. R - |p - centre| for samples inside the hole, else 0."""
+    import functools
 
-    r = convert(str(SAMPLES / "trimmed_hole.igs"), str(tmp_path / "out"), element="tri")
-    (tool,) = r.tools
-    g = tool.grid
-    assert tool.stats["max_abs_surface_error"] < 1e-12
-    p = g["points"]
-    rad = np.hypot(p[:, 0] - 30.0, p[:, 1] - 25.0)
-    ref = np.maximum(10.0 - rad, 0.0)
-    np.testing.assert_allclose(g["boundary_error"], ref, atol=1e-9)
-    assert 0.05 < tool.stats["max_boundary_error"] < 0.6
+    import cadbridge.pipeline as pipeline
+
+    def run(name):
+        r = pipeline.convert(str(SAMPLES / "trimmed_hole.igs"), str(tmp_path / name), element="tri")
+        (tool,) = r.tools
+        g = tool.grid
+        assert tool.stats["max_abs_surface_error"] < 1e-12
+        p = g["points"]
+        rad = np.hypot(p[:, 0] - 30.0, p[:, 1] - 25.0)
+        np.testing.assert_allclose(g["boundary_error"], np.maximum(10.0 - rad, 0.0), atol=1e-9)
+        return tool, rad
+
+    tool, rad = run("default")
+    assert tool.stats["max_boundary_error"] < 1e-9
+    # the samples on the hole's edges (12 edges x 10 divisions) are all within 0.01 of the circle
+    assert np.count_nonzero(rad < 10.01) >= 12 * 10
+    monkeypatch.setattr(pipeline, "build_tool", functools.partial(pipeline.build_tool, boundary_curves=False))
+    tool, rad = run("chords")
+    assert 0.05 < tool.stats["max_boundary_error"] < 0.6  # the chords cut 0.341 into the hole
 
 
 # ----------------------------------------------------------------------------- regressions

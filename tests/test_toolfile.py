@@ -34,7 +34,8 @@ NASTY = np.array([0.0, -0.0, 5e-324, -2.2250738585072014e-308, 1 / 3, -2 / 3, 0.
                   123456789.12345679, 1e-7, 2.0**-1074 * 3, 6.02214076e23])
 
 
-def make_tool(seed: int = 0, n: int = 9, et: int = 4, eq: int = 3, c: int = 3, coef: bool = True) -> ToolData:
+def make_tool(seed: int = 0, n: int = 9, et: int = 4, eq: int = 3, c: int = 3, coef: bool = True,
+              b: int = 0) -> ToolData:
     rng = np.random.default_rng(seed)
     nodes = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-3, 4, size=(n, 1))
     nodes.ravel()[: min(nodes.size, NASTY.size)] = NASTY[: nodes.size]
@@ -45,7 +46,10 @@ def make_tool(seed: int = 0, n: int = 9, et: int = 4, eq: int = 3, c: int = 3, c
     celem = rng.choice(et + eq, size=c, replace=False) if et + eq else np.zeros(0, int)
     ccorner = np.array([rng.integers(0, 3 if e < et else 4) for e in celem], dtype=int)
     cn = rng.normal(size=(c, 3))
+    edge_nodes = rng.integers(0, n, size=(b, 2))
+    edge_nodes[:, 1] = (edge_nodes[:, 0] + 1 + rng.integers(0, n - 1, size=b)) % n  # two different nodes
     return ToolData(
+        edge_nodes=edge_nodes, edge_normals=rng.normal(size=(b, 2, 3)),
         name="die  upper (op20) ", units="MM", nodes=nodes, normals=normals, triangles=tri, quads=quad,
         corner_element=celem, corner_local=ccorner, corner_normals=cn,
         tri_coefficients=rng.normal(size=(et, 6, 3)) * 1e3 if coef else None,
@@ -104,12 +108,17 @@ def test_empty_coefficient_block_normalised():
 
 # ------------------------------------------------------------------------- documented layout
 def test_layout_follows_spec():
-    tool = make_tool(seed=3, n=5, et=2, eq=2, c=2)
+    tool = make_tool(seed=3, n=5, et=2, eq=2, c=2, b=2)
     lines = format_toolfile(tool).splitlines()
-    assert lines[0] == "CADBRIDGE-NAGATA-TOOL 1"
+    assert lines[0] == "CADBRIDGE-NAGATA-TOOL 2"
     assert lines[1] == "NAME die  upper (op20) "
     counts = next(ln for ln in lines if ln.startswith("COUNTS "))
-    assert counts == "COUNTS 5 2 2 2 1"
+    assert counts == "COUNTS 5 2 2 2 1 2"
+    k = lines.index("EDGE_NORMALS 2")  # right after the CORNER_NORMALS records
+    assert lines[k - 3] == "CORNER_NORMALS 2"
+    rec = lines[k + 2].split()
+    assert rec[:3] == ["2"] + [str(i + 1) for i in tool.edge_nodes[1]]
+    assert [float(x) for x in rec[3:]] == tool.edge_normals[1].ravel().tolist()
     i = lines.index("ELEMENTS 4")
     # 1-based ids, triangles first (nn = 3), then quads (nn = 4), node ids 1-based
     assert [ln.split()[:2] for ln in lines[i + 1 : i + 5]] == [["1", "3"], ["2", "3"], ["3", "4"], ["4", "4"]]
@@ -144,7 +153,7 @@ def spec_token_reader(text: str) -> dict:
     """Independent reader following the spec's Fortran sketch: skip to COUNTS, then read tokens."""
     lines = text.splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("COUNTS "))
-    n, et, eq, nc, kc = map(int, lines[k].split()[1:])
+    n, et, eq, nc, kc, nb = map(int, lines[k].split()[1:])
     tok = iter(" ".join(lines[k + 1 :]).split())
     nxt = lambda: next(tok)  # noqa: E731
     out = {}
@@ -160,6 +169,8 @@ def spec_token_reader(text: str) -> dict:
     out["ELEMENTS"] = conn
     assert nxt() == "CORNER_NORMALS" and int(nxt()) == nc
     out["CORNER_NORMALS"] = [(int(nxt()), int(nxt()), float(nxt()), float(nxt()), float(nxt())) for _ in range(nc)]
+    assert nxt() == "EDGE_NORMALS" and int(nxt()) == nb
+    out["EDGE_NORMALS"] = [(int(nxt()), int(nxt()), int(nxt()), *[float(nxt()) for _ in range(6)]) for _ in range(nb)]
     if kc:
         assert nxt() == "COEFFICIENTS"
         coef = np.zeros((et + eq, 8, 3))
@@ -172,8 +183,10 @@ def spec_token_reader(text: str) -> dict:
 
 
 def test_spec_reader_reads_written_file():
-    tool = make_tool(seed=5)
+    tool = make_tool(seed=5, b=3)
     got = spec_token_reader(format_toolfile(tool))
+    assert [list(r[1:3]) for r in got["EDGE_NORMALS"]] == (tool.edge_nodes + 1).tolist()
+    assert np.array([r[3:] for r in got["EDGE_NORMALS"]]).tobytes() == tool.edge_normals.reshape(-1, 6).tobytes()
     assert got["NODES"].tobytes() == tool.nodes.tobytes()
     assert got["ELEMENTS"] == (tool.triangles + 1).tolist() + (tool.quads + 1).tolist()
     assert [c[:2] for c in got["CORNER_NORMALS"]] == list(zip((tool.corner_element + 1).tolist(),
@@ -204,8 +217,10 @@ def good_text() -> str:
 @pytest.mark.parametrize(
     "edit, line, section, phrase",
     [
-        (lambda t: _mutate(t, "CADBRIDGE-NAGATA-TOOL 1", "HELLO 1"), 1, "header", "not a cadbridge"),
-        (lambda t: _mutate(t, "CADBRIDGE-NAGATA-TOOL 1", "CADBRIDGE-NAGATA-TOOL 2"), 1, "header", "version"),
+        (lambda t: _mutate(t, "CADBRIDGE-NAGATA-TOOL 2", "HELLO 2"), 1, "header", "not a cadbridge"),
+        (lambda t: _mutate(t, "CADBRIDGE-NAGATA-TOOL 2", "CADBRIDGE-NAGATA-TOOL 3"), 1, "header", "version"),
+        (lambda t: re.sub(r"(COUNTS \d+ \d+ \d+ \d+ \d+) \d+", r"\1", t), 11, "header", "version 2"),
+        (lambda t: _mutate(t, "EDGE_NORMALS 0", "EDGE_NORMALS 1"), 28, "EDGE_NORMALS", "does not match"),
         (lambda t: _mutate(t, "UNITS MM\n", ""), 10, "header", "no UNITS"),
         (lambda t: _mutate(t, "UNITS MM\n", "UNITS MM\nCOLOR red\n"), 4, "header", "unknown header keyword"),
         (lambda t: _mutate(t, "NODES 4", "NODES 5"), 12, "NODES", "does not match"),
@@ -220,10 +235,10 @@ def good_text() -> str:
         (lambda t: re.sub(r"\n2 3 (\d+ \d+ \d+)\n3 4 (\d+ \d+ \d+ \d+)", r"\n2 4 \2\n3 3 \1", t), 24, "ELEMENTS",
          "triangles must come first"),
         (lambda t: re.sub(r"(CORNER_NORMALS 1\n\d+ )\d+", r"\g<1>5", t), 27, "CORNER_NORMALS", "out of range"),
-        (lambda t: re.sub(r"(COEFFICIENTS 20\n1 )1", r"\g<1>2", t), 29, "COEFFICIENTS", "coefficient 1"),
-        (lambda t: t[: t.index("COEFFICIENTS")], 27, "COEFFICIENTS", "unexpected end of file"),
-        (lambda t: t.replace("END\n", ""), 48, "END", "unexpected end"),
-        (lambda t: t + "more\n", 50, "END", "text after END"),
+        (lambda t: re.sub(r"(COEFFICIENTS 20\n1 )1", r"\g<1>2", t), 30, "COEFFICIENTS", "coefficient 1"),
+        (lambda t: t[: t.index("COEFFICIENTS")], 28, "COEFFICIENTS", "unexpected end of file"),
+        (lambda t: t.replace("END\n", ""), 49, "END", "unexpected end"),
+        (lambda t: t + "more\n", 51, "END", "text after END"),
     ],
 )
 def test_reader_errors_name_line_and_section(good_text, edit, line, section, phrase):
@@ -277,3 +292,23 @@ def test_atomic_write_exception_cleans_up(tmp_path):
     with atomic_write(path, "wb") as fh:
         fh.write(b"new")
     assert path.read_bytes() == b"new" and os.listdir(tmp_path) == ["x.txt"]
+
+
+def test_version_1_file_still_reads():
+    """A version 1 file (five COUNTS, no EDGE_NORMALS section; docs/toolfile.md "Versioning")
+    reads with no edge normals, and the same tool written as version 2 reads back equal."""
+    tool = make_tool(seed=7)
+    v2 = format_toolfile(tool)
+    v1 = re.sub(r"(COUNTS \d+ \d+ \d+ \d+ \d+) 0\n", r"\1\n", v2.replace("CADBRIDGE-NAGATA-TOOL 2", "CADBRIDGE-NAGATA-TOOL 1"))
+    v1 = v1.replace("EDGE_NORMALS 0\n", "")
+    back = parse_toolfile(v1, "v1.nag")
+    assert back.equals(tool) and back.edge_nodes.shape == (0, 2)
+    with pytest.raises(ToolFileError, match="section COEFFICIENTS"):  # a v2 section in a v1 file is not read
+        parse_toolfile(v2.replace("CADBRIDGE-NAGATA-TOOL 2", "CADBRIDGE-NAGATA-TOOL 1").replace(" 1 0\nNODES", " 1\nNODES"))
+
+
+def test_edge_normals_roundtrip_exact(tmp_path):
+    tool = make_tool(seed=11, b=4)
+    back = roundtrip(tool, tmp_path)
+    assert back.equals(tool)
+    assert back.edge_nodes.tolist() == tool.edge_nodes.tolist()

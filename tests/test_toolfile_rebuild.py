@@ -134,7 +134,7 @@ def check_tool_file(path: Path) -> dict:
             gap = max(gap, max(float(np.abs(x - lst[0]).max()) for x in lst[1:]))
     assert gap <= tol, f"{path.name}: neighbouring patches part by {gap:.3g} along a shared edge (> {tol:.3g})"
     return {"elements": E, "triangles": tf.n_tri, "edges": len(edges.coef), "shared": shared,
-            "kinds": np.bincount(edges.kind, minlength=3), "size": size, "deviation": float(dev.max(initial=0))}
+            "kinds": np.bincount(edges.kind, minlength=4), "size": size, "deviation": float(dev.max(initial=0))}
 
 
 # ----------------------------------------------------------------------------- rule, by hand
@@ -252,7 +252,8 @@ def test_reader_validates(tmp_path, hand_file):
     good = path.read_text()
     R.read(path)
     cases = {
-        "version": good.replace("CADBRIDGE-NAGATA-TOOL 1", "CADBRIDGE-NAGATA-TOOL 2"),
+        "version": good.replace("CADBRIDGE-NAGATA-TOOL 1", "CADBRIDGE-NAGATA-TOOL 3"),
+        "v2 counts": good.replace("CADBRIDGE-NAGATA-TOOL 1", "CADBRIDGE-NAGATA-TOOL 2"),  # 5 COUNTS, no section
         "quad first": good.replace("1 3 1 2 3\n", "1 4 1 2 3 4\n", 1),
         "twice": good.replace("CORNER_NORMALS 3\n2 1", "CORNER_NORMALS 3\n2 2", 1),
         "no END": good.replace("END\n", ""),
@@ -275,7 +276,7 @@ def test_document_example_reads_and_is_flat(tmp_path):
     quad 2 (node 3) takes its CORNER_NORMALS record, and its COEFFICIENTS (said to be those
     of the flat interpolation) evaluate to the flat elements (independent formulas)."""
     text = DOC.read_text()
-    m = re.search(r"```\n(CADBRIDGE-NAGATA-TOOL 1\n.*?\nEND\n)```", text, re.S)
+    m = re.search(r"```\n(CADBRIDGE-NAGATA-TOOL 2\n.*?\nEND\n)```", text, re.S)
     assert m, "no complete example in docs/toolfile.md"
     p = tmp_path / "example.nagata"
     p.write_text(m.group(1))
@@ -311,7 +312,7 @@ def _convert(tmp_path: Path, name: str, element: str, structured: bool) -> list[
 @pytest.mark.parametrize("name,element,structured", FAST, ids=[f"{n[:-4]}-{e}" for n, e, _ in FAST])
 def test_convert_coefficients_follow_the_rule(tmp_path, name, element, structured):
     files = _convert(tmp_path, name, element, structured)
-    kinds = np.zeros(3, dtype=int)
+    kinds = np.zeros(4, dtype=int)
     for f in files:
         r = check_tool_file(f)
         tf = R.read(f)
@@ -322,6 +323,9 @@ def test_convert_coefficients_follow_the_rule(tmp_path, name, element, structure
         assert kinds[2] > 0, f"no crease edge in {name} ({element}): {kinds}"
     if name == "ushape_tools_nurbs.igs":
         assert sorted(f.stem for f in files) == ["bholder", "die", "pch"]
+    if name == "trimmed_hole.igs":
+        # the hole's free edges carry EDGE_NORMALS (the trim circle's conormals): rule 4b
+        assert len(R.read(files[0]).edge_nodes) > 0 and kinds[3] > 0, kinds
 
 
 ALL = sorted(p for p in SAMPLES.glob("*.igs") if not p.name.startswith("production_die"))

@@ -1,4 +1,4 @@
-"""Independent reference reader of the cadbridge tool file (docs/toolfile.md, version 1).
+"""Independent reference reader of the cadbridge tool file (docs/toolfile.md, versions 1 and 2).
 
 Written from docs/toolfile.md alone, for tests and benchmarks: it imports neither
 cadbridge.io.toolfile nor cadbridge.nagata (nor anything else of cadbridge), only numpy.
@@ -55,6 +55,9 @@ class ToolFile:
     corner_index: np.ndarray  # (C,) 0-based local corner
     corner_normal: np.ndarray  # (C, 3)
     coefficients: np.ndarray | None  # (E, 8, 3) as written, zeros for a triangle's c21 c12
+    edge_nodes: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))  # (B, 2) 0-based
+    edge_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (B, 3) extra normal at edge_nodes[:, 0]
+    edge_q: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (B, 3) at edge_nodes[:, 1]
     extra: dict = field(default_factory=dict)
 
     @property
@@ -114,8 +117,9 @@ def read(path: str | Path) -> ToolFile:
     magic = lines[0].split() if lines else []
     if len(magic) != 2 or magic[0] != "CADBRIDGE-NAGATA-TOOL":
         _fail(path, 1, f"not a cadbridge tool file: {lines[0] if lines else ''!r}")
-    if magic[1] != "1":
-        _fail(path, 1, f"version {magic[1]!r}: this reader knows version 1 only")
+    if magic[1] not in ("1", "2"):
+        _fail(path, 1, f"version {magic[1]!r}: this reader knows versions 1 and 2 only")
+    version = int(magic[1])
     head: dict[str, str] = {}
     meta, comments = [], []
     i = 1
@@ -144,9 +148,11 @@ def read(path: str | Path) -> ToolFile:
         if req not in head:
             _fail(path, i + 1, f"header has no {req}")
     counts = lines[i].split()[1:]
-    if len(counts) != 5 or not all(c.isdigit() for c in counts):
-        _fail(path, i + 1, f"COUNTS needs 5 integers: {lines[i]!r}")
-    N, Et, Eq, C, K = map(int, counts)
+    want = 5 if version == 1 else 6
+    if len(counts) != want or not all(c.isdigit() for c in counts):
+        _fail(path, i + 1, f"COUNTS needs {want} integers in version {version}: {lines[i]!r}")
+    N, Et, Eq, C, K = map(int, counts[:5])
+    B = int(counts[5]) if version == 2 else 0
     if K not in (0, 1):
         _fail(path, i + 1, f"COUNTS K must be 0 or 1, not {K}")
     E = Et + Eq
@@ -217,6 +223,23 @@ def read(path: str | Path) -> ToolFile:
     cn = a[:, 2:].copy()
     i += 1 + C
 
+    en, ep, eqn = np.zeros((0, 2), np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+    if version == 2:
+        if _section(path, lines, i, "EDGE_NORMALS") != B:
+            _fail(path, i + 1, f"EDGE_NORMALS count differs from COUNTS B = {B}")
+        a = _numeric(path, lines, i + 1, B, 9, "EDGE_NORMALS")
+        _ids(path, a, i + 1, "EDGE_NORMALS")
+        if B:
+            if np.any(a[:, 1:3] != np.round(a[:, 1:3])):
+                _fail(path, i + 2, "EDGE_NORMALS: node ids must be integers")
+            en = a[:, 1:3].astype(np.int64) - 1
+            if en.min() < 0 or en.max() >= N or np.any(en[:, 0] == en[:, 1]):
+                _fail(path, i + 2, f"EDGE_NORMALS: nodes must be two different ids in 1..{N}")
+            ep, eqn = a[:, 3:6].copy(), a[:, 6:9].copy()
+            if np.any(np.abs(np.linalg.norm(np.r_[ep, eqn], axis=1) - 1.0) > 1e-6):
+                _fail(path, i + 2, "EDGE_NORMALS: not a unit vector")
+        i += 1 + B
+
     coef = None
     if K == 1:
         M = 6 * Et + 8 * Eq
@@ -236,7 +259,7 @@ def read(path: str | Path) -> ToolFile:
     if any(ln.strip() for ln in lines[i + 1:]):
         _fail(path, i + 2, "text after END")
     return ToolFile(head["NAME"], head["UNITS"], head.get("SOURCE", ""), head.get("NORMAL_SOURCE", ""),
-                    meta, comments, nodes, normals, conn, nn, ce, cc, cn, coef)
+                    meta, comments, nodes, normals, conn, nn, ce, cc, cn, coef, en, ep, eqn)
 
 
 def model_size(tf: ToolFile) -> float:
@@ -306,7 +329,7 @@ def generalized_inverse(d: np.ndarray, S: np.ndarray, r: np.ndarray) -> np.ndarr
 class Edges:
     nodes: np.ndarray  # (M, 2) node pair, first < second (x0 = nodes[:, 0])
     coef: np.ndarray  # (M, 3) c for d = x1 - x0
-    kind: np.ndarray  # (M,) 0 two-normal, 1 one end multiple, 2 generalized inverse
+    kind: np.ndarray  # (M,) 0 two-normal, 1 one end multiple, 2 generalized inverse, 3 with conormals (4b)
     local: np.ndarray  # (E, 4) edge id of local edge c1..c4 of each element (-1 for a triangle's c4)
 
 
@@ -396,6 +419,38 @@ def edge_coefficients(tf: ToolFile) -> Edges:
         gi = np.flatnonzero(g)
         coef[gi] = generalized_inverse(d[gi], S[gi] / m[gi, None, None], r[gi] / m[gi, None])
         kind[gi] = 2
+
+    # rule 4b: an edge with an EDGE_NORMALS record and no multiple end: two-normal c plus s b
+    if len(tf.edge_nodes):
+        ea, eb = tf.edge_nodes[:, 0], tf.edge_nodes[:, 1]
+        sw = ea > eb
+        lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
+        p = np.where(sw[:, None], tf.edge_q, tf.edge_p)  # conormal at x0 = node lo
+        q = np.where(sw[:, None], tf.edge_p, tf.edge_q)
+        kx = lo * (len(tf.nodes) + 1) + hi
+        kg = a[first] * (len(tf.nodes) + 1) + b[first]
+        if len(np.unique(kx)) != len(kx):
+            raise ToolFileError("EDGE_NORMALS: two records for one edge")
+        pos = np.searchsorted(kg, kx)  # groups are sorted by (a, b)
+        pos_c = np.minimum(pos, M - 1)
+        if np.any(kg[pos_c] != kx):
+            raise ToolFileError("EDGE_NORMALS: a record's two nodes are not an edge of any element")
+        g = kind[pos_c] == 0
+        gi = pos_c[g]
+        dd, pp, qq = d[gi], p[g], q[g]
+        c2 = coef[gi]
+        v = (n0[first][gi] + n1[first][gi]) / 2
+        bv = np.cross(dd, v)
+        bl = np.linalg.norm(bv, axis=1)
+        ok = bl > 1e-12 * np.linalg.norm(dd, axis=1) * np.linalg.norm(v, axis=1)
+        bv = bv / np.where(ok, bl, 1.0)[:, None]
+        dot = lambda x, y: np.einsum("ij,ij->i", x, y)  # noqa: E731
+        pb, qb = dot(pp, bv), dot(qq, bv)
+        den = pb * pb + qb * qb
+        ok &= den >= EPS
+        s = (dot(pp, dd - c2) * pb - dot(qq, dd + c2) * qb) / np.where(ok, den, 1.0)
+        coef[gi] = c2 + np.where(ok, s, 0.0)[:, None] * bv
+        kind[gi] = 3
 
     local = -np.ones((E, 4), dtype=np.int64)
     local[el, slot] = gid

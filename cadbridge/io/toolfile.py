@@ -2,20 +2,22 @@
 
 The format is specified in ``docs/toolfile.md``. In short::
 
-    CADBRIDGE-NAGATA-TOOL 1
+    CADBRIDGE-NAGATA-TOOL 2
     NAME <text>            UNITS <word>       SOURCE <text>     NORMAL_SOURCE <word>
     META <key> <text>      COMMENT <text>     (any number, optional)
-    COUNTS <nodes> <triangles> <quads> <corner_normals> <has_coefficients 0|1>
+    COUNTS <nodes> <triangles> <quads> <corner_normals> <has_coefficients 0|1> <edge_normals>
     NODES <N>              then N lines: id x y z
     NORMALS <N>            then N lines: id nx ny nz
     ELEMENTS <Et+Eq>       then lines: id nnodes n1 .. nn   (all triangles first, then quads)
     CORNER_NORMALS <C>     then C lines: element corner nx ny nz
+    EDGE_NORMALS <B>       then B lines: id node1 node2 px py pz qx qy qz
     COEFFICIENTS <6Et+8Eq> (optional) then lines: element k cx cy cz  (k = 1..6 or 1..8)
     END
 
 All ids in the file are 1-based; in `ToolData` every index is 0-based. Global element
 numbering is "blocks in the order given": triangles 1..Et, then quads Et+1..Et+Eq.
 Floats are written with ``repr`` (shortest round-trip form), so ``read(write(t))`` is exact.
+Version 1 files (no EDGE_NORMALS, five COUNTS) are still read.
 """
 
 from __future__ import annotations
@@ -42,7 +44,8 @@ __all__ = [
 ]
 
 MAGIC = "CADBRIDGE-NAGATA-TOOL"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+READ_VERSIONS = (1, 2)
 COEFFICIENT_NAMES = ("c00", "c10", "c01", "c11", "c20", "c02", "c21", "c12")
 
 _WORD = re.compile(r"^\S+$")
@@ -69,6 +72,9 @@ class ToolData:
         of each corner-normal override (used where a node lies on a sharp edge).
     corner_normals : (C, 3) float
         The normal that element corner uses instead of ``normals[node]``.
+    edge_nodes : (B, 2) int, edge_normals : (B, 2, 3) float
+        Mesh edges (0-based node pairs) with one extra normal at each end (``edge_normals[:, 0]``
+        at ``edge_nodes[:, 0]``): the conormals of the trim curve a boundary edge follows.
     tri_coefficients : (Et, 6, 3) | None, quad_coefficients : (Eq, 8, 3) | None
         Patch coefficients in the order c00 c10 c01 c11 c20 c02 [c21 c12]; both or neither.
     source, normal_source : str
@@ -88,6 +94,8 @@ class ToolData:
     corner_element: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     corner_local: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     corner_normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    edge_nodes: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
+    edge_normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2, 3)))
     tri_coefficients: np.ndarray | None = None
     quad_coefficients: np.ndarray | None = None
     source: str = ""
@@ -104,6 +112,8 @@ class ToolData:
         c = len(self.corner_element)
         self.corner_local = _int_array(self.corner_local, (c,), "corner_local")
         self.corner_normals = _float_array(self.corner_normals, (c, 3), "corner_normals")
+        self.edge_nodes = _int_array(self.edge_nodes, (None, 2), "edge_nodes")
+        self.edge_normals = _float_array(self.edge_normals, (len(self.edge_nodes), 2, 3), "edge_normals")
         et, eq = len(self.triangles), len(self.quads)
         if self.tri_coefficients is not None or self.quad_coefficients is not None:
             # an empty block may be given as None: normalise so that write/read is exact
@@ -116,7 +126,7 @@ class ToolData:
             self.tri_coefficients = _float_array(self.tri_coefficients, (et, 6, 3), "tri_coefficients")
             self.quad_coefficients = _float_array(self.quad_coefficients, (eq, 8, 3), "quad_coefficients")
         n = len(self.nodes)
-        for arr, what in ((self.triangles, "triangles"), (self.quads, "quads")):
+        for arr, what in ((self.triangles, "triangles"), (self.quads, "quads"), (self.edge_nodes, "edge_nodes")):
             if arr.size and (arr.min() < 0 or arr.max() >= n):
                 raise ToolFileError(f"{what}: node index out of range [0, {n})")
         if c:
@@ -153,6 +163,27 @@ class ToolData:
             (int(e), int(k)): n for e, k, n in zip(self.corner_element, self.corner_local, self.corner_normals)
         }
 
+    def corner_normal_blocks(self) -> list[np.ndarray]:
+        """Per element block (triangles, then quads; empty blocks left out) the normal of every
+        corner, (E_b, 3|4, 3): rule 1 of docs/toolfile.md."""
+        blocks, out, off = [], [], 0
+        for conn in (self.triangles, self.quads):
+            if len(conn):
+                cn = self.normals[conn].copy()
+                m = (self.corner_element >= off) & (self.corner_element < off + len(conn))
+                cn[self.corner_element[m] - off, self.corner_local[m]] = self.corner_normals[m]
+                out.append(cn)
+            off += len(conn)
+        return out
+
+    def nagata_mesh(self):
+        """The `cadbridge.nagata.NagataMesh` this file describes (rebuild rule of docs/toolfile.md)."""
+        from cadbridge.nagata.mesh import NagataMesh  # lazy: io does not need the Nagata maths
+
+        blocks = [b for b in (self.triangles, self.quads) if len(b)]
+        return NagataMesh(self.nodes, blocks, self.corner_normal_blocks(),
+                          edge_normals=(self.edge_nodes, self.edge_normals[:, 0], self.edge_normals[:, 1]))
+
     def equals(self, other: "ToolData") -> bool:
         """Bit-for-bit equality of all arrays and text fields."""
 
@@ -162,7 +193,7 @@ class ToolData:
             return a.shape == b.shape and a.dtype.kind == b.dtype.kind and a.tobytes() == b.tobytes()
 
         arrays = ("nodes", "normals", "triangles", "quads", "corner_element", "corner_local", "corner_normals",
-                  "tri_coefficients", "quad_coefficients")
+                  "edge_nodes", "edge_normals", "tri_coefficients", "quad_coefficients")
         texts = ("name", "units", "source", "normal_source", "metadata", "comments")
         return all(same(getattr(self, a), getattr(other, a)) for a in arrays) and all(
             getattr(self, t) == getattr(other, t) for t in texts
@@ -245,7 +276,8 @@ def format_toolfile(tool: ToolData) -> str:
     ]
     lines += [f"META {k} {v}" for k, v in tool.metadata.items()]
     lines += [f"COMMENT {t}" for t in tool.comments]
-    lines.append(f"COUNTS {n} {et} {eq} {c} {int(tool.has_coefficients)}")
+    nb = len(tool.edge_nodes)
+    lines.append(f"COUNTS {n} {et} {eq} {c} {int(tool.has_coefficients)} {nb}")
     ids = np.arange(1, n + 1)
     lines.append(f"NODES {n}")
     lines += _rows(ids, [], tool.nodes)
@@ -255,6 +287,9 @@ def format_toolfile(tool: ToolData) -> str:
     lines += _element_lines(tool.triangles, tool.quads)
     lines.append(f"CORNER_NORMALS {c}")
     lines += _rows(tool.corner_element + 1, [tool.corner_local + 1], tool.corner_normals)
+    lines.append(f"EDGE_NORMALS {nb}")
+    lines += _rows(np.arange(1, nb + 1), [tool.edge_nodes[:, 0] + 1, tool.edge_nodes[:, 1] + 1],
+                   tool.edge_normals.reshape(nb, 6))
     if tool.has_coefficients:
         lines.append(f"COEFFICIENTS {6 * et + 8 * eq}")
         lines += _coefficient_lines(tool.tri_coefficients, tool.quad_coefficients)
@@ -386,8 +421,10 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
     first = cur.next().split()
     if len(first) != 2 or first[0] != MAGIC:
         raise cur.error(f"not a cadbridge Nagata tool file (first line must be '{MAGIC} <version>')")
-    if not _is_int(first[1]) or int(first[1]) != FORMAT_VERSION:
-        raise cur.error(f"unsupported format version {first[1]!r} (this reader knows {FORMAT_VERSION})")
+    if not _is_int(first[1]) or int(first[1]) not in READ_VERSIONS:
+        raise cur.error(f"unsupported format version {first[1]!r} (this reader knows "
+                        f"{', '.join(map(str, READ_VERSIONS))})")
+    version = int(first[1])
     head: dict[str, str] = {}
     metadata: dict[str, str] = {}
     comments: list[str] = []
@@ -408,9 +445,10 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
             comments.append(value)
         elif kw == "COUNTS":
             parts = value.split()
-            if len(parts) != 5 or not all(_is_int(p) for p in parts):
-                raise cur.error(f"expected 'COUNTS <nodes> <triangles> <quads> <corner_normals> <0|1>', got {line!r}")
-            counts = [int(p) for p in parts]
+            want = "<nodes> <triangles> <quads> <corner_normals> <0|1>" + (" <edge_normals>" if version >= 2 else "")
+            if len(parts) != (5 if version == 1 else 6) or not all(_is_int(p) for p in parts):
+                raise cur.error(f"expected 'COUNTS {want}' (version {version}), got {line!r}")
+            counts = [int(p) for p in parts] + ([0] if version == 1 else [])
             if min(counts) < 0 or counts[4] not in (0, 1):
                 raise cur.error(f"invalid counts {line!r}")
         elif kw.strip() == "":
@@ -420,7 +458,7 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
     for kw in ("NAME", "UNITS"):
         if kw not in head:
             raise cur.error(f"header has no {kw} line")
-    n, et, eq, c, has_coef = counts
+    n, et, eq, c, has_coef, nb = counts
 
     # ---- NODES, NORMALS
     cur.section_header("NODES", n)
@@ -471,6 +509,20 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
         i = int(bad[0])
         raise cur.error(f"element {cints[i, 0]} / corner {cints[i, 1]} out of range", start + i + 1)
 
+    # ---- EDGE_NORMALS (version 2)
+    enodes, enormals = np.zeros((0, 2), np.int64), np.zeros((0, 2, 3))
+    if version >= 2:
+        cur.section_header("EDGE_NORMALS", nb)
+        start = cur.pos
+        eints, evec = cur.table(nb, 3, 6, "edge normal record 'id node1 node2 px py pz qx qy qz'")
+        cur.check_ids(eints[:, 0], start, "edge normal")
+        bad = np.nonzero(np.any((eints[:, 1:] < 1) | (eints[:, 1:] > n), axis=1) | (eints[:, 1] == eints[:, 2]))[0]
+        if bad.size:
+            i = int(bad[0])
+            raise cur.error(f"edge normal {i + 1}: nodes {eints[i, 1]} {eints[i, 2]} are not two nodes in 1..{n}",
+                            start + i + 1)
+        enodes, enormals = eints[:, 1:] - 1, evec.reshape(nb, 2, 3)
+
     # ---- COEFFICIENTS (optional)
     tri_coef = quad_coef = None
     if has_coef:
@@ -499,6 +551,7 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
         return ToolData(
             name=head["NAME"], units=head["UNITS"], nodes=nodes, normals=normals, triangles=triangles,
             quads=quads, corner_element=celem, corner_local=ccorner, corner_normals=cnormals,
+            edge_nodes=enodes, edge_normals=enormals,
             tri_coefficients=tri_coef, quad_coefficients=quad_coef, source=head.get("SOURCE", ""),
             normal_source=head.get("NORMAL_SOURCE", ""), metadata=metadata, comments=comments,
         )

@@ -185,3 +185,42 @@ def edge_coefficient_multi(
     m = (w0.sum(1) + w1.sum(1))[:, None]
     c, _ = pinv_solve_sym(s / m[:, :, None], b / m, eps)
     return c
+
+
+def edge_coefficient_conormal(
+    x0: ArrayLike, x1: ArrayLike, n0: ArrayLike, n1: ArrayLike, p: ArrayLike, q: ArrayLike,
+    eps: float = EPS_SINGULAR,
+) -> NDArray[np.float64]:
+    """Curvature coefficient of a boundary edge that follows a curve (normals ``n0, n1`` of
+    the surface, conormals ``p, q`` of the curve at the ends; docs/toolfile.md rule 4b).
+
+    The two surface normals fix the edge's normal curvature exactly (eq. 15, `edge_coefficient`,
+    whose edge-plane rule leaves no component along ``b = d x v / |d x v|``); the conormals
+    add that sideways component, the curve's geodesic curvature:
+
+        c = c2 + s b,   s = argmin (p . (d - c))^2 + (q . (d + c))^2
+          = [ (p . (d - c2)) (p . b) - (q . (d + c2)) (q . b) ] / [ (p . b)^2 + (q . b)^2 ]
+
+    (s = 0 where ``d`` is along ``v`` or the denominator is below ``eps``). Like eq. 15 the
+    result does not depend on the edge's direction.
+
+    x0, x1, n0, n1, p, q : (..., 3). Returns c (..., 3).
+    """
+    x0 = np.asarray(x0, dtype=float)
+    x1 = np.asarray(x1, dtype=float)
+    n0 = np.asarray(n0, dtype=float)
+    n1 = np.asarray(n1, dtype=float)
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    c2 = edge_coefficient(x0, x1, n0, n1, eps)
+    d = x1 - x0
+    v = 0.5 * (n0 + n1)
+    b = np.cross(d, v)
+    lb = np.sqrt(_dot(b, b))
+    ok = lb > 1e-12 * np.sqrt(_dot(d, d)) * np.sqrt(_dot(v, v))
+    b = b / np.where(ok, lb, 1.0)[..., None]
+    pb, qb = _dot(p, b), _dot(q, b)
+    den = pb * pb + qb * qb
+    ok &= den >= eps
+    s = (_dot(p, d - c2) * pb - _dot(q, d + c2) * qb) / np.where(ok, den, 1.0)
+    return c2 + np.where(ok, s, 0.0)[..., None] * b

@@ -9,6 +9,14 @@ curve. An edge whose elements differ at one end only (it leaves a crease node in
 the mesh straddles the crease) takes, at that end, the normal most orthogonal to the edge.
 Every other edge uses the two-normal closed form (Nagata eq. 15, with the bounded rules of
 `cadbridge.nagata.edge`). docs/toolfile.md states the same rule for readers of tool files.
+
+Edge normals: a mesh edge listed in ``edge_normals`` with a conormal at each end (the
+curve's ``t x n``, `cadbridge.boundary_edges` gives them to the free boundary edges that
+follow a curved trim curve) takes the two-normal coefficient plus the sideways part the
+conormals ask for (`cadbridge.nagata.edge.edge_coefficient_conormal`): the edge curve keeps
+the surface's normal curvature and follows the trim curve's geodesic curvature, instead of
+being the straight chord two equal surface normals give on a planar face with a round hole.
+On a crease edge the listed conormals are not used.
 """
 
 from __future__ import annotations
@@ -19,7 +27,13 @@ from typing import NamedTuple, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from cadbridge.nagata.edge import EPS_RANK, EPS_SINGULAR, edge_coefficient, edge_coefficient_multi
+from cadbridge.nagata.edge import (
+    EPS_RANK,
+    EPS_SINGULAR,
+    edge_coefficient,
+    edge_coefficient_conormal,
+    edge_coefficient_multi,
+)
 from cadbridge.nagata.patch import (
     QUAD_EDGES,
     TRI_EDGES,
@@ -120,6 +134,23 @@ def _edge_xi(kind: NDArray, ledge: NDArray, eta: NDArray, zeta: NDArray) -> NDAr
     return np.where(use_zeta, zeta, eta)
 
 
+def _edge_normals(given, n_nodes: int) -> tuple[NDArray, NDArray, NDArray]:
+    """Validated ``(pairs (B, 2) int64, p (B, 3), q (B, 3))`` of the extra edge normals."""
+    if given is None:
+        return np.zeros((0, 2), np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+    pairs, p, q = given
+    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    p = np.asarray(p, dtype=float).reshape(-1, 3)
+    q = np.asarray(q, dtype=float).reshape(-1, 3)
+    if not len(pairs) == len(p) == len(q):
+        raise ValueError(f"edge_normals: {len(pairs)} edges but {len(p)} and {len(q)} normals")
+    if pairs.size and (pairs.min() < 0 or pairs.max() >= n_nodes):
+        raise ValueError(f"edge_normals: node ids outside 0..{n_nodes - 1}")
+    if not (np.all(np.isfinite(p)) and np.all(np.isfinite(q))):
+        raise ValueError("edge_normals: normals must be finite")
+    return pairs, p, q
+
+
 class NagataMesh:
     """Nagata patches over a triangle, quadrilateral or mixed mesh.
 
@@ -132,6 +163,8 @@ class NagataMesh:
         (a list of per-block arrays for a list of blocks).
     eps : threshold of the two-normal formula (Nagata eq. 15).
     eps_rank : threshold on the dimensionless ``D^(k)`` (Nagata eq. 31).
+    edge_normals : optional ``(pairs (B, 2) node ids, p (B, 3) at pairs[:, 0], q (B, 3) at
+        pairs[:, 1])``: a conormal at each end of each listed mesh edge (module docs).
     """
 
     def __init__(
@@ -141,6 +174,7 @@ class NagataMesh:
         normals: ArrayLike | Sequence[ArrayLike],
         eps: float = EPS_SINGULAR,
         eps_rank: float = EPS_RANK,
+        edge_normals: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
     ) -> None:
         self.nodes = np.ascontiguousarray(nodes, dtype=float)
         if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
@@ -209,7 +243,9 @@ class NagataMesh:
         self.half_crease_edges: NDArray = np.zeros(0, dtype=np.int64)
         """Global ids of crease edges with several normals at one end only (a mesh that
         straddles a crease): at that end the normal most orthogonal to the edge is used."""
-        tri_ec, quad_ec = self._edge_coefficients(per_node)
+        self.edge_normals = _edge_normals(edge_normals, nn)
+        """(pairs (B, 2), p (B, 3), q (B, 3)): the extra edge normals given (module docs)."""
+        tri_ec, quad_ec = self._edge_coefficients(per_node and len(self.edge_normals[0]) == 0)
         self.tri_edge_coefficients = tri_ec  # (Et, 3, 3) c1 c2 c3
         self.quad_edge_coefficients = quad_ec  # (Eq, 4, 3) c1 c2 c3 c4
         self.tri_coefficients = tri_coefficients(self.nodes[self.tri_elements], tri_ec)
@@ -303,6 +339,20 @@ class NagataMesh:
                     return nn[np.arange(len(nn)), np.argmin(score, axis=1)]
                 c_edge[ce[half]] = edge_coefficient(x[lo[ce[half]]], x[hi[ce[half]]], pick(n0[half], mask[half]),
                                                     pick(n1[half], mask[half]), self.eps)
+        pairs, p_extra, q_extra = self.edge_normals
+        if len(pairs):  # boundary edges along a curve: two-normal c plus the conormals' sideways part
+            key = topo["edges"][:, 0] * np.int64(x.shape[0]) + topo["edges"][:, 1]
+            kx = np.minimum(pairs[:, 0], pairs[:, 1]) * np.int64(x.shape[0]) + np.maximum(pairs[:, 0], pairs[:, 1])
+            pos = np.minimum(np.searchsorted(key, kx), ne - 1)
+            if np.any(key[pos] != kx):
+                bad = int(np.flatnonzero(key[pos] != kx)[0])
+                raise ValueError(f"edge_normals: nodes {pairs[bad].tolist()} are not an edge of the mesh")
+            use = ~crease[pos]  # a crease edge keeps the generalized inverse of its elements' normals
+            e, sw = pos[use], (pairs[:, 0] > pairs[:, 1])[use]
+            p_lo = np.where(sw[:, None], q_extra[use], p_extra[use])
+            p_hi = np.where(sw[:, None], p_extra[use], q_extra[use])
+            c_edge[e] = edge_coefficient_conormal(x[lo[e]], x[hi[e]], n_lo[first[e]], n_hi[first[e]], p_lo, p_hi,
+                                                  self.eps)
         c_inst = c_edge[eid]  # c is invariant under edge reversal
         nt = 3 * len(t)
         return c_inst[:nt].reshape(-1, 3, 3), c_inst[nt:].reshape(-1, 4, 3)
