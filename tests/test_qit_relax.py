@@ -113,32 +113,33 @@ def _mesh(key, tmp_path_factory, **kw):
 
 @pytest.mark.parametrize("key", [("71", 12.0), ("71", 5.0), ("72", 5.0), ("hole", 5.0)])
 def test_strip_opt_does_not_worsen_the_paper_mesh(key, tmp_path_factory):
-    # reference: the paper's construction of the same face (strip_opt=False): Q not lower,
-    # smallest angle not smaller, largest not larger, size spread not wider
+    # reference: the paper's construction of the same faces (strip_opt=False): Q not lower,
+    # smallest angle not smaller, largest not larger, angle and size spread not wider
     model, mesh = _mesh(key, tmp_path_factory)
     _, base = _mesh(key, tmp_path_factory, strip_opt=False)
     q, q0 = (mesh_quality(m.nodes, m.triangles, key[1]) for m in (mesh, base))
     assert q.q >= q0.q - 1e-9, (q.q, q0.q)
     assert q.angles.min() >= q0.angles.min() - 1e-9
     assert q.angles.max() <= q0.angles.max() + 1e-9
+    assert q.angles.std() <= q0.angles.std() + 1e-9
     assert q.summary()["size_rel_std"] <= q0.summary()["size_rel_std"] + 1e-9
 
 
 @pytest.mark.parametrize("key, q_min", [(("71", 12.0), 62.0), (("71", 5.0), 80.0), (("72", 5.0), 73.0)])
-def test_strip_max_angle_120_quality(key, q_min, tmp_path_factory):
-    # reference: the issue's Q for the paper's examples (62 / 80 / 73 %), reached with the
-    # clean-up at 120 degrees (measured 68.5, 81.4, 80.1; docs/qit.md) -- and no angle above
-    # max(the paper mesh's largest, 120), none below its smallest
-    model, mesh = _mesh(key, tmp_path_factory, strip_max_angle=120.0)
-    _, base = _mesh(key, tmp_path_factory, strip_opt=False)
+def test_issue_q_bounds(key, q_min, tmp_path_factory):
+    # reference: the issue's Q for the paper's examples (62 / 80 / 73 %); measured 67.9,
+    # 81.2, 82.2 (the paper's construction alone: 67.7, 78.0, 79.1; docs/qit.md choice 19)
+    model, mesh = _mesh(key, tmp_path_factory)
     q = mesh_quality(mesh.nodes, mesh.triangles, key[1])
     assert q.q >= q_min, q.summary()
-    a0 = triangle_angles(base.nodes, base.triangles)
-    assert q.angles.min() >= a0.min() - 1e-9
-    assert q.angles.max() <= max(a0.max(), 120.0) + 1e-9
 
 
-@pytest.mark.parametrize("key", [("71", 5.0), ("72", 5.0), ("hole", 5.0)])
-def test_strip_max_angle_120_invariants(key, tmp_path_factory):
-    model, mesh = _mesh(key, tmp_path_factory, strip_max_angle=120.0)
+@pytest.mark.parametrize("key", [("71", 5.0), ("72", 5.0)])
+def test_strip_opt_invariants(key, tmp_path_factory):
+    # test_qit.py checks the invariants on the default meshes of all its cases; here the
+    # step is shown to have been taken (not reverted) where it is measured
+    model, mesh = _mesh(key, tmp_path_factory)
     check_invariants(model, mesh, key[1])
+    reps = []
+    qit_mesh(model, key[1], reports=reps)
+    assert any(not r.strip_reverted and r.valence_flips > 0 and r.relaxed > 0 for r in reps)

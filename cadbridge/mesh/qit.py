@@ -1253,11 +1253,16 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
 
 
 def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist, dx_th, constrained, rep):
-    """Beyond the paper (``opt.strip_opt``, docs/qit.md): two passes of valence flips and
-    spring relocation of the SI vertices within 2 mesh edges of the face's edge vertices, then
-    the max-angle clean-up (`cadbridge.mesh.qit_relax`). Local vertices 0..n_si-1 are the SI
-    ones; the edge vertices stay. Returns triangles, uv and x."""
-    from cadbridge.mesh.qit_relax import max_angle_flips, relax_vertices, valence_flips, vertex_angle_sums
+    """Beyond the paper (``opt.strip_opt``, docs/qit.md choice 19): two passes of valence
+    flips and spring relocation of the SI vertices within 2 mesh edges of the face's edge
+    vertices; then (a) the SI vertices of triangles with an angle over ``strip_max_angle``
+    relocated again (their largest angles not raised) and the max-angle clean-up, or (b) the
+    clean-up alone; the first of (a), (b) that leaves the face no worse than the paper's
+    triangulation by smallest angle, largest angle (up to ``strip_max_angle``), angle spread,
+    size spread, folds and the face's Q is kept, else the paper's (`cadbridge.mesh.qit_relax`). Local
+    vertices 0..n_si-1 are the SI ones; the edge vertices stay. Returns triangles, uv, x."""
+    from cadbridge.mesh.qit_relax import _tri_angles, max_angle_flips, relax_vertices, valence_flips, vertex_angle_sums
+    from cadbridge.mesh.quality import mesh_quality
 
     local0, uv0, x0 = local, all_uv, all_x
     is_edge = np.zeros(len(all_uv), dtype=bool)
@@ -1268,6 +1273,7 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
         near[e[near[e[:, 0]] | near[e[:, 1]]].ravel()] = True
     free = near & ~is_edge
     trimmed = face.trims is not None and face.trims.outer is not None
+    R = opt.size
 
     def admissible(uv, x):
         ok = edge_dist(x) >= dx_th
@@ -1279,21 +1285,30 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
         alpha = vertex_angle_sums(local, all_x, is_edge)
         local, nf = valence_flips(local, all_uv, all_x, alpha, constrained, min_angle=10.0, max_angle=150.0)
         rep.valence_flips += nf
-        all_uv, all_x, nm = relax_vertices(local, all_uv, all_x, free, s, opt.size, admissible)
+        all_uv, all_x, nm = relax_vertices(local, all_uv, all_x, free, s, R, admissible)
         rep.relaxed = max(rep.relaxed, nm)
-    local, nf = max_angle_flips(local, all_uv, all_x, constrained, opt.strip_max_angle)
-    rep.flips += nf
-    from cadbridge.mesh.quality import triangle_angles
 
-    a0, a1 = triangle_angles(x0, local0), triangle_angles(all_x, local)
-    if (_n_folded(s, all_uv, all_x, local) > _n_folded(s, uv0, x0, local0) or a1.min() < a0.min() - 1e-9
-            or a1.max() > max(a0.max(), opt.strip_max_angle) + 1e-9):
-        # the flips keep (u, v) orientation, not always the 3D one on a strongly curved
-        # face; and the step must not make the face's worst angles worse: else the face
-        # keeps the paper's triangulation
-        rep.strip_reverted = True
-        return local0, uv0, x0
-    return local, all_uv, all_x
+    def measures(uv, x, t):
+        a = np.degrees(_tri_angles(x, t))
+        p = x[t]
+        area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+        q = mesh_quality(x, t, R).q
+        return a.min(), a.max(), a.std(), (area / (R * R * np.sqrt(3) / 4)).std(), _n_folded(s, uv, x, t), q
+
+    m0 = measures(uv0, x0, local0)
+    over = np.degrees(_tri_angles(all_x, local)).max(axis=1) > opt.strip_max_angle
+    fix = np.zeros(len(all_uv), dtype=bool)
+    fix[local[over].ravel()] = True
+    uv_a, x_a, _ = relax_vertices(local, all_uv, all_x, fix & ~is_edge, s, R, admissible, keep_max=True)
+    for uv_c, x_c in ((uv_a, x_a), (all_uv, all_x)):
+        t_c, nf = max_angle_flips(local, uv_c, x_c, constrained, opt.strip_max_angle)
+        m = measures(uv_c, x_c, t_c)
+        if (m[0] >= m0[0] - 1e-9 and m[1] <= max(m0[1], opt.strip_max_angle) + 1e-9 and m[2] <= m0[2] + 1e-9
+                and m[3] <= m0[3] + 1e-9 and m[4] <= m0[4] and m[5] >= m0[5] - 1e-9):
+            rep.flips += nf
+            return t_c, uv_c, x_c
+    rep.strip_reverted = True
+    return local0, uv0, x0
 
 
 def _n_folded(s, uv: np.ndarray, x: np.ndarray, tris: np.ndarray) -> int:

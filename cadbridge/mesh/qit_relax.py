@@ -177,15 +177,15 @@ def max_angle_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, constrained
 
 def relax_vertices(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, free: np.ndarray, surface, R: float,
                    admissible: Callable[[np.ndarray, np.ndarray], np.ndarray], iters: int = 30,
-                   step: float = 0.3) -> tuple[np.ndarray, np.ndarray, int]:
+                   step: float = 0.3, keep_max: bool = False) -> tuple[np.ndarray, np.ndarray, int]:
     """Move the ``free`` (N,) vertices along ``surface`` under springs of rest length ``R``
     on the mesh edges of ``tris`` (T, 3; CCW in (u, v)).
 
     Per iteration: f_i = sum_j (|x_j - x_i| - R) (x_j - x_i) / |x_j - x_i|; dx = ``step`` f_i;
     (du, dv) = (J^T J)^-1 J^T dx with J = [Su Sv]; x = S(u + du, v + dv) exactly. A vertex is
-    put back where its move would lower the smallest angle of its triangles, make one of
-    them non-positive in (u, v) or against Su x Sv at its (u, v) centroid, or where
-    ``admissible(uv (M, 2), x (M, 3))`` is False. Returns uv (N, 2), x (N, 3) and the
+    put back where its move would lower the smallest angle of its triangles (``keep_max``:
+    or raise their largest), make one of them non-positive in (u, v) or against Su x Sv at
+    its (u, v) centroid, or where ``admissible(uv (M, 2), x (M, 3))`` is False. Returns uv (N, 2), x (N, 3) and the
     number of vertices that moved."""
     uv = np.array(uv, dtype=float)
     x = np.array(x, dtype=float)
@@ -234,6 +234,13 @@ def relax_vertices(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, free: np.nda
             for i in range(3):
                 np.minimum.at(star_new, tk[:, i], new_min)
             worse = moved & (star_new < star_old - 1e-12)
+            if keep_max:
+                smax_old, smax_new = np.zeros(len(x)), np.zeros(len(x))
+                mo, mn = _tri_angles(x, tk).max(axis=1), _tri_angles(cand_x, tk).max(axis=1)
+                for i in range(3):
+                    np.maximum.at(smax_old, tk[:, i], mo)
+                    np.maximum.at(smax_new, tk[:, i], mn)
+                worse |= moved & (smax_new > smax_old + 1e-12)
             bad |= np.isin(tk, np.flatnonzero(worse)).any(axis=1)
             back = np.unique(tk[bad].ravel())
             back = back[moved[back]]
