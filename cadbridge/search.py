@@ -551,9 +551,13 @@ class _Pairs:
                                  self.status[rows], np.zeros(len(rows), dtype=np.int32))
         r = project_to_surfaces(self.pack, self.cf[rows], self.pts[self.cp[rows]], tol=self.tol,
                                 resume=(prev, self.first[rows]))
+        moved = (r.u != prev.u) | (r.v != prev.v) | (r.status != prev.status)
         self._put(rows, r)
         self.final[rows] = True
-        self.inside[rows], self.out[rows] = _trim_flags(self.model, self.cf[rows], r.u, r.v, r.status)
+        rows = rows[moved]  # a restart replaced the foot: its trim decision again
+        if len(rows):
+            self.inside[rows], self.out[rows] = _trim_flags(self.model, self.cf[rows], self.u[rows], self.v[rows],
+                                                            self.status[rows])
 
     def take(self, rows: np.ndarray) -> tuple:
         """cp, cf, u, v, foot, dist, normal, status, inside, out of ``rows``."""
@@ -607,7 +611,7 @@ def project_points(
 
     # 1. upper bound from the nearest valid sample; its face is projected first
     if index.sample_tree is not None and n:
-        ub, si = index.sample_tree.query(pts)
+        ub, si = index.sample_tree.query(pts, workers=-1)
         ub = ub * (1.0 + 1e-9) + 1e-9 * size
         f0 = index.sample_face[si].astype(np.int64)
         order = np.argsort(f0, kind="stable")
