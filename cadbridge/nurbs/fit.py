@@ -58,6 +58,7 @@ __all__ = [
     "estimate_noise",
     "fit_surface",
     "gram_matrix",
+    "nearest_neighbours",
     "reproject",
     "solve_control_points",
     "uniform_knots",
@@ -66,6 +67,10 @@ __all__ = [
 HUBER_K = 1.345  # Huber's constant (95 % efficiency at the normal distribution)
 TUKEY_C = 4.685  # Tukey's biweight constant (95 % efficiency)
 MAD_TO_SIGMA = 1.4826  # sigma = 1.4826 x median absolute deviation for normal data
+# Gauss-Newton steps of the parameter correction after each solve (`reproject`); a point moves
+# by its foot's shift on the changed fit, and two steps from its last foot reach the new one to
+# well below the tolerance (the error of a step is about distance x curvature times the last)
+CORRECTION_STEPS = 2
 
 
 class FitError(ValueError):
@@ -388,13 +393,17 @@ def _residual_at(der, k, px, py, pz):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
 def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts, noise, u, v, near, movable, edge,
-                    max_iter, dist, signed, moved):  # pragma: no cover - compiled
+                    max_iter, steps, dist, signed, moved):  # pragma: no cover - compiled
     """Parameter correction and residuals in one pass over the points (`reproject`).
 
-    Point t with movable[t] and |x_t - S(u_t, v_t)| <= near (near < 0: no correction) gets the
-    projected Newton iterations of `cadbridge.nurbs.project` (`_newton_range`, the kernel of
-    `project_to_surface`) from its (u_t, v_t); the new foot is taken (moved[t] = True) if it passes
-    that module's orthogonality check and is not farther than the old one; a taken foot with
+    Point t with movable[t] and |x_t - S(u_t, v_t)| <= near (near < 0: no correction) gets, with
+    steps = 0, the projected Newton iterations of `cadbridge.nurbs.project` (`_newton_range`, the
+    kernel of `project_to_surface`) from its (u_t, v_t), and the new foot is taken (moved[t] =
+    True) if it passes that module's orthogonality check and is not farther than the old one;
+    with steps > 0, that many Gauss-Newton steps of Hoschek's parameter correction (Hoschek 1988;
+    P&T §9.4.1): [Su.Su Su.Sv; Su.Sv Sv.Sv] (du, dv) = ((x - S).Su, (x - S).Sv), clamped to the
+    domain, along the free direction only for a point on an edge, taken if not farther. A taken
+    foot with
     edge flags (bits 1, 2, 4, 8: u = u0, u1, v = v0, v1) is put back on its edge. Then
     dist[t] = |x - S|, signed[t] = (x - S) . Su x Sv / |Su x Sv| (dist where the normal is
     undefined), S and its first derivatives by `NurbsSurface.derivatives`' kernel (`_d01_range`)."""
@@ -426,12 +435,44 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
                 eb[c] = noise[t]
                 ub[c] = u[t]
                 vb[c] = v[t]
+                if steps > 0:
+                    der[c] = der[t - a]  # c <= t - a: rows are moved forward only
                 c += 1
         if c == 0:
             continue
-        _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, False, False, eps1, eps2, pb, eb, ub, vb,
-                      itb, max_iter, 0, c, ub, vb, -1.0, -1.0, same)
-        _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
+        if steps == 0:
+            _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, False, False, eps1, eps2, pb, eb, ub, vb,
+                          itb, max_iter, 0, c, ub, vb, -1.0, -1.0, same)
+        else:
+            for _ in range(steps):
+                for k in range(c):
+                    rx, ry, rz = pb[k, 0] - der[k, 0, 0, 0], pb[k, 1] - der[k, 0, 0, 1], pb[k, 2] - der[k, 0, 0, 2]
+                    sux, suy, suz = der[k, 1, 0, 0], der[k, 1, 0, 1], der[k, 1, 0, 2]
+                    svx, svy, svz = der[k, 0, 1, 0], der[k, 0, 1, 1], der[k, 0, 1, 2]
+                    ee = sux * sux + suy * suy + suz * suz
+                    ff = sux * svx + suy * svy + suz * svz
+                    gg = svx * svx + svy * svy + svz * svz
+                    fu = rx * sux + ry * suy + rz * suz
+                    fv = rx * svx + ry * svy + rz * svz
+                    e = edge[idx[k]]
+                    fix_u = (e & 3) != 0
+                    fix_v = (e & 12) != 0
+                    du = 0.0
+                    dv = 0.0
+                    if fix_u and not fix_v:
+                        dv = fv / gg if gg > 0.0 else 0.0
+                    elif fix_v and not fix_u:
+                        du = fu / ee if ee > 0.0 else 0.0
+                    elif not fix_u:
+                        det = ee * gg - ff * ff
+                        if det > 1e-14 * ee * gg:
+                            du = (gg * fu - ff * fv) / det
+                            dv = (ee * fv - ff * fu) / det
+                    ub[k] = min(max(ub[k] + du, u0), u1)
+                    vb[k] = min(max(vb[k] + dv, v0), v1)
+                _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
+        if steps == 0:
+            _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
         clamped = 0
         for k in range(c):
             t = idx[k]
@@ -446,7 +487,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
             edge_v = (vn <= v0 and g > 0) or (vn >= v1 and g < 0)
             off_u = 0.0 if edge_u else abs(f) / max(lsu, 1e-300)
             off_v = 0.0 if edge_v else abs(g) / max(lsv, 1e-300)
-            ok = max(off_u, off_v) <= 1e3 * eps1 + eb[k]
+            ok = steps > 0 or max(off_u, off_v) <= 1e3 * eps1 + eb[k]
             if not (ok and np.isfinite(dn) and np.isfinite(un) and np.isfinite(vn) and dn <= dist[t]):
                 continue
             moved[t] = True
@@ -470,7 +511,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
 
 
 def reproject(surface: NurbsSurface, points: np.ndarray, u, v, *, near: float = np.inf, movable=None, edge=None,
-              tol: float = 1e-10, max_iter: int = 12
+              tol: float = 1e-10, max_iter: int = 12, steps: int = 0
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points (N, 3) projected onto ``surface`` by Newton from their parameters u, v (N,), in one
     compiled parallel pass (`_correct_kernel`: the iterations of `cadbridge.nurbs.project`,
@@ -482,6 +523,9 @@ def reproject(surface: NurbsSurface, points: np.ndarray, u, v, *, near: float = 
     parameters, |x - S|, (x - S) . unit Su x Sv (dist where the normal is undefined), and which
     points were moved. The inputs are not modified. No global search: the start must lie in the
     basin of the foot (a fit from its own points' parameters, a nearest sample of a base).
+    steps > 0: instead of Newton to convergence (tol, max_iter), that many Gauss-Newton steps of
+    Hoschek's parameter correction (first derivatives only; a fraction of Newton's cost, and
+    what a fit that re-corrects after every solve needs).
     """
     x = np.asarray(points, dtype=float)
     n = len(x)
@@ -500,15 +544,15 @@ def reproject(surface: NurbsSurface, points: np.ndarray, u, v, *, near: float = 
     v = np.clip(v, v0, v1)
     _correct_kernel(surface._pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v,
                     surface.rational, float(u0), float(u1), float(v0), float(v1), tol * size, tol, pts, noise, u, v,
-                    float(min(near, 1e300)), mv, ed, int(max_iter), dist, signed, moved)
+                    float(min(near, 1e300)), mv, ed, int(max_iter), int(steps), dist, signed, moved)
     return u, v, dist, signed, moved
 
 
 def _correct(surf: NurbsSurface, x: np.ndarray, u: np.ndarray, v: np.ndarray, *, near: float = -1.0,
-             movable: np.ndarray | None = None, edge: np.ndarray | None = None
+             movable: np.ndarray | None = None, edge: np.ndarray | None = None, steps: int = 0
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(u, v, dist, signed) of `reproject` (default: residuals only)."""
-    return reproject(surf, x, u, v, near=near, movable=movable, edge=edge)[:4]
+    return reproject(surf, x, u, v, near=near, movable=movable, edge=edge, steps=steps)[:4]
 
 
 def _residuals(surf: NurbsSurface, x: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -532,6 +576,89 @@ def _median_contrast(r, nbr, out):  # pragma: no cover - compiled
             buf[m] = val
         med = buf[k // 2] if k % 2 == 1 else 0.5 * (buf[k // 2 - 1] + buf[k // 2])
         out[i] = r[i] - med
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _knn_cells(xy, k, x0, y0, h, gx, gy, start, order, out):  # pragma: no cover - compiled
+    """k nearest other points of every point into out (N, k), nearest first, from a uniform grid
+    of cells of size h (gx x gy); xy (N, 2) sorted by cell (cell c: rows start[c]:start[c + 1]),
+    order[row] the point's index. The square of cells around a point grows until the k-th
+    distance found is within the square, i.e. no point outside it can be nearer (exact)."""
+    for c in numba.prange(gx * gy):
+        ci = c // gy
+        cj = c % gy
+        bd = np.empty(k)
+        bi = np.empty(k, dtype=np.int64)
+        for s in range(start[c], start[c + 1]):
+            t = order[s]
+            px, py = xy[s, 0], xy[s, 1]
+            for j in range(k):
+                bd[j] = np.inf
+                bi[j] = -1
+            r = 0
+            while True:
+                # the ring of cells at Chebyshev distance r from (ci, cj)
+                for a in range(ci - r, ci + r + 1):
+                    if a < 0 or a >= gx:
+                        continue
+                    step = 1 if (a == ci - r or a == ci + r) else 2 * r
+                    b = cj - r
+                    while b <= cj + r:
+                        if 0 <= b < gy:
+                            cc = a * gy + b
+                            for s2 in range(start[cc], start[cc + 1]):
+                                o = order[s2]
+                                if o == t:
+                                    continue
+                                dx = xy[s2, 0] - px
+                                dy = xy[s2, 1] - py
+                                d = dx * dx + dy * dy
+                                if d < bd[k - 1] or (d == bd[k - 1] and o < bi[k - 1]):
+                                    m = k - 1
+                                    while m > 0 and (bd[m - 1] > d or (bd[m - 1] == d and bi[m - 1] > o)):
+                                        bd[m] = bd[m - 1]
+                                        bi[m] = bi[m - 1]
+                                        m -= 1
+                                    bd[m] = d
+                                    bi[m] = o
+                        b += step if step > 0 else 1
+                # nearest distance from the point to anything outside the searched square
+                lo = min(px - (x0 + (ci - r) * h), (x0 + (ci + r + 1) * h) - px,
+                         py - (y0 + (cj - r) * h), (y0 + (cj + r + 1) * h) - py)
+                if bi[k - 1] >= 0 and bd[k - 1] <= lo * lo:
+                    break
+                if ci - r <= 0 and cj - r <= 0 and ci + r >= gx - 1 and cj + r >= gy - 1:
+                    break  # the whole grid searched
+                r += 1
+            for j in range(k):
+                out[t, j] = bi[j]
+
+
+def nearest_neighbours(xy: np.ndarray, k: int) -> np.ndarray:
+    """Indices (N, k) of the k nearest other points of each point of xy (N, 2) (2D, Euclidean),
+    nearest first, ties by index: a uniform cell grid (about 3 points per cell) searched outward
+    until no nearer point can remain (exact; what cKDTree.query gives, without the point itself).
+    k is capped at N - 1."""
+    xy = np.ascontiguousarray(xy, dtype=float)
+    n = len(xy)
+    k = min(int(k), n - 1)
+    if k <= 0:
+        return np.empty((n, 0), dtype=np.int64)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    w = np.maximum(hi - lo, 1e-300)
+    area = float(w[0] * w[1])
+    h = math.sqrt(area / max(n / 3.0, 1.0))
+    h = max(h, float(w.max()) / max(n / 3.0, 1.0), 1e-300)  # points (nearly) on a line in (u, v)
+    gx = int(w[0] / h) + 1
+    gy = int(w[1] / h) + 1
+    cell = np.minimum(((xy[:, 0] - lo[0]) / h).astype(np.int64), gx - 1) * gy + np.minimum(
+        ((xy[:, 1] - lo[1]) / h).astype(np.int64), gy - 1)
+    order = np.argsort(cell, kind="stable")
+    start = np.zeros(gx * gy + 1, dtype=np.int64)
+    np.cumsum(np.bincount(cell, minlength=gx * gy), out=start[1:])
+    out = np.empty((n, k), dtype=np.int64)
+    _knn_cells(np.ascontiguousarray(xy[order]), int(k), float(lo[0]), float(lo[1]), h, gx, gy, start, order, out)
+    return out
 
 
 def _robust_weights(r: np.ndarray, kind: str, floor: float) -> np.ndarray:
@@ -690,16 +817,17 @@ def fit_surface(
 
     edge = ((u <= dom[0]) * 1 + (u >= dom[1]) * 2 + (v <= dom[2]) * 4 + (v >= dom[3]) * 8).astype(np.uint8)
 
-    def correct(surf, u, v, movable=None):
+    def correct(surf, u, v, movable=None, steps=CORRECTION_STEPS):
         """Foot parameters, distances and signed distances of all points on surf (one compiled
-        pass, `_correct`). Only points within ``near`` of the fit (and ``movable``, (N,) bool)
+        pass, `_correct`: ``steps`` Gauss-Newton steps of Hoschek's correction, 0: Newton to
+        the foot). Only points within ``near`` of the fit (and ``movable``, (N,) bool)
         get corrected parameters: on a coarse fit that cuts a corner, projection would slide the
         points along it and spoil a good base parametrisation. Points on the domain's edge stay
         on it (else they slide inward and the fit's edge floats past the data: 0.006 mm at the
         end of an FE-node die strip)."""
         if not correct_parameters:
             return (u, v) + _residuals(surf, x, u, v)
-        return _correct(surf, x, u, v, near=near, movable=movable, edge=edge)
+        return _correct(surf, x, u, v, near=near, movable=movable, edge=edge, steps=steps)
 
     if robust is not None:
         # the residual a point is judged by is its contrast to its 8 nearest neighbours on the
@@ -708,23 +836,12 @@ def fit_surface(
         # Neighbours in (u, v) scaled by the mean |S_u|, |S_v| of the first fit (lengths).
         def contrast(r):
             if "nbr" not in state:
-                from scipy.spatial import cKDTree
-
                 gu, gv = state["surf"].grid(12, 12)
                 der = state["surf"].derivatives(gu, gv, order=1)
                 su = float(np.mean(np.linalg.norm(der[:, 1, 0], axis=1))) or 1.0
                 sv = float(np.mean(np.linalg.norm(der[:, 0, 1], axis=1))) or 1.0
                 stage(f"neighbours of {n} points")
-                k_nb = min(9, n)
-                uv = np.column_stack([u0_par * su, v0_par * sv])
-                tree = cKDTree(uv)
-                # queried in the tree's own order (neighbouring queries walk the same nodes:
-                # 3x faster on a million scattered points than in their random order)
-                order = tree.indices
-                nbr = np.empty((n, k_nb - 1), dtype=np.int64)
-                nbr[order] = tree.query(uv[order], k=k_nb, workers=-1)[1][:, 1:]
-                state["nbr"] = nbr
-                del tree, uv
+                state["nbr"] = nearest_neighbours(np.column_stack([u0_par * su, v0_par * sv]), min(8, n - 1))
             nbr = state["nbr"]
             if not nbr.shape[1]:
                 return r
