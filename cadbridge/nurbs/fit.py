@@ -192,10 +192,13 @@ def _assemble_range(ku, kv, p, q, cw, u, v, x, w, band, rhs, start, stop):  # pr
                 rhs[i0 + a, j0 + b, 0] += ra * x0
                 rhs[i0 + a, j0 + b, 1] += ra * x1
                 rhs[i0 + a, j0 + b, 2] += ra * x2
-                blk = band[i0 + a, j0 + b]
-                for c in range(p + 1):
+                # the upper half only (offset (c - a, d - b) after (0, 0) in row-major order);
+                # `_normal_equations` mirrors it (A^T W A is symmetric)
+                for d in range(b, q + 1):
+                    band[i0 + a, j0 + b, p, d - b + q] += ra * r[a, d]
+                for c in range(a + 1, p + 1):
                     for d in range(q + 1):
-                        blk[c - a + p, d - b + q] += ra * r[c, d]
+                        band[i0 + a, j0 + b, c - a + p, d - b + q] += ra * r[c, d]
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -221,6 +224,14 @@ def _normal_equations(ku, kv, p, q, cw, u, v, x, w) -> tuple[sp.csr_matrix, np.n
         _assemble_parallel(*args, bands, rhss)
     band = bands.sum(axis=0)
     rhs = rhss.sum(axis=0).reshape(nu * nv, 3)
+    # the lower half from the upper: entry (i, j; -di, -dj) = entry (i - di, j - dj; di, dj)
+    for di in range(0, p + 1):
+        for dj in range(-q, q + 1):
+            if di == 0 and dj <= 0:
+                continue
+            # rows (i, j) with (i - di, j - dj) inside the net
+            j_lo, j_hi = max(0, dj), min(nv, nv + dj)
+            band[di:, j_lo:j_hi, p - di, q - dj] = band[: nu - di, j_lo - dj : j_hi - dj, p + di, q + dj]
     i, j, di, dj = np.meshgrid(np.arange(nu), np.arange(nv), np.arange(-p, p + 1), np.arange(-q, q + 1), indexing="ij")
     ii, jj = i + di, j + dj
     ok = (ii >= 0) & (ii < nu) & (jj >= 0) & (jj < nv)
