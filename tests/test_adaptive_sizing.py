@@ -134,3 +134,31 @@ def test_curvature_samples_ushape_die():
         kf = k[face == f]
         assert np.allclose(kf, 0.2, atol=1e-9) or np.allclose(kf, 0.0, atol=1e-9)
     assert np.isclose(k.max(), 0.2, atol=1e-9)
+
+
+def test_background_points_follow_the_field():
+    """`SizeField.background` feeds gmsh a nearest-point size field. Reference: the exact
+    graded field `SizeField.__call__`, which is g-Lipschitz (a min of h_i + g d_i), so a
+    carrier's size (never above the field at the carrier) exceeds the field at a query
+    point by at most g times its distance to the carrier; at a refinement mark the carrier
+    holds the mark's size, and carriers between a mark and a coarser sample get the smaller
+    size halfway to it."""
+    from scipy.spatial import cKDTree
+
+    s = cylinder_patch(5.0, 40.0, np.pi / 2)
+    uu, vv = np.meshgrid(np.linspace(*s.domain[:2], 9), np.linspace(*s.domain[2:], 9), indexing="ij")
+    pts = s.evaluate(uu.ravel(), vv.ravel())
+    f = SizeField(pts, np.full(len(pts), 3.0), h_min=0.05, h_max=20.0, gradation=0.5)
+    mark = pts[40] + 0.1
+    f.add(mark[None], [0.2])
+    u2, v2 = np.meshgrid(np.linspace(*s.domain[:2], 30), np.linspace(*s.domain[2:], 60), indexing="ij")
+    bp, bh = f.background(s.evaluate(u2.ravel(), v2.ravel()))  # extra carriers, like a previous mesh's nodes
+    assert np.all(bh <= f(bp) + 1e-12) and np.all((bh >= f.h_min) & (bh <= f.h_max))
+    assert bh[np.argmin(np.linalg.norm(bp - mark, axis=1))] == pytest.approx(0.2)
+    rng = np.random.default_rng(5)
+    q = s.evaluate(rng.uniform(*s.domain[:2], 4000), rng.uniform(*s.domain[2:], 4000))
+    d, i = cKDTree(bp).query(q)
+    assert np.all(bh[i] <= f(q) + f.g * d + 1e-12)
+    # without the halfway rule a carrier next to the mark would keep its own, larger size
+    near = np.linalg.norm(bp - mark, axis=1) < 1.0
+    assert np.all(bh[near] < 3.0)

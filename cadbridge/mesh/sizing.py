@@ -112,24 +112,58 @@ class SizeField:
         from scipy.spatial import cKDTree
 
         keep = self.sizes < self.h_max  # samples at h_max bound nothing
-        self._pts = self.points[keep]
-        self._h = np.maximum(self.sizes[keep], self.h_min)
-        self._tree = cKDTree(self._pts) if len(self._pts) else None
+        pts, h = self.points[keep], np.maximum(self.sizes[keep], self.h_min)
+        levels = np.unique(h)
+        if len(levels) > self.max_levels:
+            # round down to levels h_min r^j (r = LEVEL_RATIO): at most 1/r below the request
+            j = np.floor(np.log(h / self.h_min) / math.log(self.LEVEL_RATIO) + 1e-9)
+            h = self.h_min * self.LEVEL_RATIO ** j
+            levels = np.unique(h)
+        self._levels = [(float(lv), cKDTree(pts[h == lv])) for lv in levels]
+        self._tree = True
+
+    LEVEL_RATIO = 1.1
+    max_levels = 64
 
     def __call__(self, x: ArrayLike) -> NDArray:
-        """Target size at points x (N, 3) -> (N,)."""
+        """Target size at points x (N, 3) -> (N,): min_i (h_i + g |x - x_i|) over all samples,
+        exactly (one nearest-sample query per size level, within the distance where that
+        level can still be below h_max; with more than ``max_levels`` distinct sizes, sizes
+        are first rounded down to levels LEVEL_RATIO apart)."""
         if self._tree is None:
             self._build()
         x = np.atleast_2d(np.asarray(x, dtype=float))
-        if self._tree is None:
-            return np.full(len(x), self.h_max)
-        k = min(self.k, len(self._pts))
-        # the minimum of h_i + g d_i over the k nearest samples (a sample further away
-        # cannot win unless its size is smaller by g times the extra distance)
-        d, i = self._tree.query(x, k=k)
-        d, i = d.reshape(len(x), -1), i.reshape(len(x), -1)
-        h = np.min(self._h[i] + self.g * d, axis=1)
+        h = np.full(len(x), self.h_max)
+        for lv, tree in self._levels:  # loop over the size levels, vectorised over points
+            reach = (self.h_max - lv) / self.g if self.g > 0 else np.inf
+            d, _ = tree.query(x, k=1, distance_upper_bound=reach)
+            h = np.minimum(h, lv + self.g * d)  # d = inf beyond reach
         return np.clip(h, self.h_min, self.h_max)
+
+    def background(self, extra: ArrayLike | None = None, neighbours: int = 6) -> tuple[NDArray, NDArray]:
+        """Points (M, 3) and sizes (M,) for a nearest-point background size field
+        (`cadbridge.mesh.generate.mesh_cad`'s ``background_sizes``), evaluated in gmsh
+        without a Python call per query.
+
+        Carriers are the field's samples and marks plus ``extra`` points (K, 3) (e.g. the
+        nodes of the previous mesh, dense where the sizes are small). A query point x takes
+        the size of its nearest carrier c, so each carrier gets the smallest size the field
+        reaches halfway to its ``neighbours`` nearest carriers j, min(h(c), h(j) + g |c - j| / 2)
+        (the border of its Voronoi cell towards them): where the field falls from c towards a
+        neighbour (a mark, a smaller radius), c's cell already has the smaller size; where
+        it is flat, c keeps its own."""
+        from scipy.spatial import cKDTree
+
+        pts = self.points if extra is None else np.vstack([self.points, np.asarray(extra, dtype=float).reshape(-1, 3)])
+        pts = np.unique(pts, axis=0)
+        if len(pts) == 0:
+            return np.zeros((1, 3)), np.array([self.h_max])
+        k = min(neighbours + 1, len(pts))
+        d, j = cKDTree(pts).query(pts, k=k)
+        d, j = d.reshape(len(pts), -1), j.reshape(len(pts), -1)  # column 0: the point itself
+        hc = self(pts)
+        h = np.min(hc[j] + 0.5 * self.g * d, axis=1)
+        return pts, np.clip(h, self.h_min, self.h_max)
 
     def gmsh_callback(self):
         """``callback(dim, tag, x, y, z, lc) -> size`` for `gmsh.model.mesh.setSizeCallback`.
