@@ -646,7 +646,7 @@ def _knn_cells(xy, k, x0, y0, h, gx, gy, start, order, out):  # pragma: no cover
 
 
 def nearest_neighbours(xy: np.ndarray, k: int) -> np.ndarray:
-    """Indices (N, k) of the k nearest other points of each point of xy (N, 2) (2D, Euclidean),
+    """Indices (N, k) (int32 below 2^31 points) of the k nearest other points of each point of xy (N, 2) (2D, Euclidean),
     nearest first, ties by index: a uniform cell grid (about 3 points per cell) searched outward
     until no nearer point can remain (exact; what cKDTree.query gives, without the point itself).
     k is capped at N - 1."""
@@ -654,7 +654,7 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> np.ndarray:
     n = len(xy)
     k = min(int(k), n - 1)
     if k <= 0:
-        return np.empty((n, 0), dtype=np.int64)
+        return np.empty((n, 0), dtype=np.int32)
     lo, hi = xy.min(axis=0), xy.max(axis=0)
     w = np.maximum(hi - lo, 1e-300)
     area = float(w[0] * w[1])
@@ -667,7 +667,7 @@ def nearest_neighbours(xy: np.ndarray, k: int) -> np.ndarray:
     order = np.argsort(cell, kind="stable")
     start = np.zeros(gx * gy + 1, dtype=np.int64)
     np.cumsum(np.bincount(cell, minlength=gx * gy), out=start[1:])
-    out = np.empty((n, k), dtype=np.int64)
+    out = np.empty((n, k), dtype=np.int32 if n < 2**31 else np.int64)  # 4 bytes per index suffice
     _knn_cells(np.ascontiguousarray(xy[order]), int(k), float(lo[0]), float(lo[1]), h, gx, gy, start, order, out)
     return out
 
@@ -857,7 +857,7 @@ def fit_surface(
             if not nbr.shape[1]:
                 return r
             out = np.empty(n)
-            _median_contrast(np.ascontiguousarray(r, dtype=float), np.ascontiguousarray(nbr, dtype=np.int64), out)
+            _median_contrast(np.ascontiguousarray(r, dtype=float), nbr, out)
             return out
     u0_par, v0_par = u.copy(), v.copy()
     def final_projection(surf, u, v, dist, signed):
