@@ -1,6 +1,7 @@
 """`cadbridge fit`: a NURBS surface fitted to points (scan, FE nodes, Nagata tool), written as IGES.
 
-    cadbridge fit POINTS -o surface.igs [--degree 3] [--tolerance 0.01] [--base CAD.igs | --plane]
+    cadbridge fit POINTS -o surface.igs [--degree 3] [--tolerance 0.01]
+                  [--base CAD.igs | --base-curves CURVES.igs | --plane]
                   [--smoothing W] [--max-ctrl 60x60] [--trim]
 
 Prints the report (max / RMS deviation, which stop criterion, control net, outliers) and writes,
@@ -54,12 +55,19 @@ def cmd_fit(args: argparse.Namespace) -> int:
             pts, kind = read_points(args.points, nagata_samples=args.nagata_samples)
             base = "plane"
             units = None
+            base_name = "given base surface"
             if args.base:
                 from cadbridge.iges import read_iges
 
                 progress.stage(f"reading the base {args.base}")
                 base = read_iges(args.base)
                 units = base.units
+            elif args.base_curves:
+                from cadbridge.boundary_curves import coons_base, read_boundary_curves
+
+                progress.stage(f"reading the boundary curves {args.base_curves}")
+                base = coons_base(read_boundary_curves(args.base_curves))
+                base_name = f"Coons patch of the 4 boundary curves of {Path(args.base_curves).name}"
             noise = args.noise
             if noise is None and kind in ("tool nodes", "Nagata samples"):
                 noise = 0.0  # computed points are exact
@@ -67,7 +75,8 @@ def cmd_fit(args: argparse.Namespace) -> int:
                                 smoothing=args.smoothing, max_ctrl=tuple(args.max_ctrl), trim=args.trim,
                                 rational=args.rational, noise=noise, robust=None if args.no_robust else "tukey",
                                 max_distance=args.max_distance,
-                                source=f"{kind} of {Path(args.points).name}", name=args.name, progress=progress)
+                                source=f"{kind} of {Path(args.points).name}", name=args.name, base_name=base_name,
+                                progress=progress)
             progress.stage("writing")
             written = write_fit_outputs(report, out, units=units, extras=not args.no_report)
     except (FitInputError, FitError) as exc:
@@ -88,6 +97,7 @@ def register(sub, fmt) -> None:
         "  cadbridge fit scan.xyz -o die_scan.igs --base die.igs --tolerance 0.01 --trim\n"
         "  cadbridge fit nodes.csv -o moved.igs --plane --max-ctrl 40x40\n"
         "  cadbridge fit die.nagata -o die_fit.igs --nagata-samples 4 --base die.igs\n"
+        "  cadbridge fit scan.xyz -o panel.igs --base-curves panel_edges.igs\n"
         "exit codes: 0 written, 1 --strict and the tolerance was not reached, 2 bad input",
     )
     p.add_argument("points", help="points: .xyz/.csv/.txt (x y z per line), STL/PLY/OBJ or any meshio mesh, "
@@ -97,6 +107,9 @@ def register(sub, fmt) -> None:
     p.add_argument("--tolerance", type=float, default=0.01, help="max deviation wanted, model units (default 0.01)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--base", help="IGES file whose face (or faces joined edge to edge) parametrises the points")
+    g.add_argument("--base-curves", metavar="CURVES.igs",
+                   help="IGES file with exactly 4 standalone boundary curves (126, 110, ...; polynomial) meeting "
+                        "at 4 corners: parametrise on the Coons patch they span")
     g.add_argument("--plane", action="store_true", help="parametrise on the best-fit plane (default; height fields)")
     p.add_argument("--face", type=int, default=None, help="with --base: use only this face (0-based)")
     p.add_argument("--smoothing", type=float, default=1e-6,

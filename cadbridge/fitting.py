@@ -496,6 +496,7 @@ def fit_points(
     max_distance: float | None = None,
     source: str = "points",
     name: str = "FIT",
+    base_name: str = "given base surface",
     progress=None,
 ) -> FitReport:
     """Fit one NURBS surface to (N, 3) points; see the module doc. base: "plane", a Model (its
@@ -503,7 +504,7 @@ def fit_points(
     weights from the base surface (conics, fillets), else a polynomial fit of ``degree``;
     max_distance: points farther than this from the base are stray (fixtures, the press bed,
     a neighbouring part) and left out (default: 1 % of the base's size for a CAD base, no
-    limit for the plane)."""
+    limit for the plane); base_name: what a NurbsSurface base is, for the report."""
     import time
 
     t0 = time.perf_counter()
@@ -526,7 +527,7 @@ def fit_points(
         from cadbridge.nurbs.project import FAILED, project_to_surface
 
         res = project_to_surface(base, x, tol=1e-10)
-        par = Parametrisation(res.u, res.v, res.distance, base, "given base surface")
+        par = Parametrisation(res.u, res.v, res.distance, base, base_name)
         if np.any(res.status == FAILED):
             raise FitInputError("points could not be projected onto the base surface")
     ignored = 0
