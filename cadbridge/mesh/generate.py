@@ -596,14 +596,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         sess.set("Mesh.MeshSizeExtendFromBoundary", 0)
         g.model.mesh.setSizeCallback(kw["size_callback"])
     if kw["background_sizes"] is not None:
-        bp, bh = (np.asarray(a, dtype=float) for a in kw["background_sizes"])
         sess.set("Mesh.MeshSizeExtendFromBoundary", 0)
-        view = g.view.add("cadbridge-sizes")
-        sess.views.append(view)
-        g.view.addListData(view, "SP", len(bh), np.column_stack([bp.reshape(-1, 3), bh.ravel()]).ravel().tolist())
-        fld = g.model.mesh.field.add("PostView")
-        g.model.mesh.field.setNumber(fld, "ViewTag", view)
-        g.model.mesh.field.setAsBackgroundMesh(fld)
+        _background_field(g, sess, kw["background_sizes"])
     if kw["structured"]:
         faces, shapes = _classify(g, kw["fillet_max_radius"])
         counts = _structured_counts(
@@ -626,6 +620,12 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         # into quads, halving the size) on a mesh made at twice the target size.
         g.model.mesh.clear()
         _apply(sess, {"Mesh.MeshSizeMax": 2 * size, "Mesh.SubdivisionAlgorithm": 1})
+        # the size field at twice its sizes too (else the subdivision halves them: 4x the elements)
+        if kw["size_callback"] is not None:
+            cb = kw["size_callback"]
+            g.model.mesh.setSizeCallback(lambda dim, tag, x, y, z, lc: 2.0 * cb(dim, tag, x, y, z, lc / 2.0))
+        if kw["background_sizes"] is not None:
+            _background_field(g, sess, kw["background_sizes"], 2.0)
         if kw["structured"]:
             half = _balance_sums({c: max(1, math.ceil(n / 2)) for c, n in counts.items()}, faces)
             for c, n in half.items():
@@ -644,6 +644,19 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     if merged:
         mesh.notes.append(f"mesh: {merged.summary()}")
     return mesh
+
+
+def _background_field(g, sess: GmshSession, sizes, scale: float = 1.0) -> None:
+    """The background size field of ``mesh_cad``'s ``background_sizes`` (points (M, 3), sizes
+    (M,)), times ``scale``: a list-based view of scalar points behind a PostView field (the
+    size of the nearest point)."""
+    bp, bh = (np.asarray(a, dtype=float) for a in sizes)
+    view = g.view.add("cadbridge-sizes")
+    sess.views.append(view)
+    g.view.addListData(view, "SP", len(bh), np.column_stack([bp.reshape(-1, 3), scale * bh.ravel()]).ravel().tolist())
+    fld = g.model.mesh.field.add("PostView")
+    g.model.mesh.field.setNumber(fld, "ViewTag", view)
+    g.model.mesh.field.setAsBackgroundMesh(fld)
 
 
 def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
