@@ -1,10 +1,10 @@
-"""Valence flips and vertex relocation on a parametric surface (opt-in after QIT).
+"""Valence flips, vertex relocation and a max-angle clean-up on a parametric surface: the
+building blocks of QIT's strip step (`cadbridge.mesh.qit._relax_strip`, docs/qit.md choice 19).
 
 The paper (Herrero Adan & Cardoso 2020, section 1) names the four local operations that
 bring a triangulation closer to isotropic: edge collapse, split, flip and vertex
 relocation. QIT's lattice already has the sizes, so only flips and relocation are used,
-after the pattern-space CDT and the edge-strip amendment (section 6.4), in
-``QitOptions(valence_opt=True)``:
+after the pattern-space CDT and the edge-strip amendment (section 6.4):
 
 * `valence_flips`: an interior edge is flipped when that brings the mean angle
   alpha_v / n_v at its four vertices closer to 60 degrees (n_v triangles share the angle
@@ -19,10 +19,12 @@ after the pattern-space CDT and the edge-strip amendment (section 6.4), in
   taken in the tangent plane, mapped to (du, dv) by the surface's Jacobian (least squares),
   and the vertex is the surface evaluated at its new (u, v), so it stays exactly on the
   surface. A vertex is put back where its move would lower the smallest angle of its
-  triangles ("smart" smoothing), turn a triangle in (u, v) or against the surface normal,
-  or leave the caller's admissible set (inside the face, at least Dx_th from its edges).
+  triangles ("smart" smoothing; optionally also raise their largest), turn a triangle in
+  (u, v) or against the surface normal, or leave the caller's admissible set (inside the
+  face, at least Dx_th from its edges);
+* `max_angle_flips`: a triangle with an angle over a bound has its longest edge flipped
+  where that lowers the pair's largest angle.
 """
-
 from __future__ import annotations
 
 from typing import Callable
