@@ -320,8 +320,9 @@ def refine_mesh(
 
     min_size  size floor (default model size / 1000); max_size  largest element (default
               model size / 4: planes get as few elements as their boundaries allow)
-    grid      divisions per patch of the loop's measurement; check_grid  of the final
-              independent check (default 2 * grid - 1: odd, so its points are mostly not the loop's)
+    grid      divisions per patch of the loop's measurement (fewer on big models, by the sample
+              budget of `pipeline.sample_divisions`); check_grid  of the final independent
+              check (default 2 * (grid used) - 1: odd, so its points are mostly not the loop's)
     inflections  insert / move nodes onto inflection lines (False: sizing and refinement only)
     structured   mapped meshes on four-sided faces (default: for quads), each side divided by
               the law along its own curvature: a fillet gets its divisions across the radius
@@ -353,7 +354,7 @@ def refine_mesh(
     h_min = float(min_size) if min_size else size / 1000.0
     if not (0 < h_min <= h_max):
         raise ValueError(f"size floor {h_min!r} must be positive and at most the largest size {h_max!r}")
-    check_grid = check_grid or 2 * grid - 1
+    user_check_grid = check_grid
     t_loop = 0.95 * tolerance  # the loop aims a little below: the denser check decides
 
     progress.stage("principal curvatures of the CAD faces (sizing by the Nagata error law)")
@@ -474,6 +475,10 @@ def refine_mesh(
                     f"{k + 1}: {r}" for k, r in sorted(bad_full.items())[:10]) + more)
         checked = math.nan
         if n_above == 0:
+            # odd multiple-ish of the grid the loop really used (big models get fewer divisions
+            # from the sample budget of `pipeline.sample_divisions`), so most points are new
+            used = min(int(t.stats.get("grid", grid)) for t in tools)
+            check_grid = user_check_grid or 2 * used - 1
             progress.stage(f"pass {p}: independent check on {check_grid} divisions per patch")
             check, per, per_order = shape_check(tools, model, projector, check_grid, orders=True)
             checked = check["max_error"]
@@ -506,6 +511,7 @@ def refine_mesh(
     tmp.cleanup()
     score, mesh, tools, above_all, floor, check_best = best
     if check_best is None:  # the best pass was never checked on the dense grid: check it now
+        check_grid = user_check_grid or 2 * min(int(t.stats.get("grid", grid)) for t in tools) - 1
         check_best, per = shape_check(tools, model, projector, check_grid)
         above_all = [(t.name, int(i) + 1, float(per[t.name][i])) for t in tools
                      for i in np.flatnonzero(per[t.name] > tolerance)]
