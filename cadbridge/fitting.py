@@ -317,8 +317,12 @@ def face_base(points: np.ndarray, model: Model, face: int | None = None) -> Para
     # local-minimum check (3/4 of the time on a million points) only for the points that came
     # out far from the base or whose Newton did not end on an orthogonal foot
     smp = surface_samples(base)
-    first = np.asarray(smp.tree.query(points, workers=-1)[1]).reshape(len(points))
-    u, v, dist, _, ok = reproject(base, points, smp.uv[first, 0], smp.uv[first, 1], tol=1e-10, max_iter=30)
+    if smp.closed_u or smp.closed_v:  # a closed base (full cylinder): Newton must wrap across the seam
+        res = project_to_surface(base, points, tol=1e-10, global_check=False)
+        u, v, dist, ok = res.u.copy(), res.v.copy(), res.distance.copy(), res.status != FAILED
+    else:
+        first = np.asarray(smp.tree.query(points, workers=-1)[1]).reshape(len(points))
+        u, v, dist, _, ok = reproject(base, points, smp.uv[first, 0], smp.uv[first, 1], tol=1e-10, max_iter=30)
     far = ~(dist <= 10.0 * max(float(np.nanmedian(dist)), 1e-12 * model.size())) | ~ok
     if far.any():
         again = project_to_surface(base, points[far], tol=1e-10)

@@ -149,3 +149,21 @@ def test_normal_equations_against_the_dense_product(p, q, spans_u, spans_v, rati
     ref = a.T @ (w[:, None] * a)
     assert np.abs(mat.toarray() - ref).max() <= 1e-11 * np.abs(ref).max()
     assert np.abs(rhs - a.T @ (w[:, None] * x)).max() <= 1e-11 * max(1.0, np.abs(rhs).max())
+
+
+@pytest.mark.parametrize("angle", [np.pi, 2 * np.pi])
+def test_face_base_feet_on_open_and_closed_cylinders(angle):
+    # reference: analytic feet of points 0.01 off a cylinder (a half, compiled Newton from the
+    # nearest sample; the full one is closed: Newton must wrap across the seam, project_to_surface)
+    from cadbridge.fitting import face_base
+    from cadbridge.model import Face, Model
+
+    s = cylinder_patch(5.0, 20.0, angle=angle)
+    rng = np.random.default_rng(0)
+    u0, u1, v0, v1 = s.domain
+    u, v = rng.uniform(u0, u1, 3000), rng.uniform(v0, v1, 3000)
+    x = s.evaluate(u, v) + 0.01 * s.normal(u, v)
+    par = face_base(x, Model(faces=[Face(s, de=1)]))
+    assert np.abs(par.distance - 0.01).max() <= 1e-9
+    feet = s.evaluate(par.u, par.v)
+    assert np.abs(np.linalg.norm(feet - s.evaluate(u, v), axis=1)).max() <= 1e-7
