@@ -12,6 +12,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse import csgraph
@@ -83,6 +84,27 @@ class EdgeTable:
         return self.elems[self.ptr[m] : self.ptr[m + 1]]
 
 
+@numba.njit(cache=True)
+def _stable_pair_order(lo, hi, n):  # pragma: no cover - compiled
+    """Indices sorting the pairs (lo, hi) (H,) of node numbers < n lexicographically, equal
+    pairs in their given order (= np.argsort(lo * n + hi, kind="stable")): LSD counting sort."""
+    h = lo.shape[0]
+    cnt = np.zeros(n + 1, dtype=np.int64)
+    tmp = np.empty(h, dtype=np.int64)
+    order = np.empty(h, dtype=np.int64)
+    for key, src, dst in ((hi, np.arange(h), tmp), (lo, tmp, order)):
+        cnt[:] = 0
+        for i in range(h):
+            cnt[key[i] + 1] += 1
+        for j in range(n):
+            cnt[j + 1] += cnt[j]
+        for t in range(h):
+            i = src[t]
+            dst[cnt[key[i]]] = i
+            cnt[key[i]] += 1
+    return order
+
+
 def edge_table(mesh: Mesh) -> EdgeTable:
     """Build the `EdgeTable` of a mesh in O(H log H)."""
     src, dst, elem, side = halfedges(mesh)
@@ -94,8 +116,9 @@ def edge_table(mesh: Mesh) -> EdgeTable:
     n = max(int(mesh.n_nodes), 1)
     key = lo * n + hi  # unique int key per sorted pair (N^2 < 2^63 for N < 3e9)
     # one stable sort: sides grouped by edge, and within an edge in side order, which is
-    # ascending element (sides are element-major)
-    order = np.argsort(key, kind="stable")
+    # ascending element (sides are element-major); two counting passes (hi, then lo) give
+    # exactly the stable argsort of key in O(H + N)
+    order = _stable_pair_order(lo, hi, n)
     ks = key[order]
     new = np.empty(len(ks), dtype=bool)
     new[0] = True

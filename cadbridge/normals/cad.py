@@ -23,6 +23,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from cadbridge.mesh.io import MeshWarning
@@ -87,13 +88,54 @@ class CadNormals:
 
 def _element_normals(nodes: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """Polyhedral element normals from the winding, (E, 3), unit (quads: diagonal cross)."""
-    x = nodes[cells]
-    if cells.shape[1] == 3:
-        n = np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
-    else:
-        n = np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 1])
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.where(ln > 0, ln, 1.0)
+    cells = np.ascontiguousarray(cells, dtype=np.int64)
+    out = np.empty((len(cells), 3))
+    if len(cells):
+        _element_normals_kernel(np.ascontiguousarray(nodes, dtype=float), cells, out)
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _element_normals_kernel(x, cells, out):  # pragma: no cover - compiled
+    """Triangles (x1 - x0) x (x2 - x0), quads (x2 - x0) x (x3 - x1), divided by their length
+    (left as they are where it is 0); the arithmetic of np.cross and np.linalg.norm."""
+    quad = cells.shape[1] == 4
+    for e in range(cells.shape[0]):
+        if quad:
+            a, b, c, d = cells[e, 0], cells[e, 2], cells[e, 1], cells[e, 3]
+        else:
+            a, b, c, d = cells[e, 0], cells[e, 1], cells[e, 0], cells[e, 2]
+        ux, uy, uz = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+        vx, vy, vz = x[d, 0] - x[c, 0], x[d, 1] - x[c, 1], x[d, 2] - x[c, 2]
+        nx = uy * vz - uz * vy
+        ny = uz * vx - ux * vz
+        nz = ux * vy - uy * vx
+        ln = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if not ln > 0:
+            ln = 1.0
+        out[e, 0], out[e, 1], out[e, 2] = nx / ln, ny / ln, nz / ln
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _corner_mean_kernel(cells, face, status, u, v, out_face, out_u, out_v, converged):  # pragma: no cover - compiled
+    """Per element: its face if all corners project `converged` onto one face (else -1), and
+    the mean of the corners' u and v (sums in corner order, as ndarray.mean)."""
+    k = cells.shape[1]
+    for e in range(cells.shape[0]):
+        f0 = face[cells[e, 0]]
+        ok = True
+        su = u[cells[e, 0]]
+        sv = v[cells[e, 0]]
+        for j in range(k):
+            n = cells[e, j]
+            if face[n] != f0 or status[n] != converged:
+                ok = False
+            if j > 0:
+                su += u[n]
+                sv += v[n]
+        out_face[e] = f0 if ok else -1
+        out_u[e] = su / k
+        out_v[e] = sv / k
 
 
 def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, proj: Projection
@@ -111,14 +153,15 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
     v = np.empty(len(face))
     todo = []
     offset = 0
+    pf = np.ascontiguousarray(proj.face, dtype=np.int64)
+    ps = np.ascontiguousarray(proj.status)
+    pu, pv = np.ascontiguousarray(proj.u, dtype=float), np.ascontiguousarray(proj.v, dtype=float)
     for c in blocks:
-        f = proj.face[c]
-        inside = np.all(f == f[:, :1], axis=1) & np.all(proj.status[c] == CONVERGED, axis=1)
         sl = slice(offset, offset + len(c))
-        face[sl] = np.where(inside, f[:, 0], -1)
-        u[sl] = proj.u[c].mean(axis=1)
-        v[sl] = proj.v[c].mean(axis=1)
-        todo.append(offset + np.flatnonzero(~inside))
+        if len(c):
+            _corner_mean_kernel(np.ascontiguousarray(c, dtype=np.int64), pf, ps, pu, pv, face[sl], u[sl], v[sl],
+                                CONVERGED)
+        todo.append(offset + np.flatnonzero(face[sl] < 0))
         offset += len(c)
     todo = np.concatenate(todo)
     if len(todo):
@@ -133,14 +176,23 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
 
 
 def _summed_normals(n: int, blocks: list[np.ndarray], elem_normals: list[np.ndarray]) -> np.ndarray:
-    """(n, 3) sum of the element normals around every node: one `np.bincount` per coordinate
-    over all corners, in the order block, corner k, element (the order of a loop of
-    ``np.add.at``, so the same sums to the last bit)."""
-    if not blocks:
-        return np.zeros((n, 3))
-    idx = np.concatenate([c.T.ravel() for c in blocks])
-    w = np.concatenate([np.tile(en, (c.shape[1], 1)) for c, en in zip(blocks, elem_normals)])
-    return np.column_stack([np.bincount(idx, weights=w[:, j], minlength=n) for j in range(3)])
+    """(n, 3) sum of the element normals around every node, added in the order block, corner
+    k, element (the order of a loop of ``np.add.at``, so the same sums to the last bit)."""
+    acc = np.zeros((n, 3))
+    for c, en in zip(blocks, elem_normals):
+        if len(c):
+            _add_corners_kernel(np.ascontiguousarray(c, dtype=np.int64), np.ascontiguousarray(en), acc)
+    return acc
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _add_corners_kernel(cells, en, acc):  # pragma: no cover - compiled
+    for k in range(cells.shape[1]):
+        for e in range(cells.shape[0]):
+            i = cells[e, k]
+            acc[i, 0] += en[e, 0]
+            acc[i, 1] += en[e, 1]
+            acc[i, 2] += en[e, 2]
 
 
 def _on_c0_knot_lines(model: Model, proj: Projection) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
