@@ -33,13 +33,17 @@ from scipy.spatial import Delaunay, cKDTree
 from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
 from cadbridge.nurbs.curve import NurbsCurve
 
-__all__ = ["QitError", "QitOptions", "QitFaceReport", "qit_mesh"]
+__all__ = ["QitError", "QitJacobianError", "QitOptions", "QitFaceReport", "qit_mesh"]
 
 _DIRS = np.array([(1, 0), (0, 1), (-1, 1), (-1, 0), (0, -1), (1, -1)])  # axial hex directions, CCW
 
 
 class QitError(MeshError):
     """A face QIT cannot mesh (zero Jacobian, failed constraint recovery, ...), named."""
+
+
+class QitJacobianError(QitError):
+    """A face with a vanishing Jacobian (pole, degenerate edge): bad input, no fallback."""
 
 
 @dataclass
@@ -93,6 +97,8 @@ class QitFaceReport:
     valence_flips: int = 0
     relaxed: int = 0
     strip_reverted: bool = False
+    mesher: str = "qit"
+    refused: str = ""
 
 
 # ---------------------------------------------------------------------------------------
@@ -278,7 +284,7 @@ class _DSMesh:
                 np.column_stack([um, leaves[:, 1], vm, leaves[:, 3]]),
             ])
         if not min_jac > 1e-10:
-            raise QitError(f"{face_label}: QIT needs a Jacobian |Su x Sv| > 0 on the whole face; it vanishes "
+            raise QitJacobianError(f"{face_label}: QIT needs a Jacobian |Su x Sv| > 0 on the whole face; it vanishes "
                            "(degenerate edge or pole: relative Jacobian "
                            f"{min_jac:.1e}); mesh this face with --mesher gmsh")
         self.leaves = np.concatenate(done)
@@ -963,7 +969,7 @@ def _face_label(model, f: int) -> str:
 
 
 def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, progress=None,
-             reports: list | None = None) -> Mesh:
+             reports: list | None = None, fallback: bool = False) -> Mesh:
     """QIT of the faces of ``model`` (`cadbridge.model.Model`, or one `Face`) with target edge
     length ``size`` (R, model units).
 
@@ -972,7 +978,11 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
     with one triangle block (CCW about Su x Sv of each face), point_data ``node_face``
     (N,) and ``node_uv`` (N, 2) (the face a node was made on and its parameters there),
     cell_data ``element_face`` (E,). ``reports`` (a list) receives one `QitFaceReport` per face.
-    Raises `QitError` naming the face it cannot mesh.
+    Raises `QitError` naming the face it cannot mesh -- unless ``fallback``: a face QIT
+    refuses for its shape (a front that does not fill it, folds, a failed first hexagon or
+    constraint recovery) is then meshed by gmsh on QIT's edge vertices
+    (`cadbridge.mesh.qit_fallback`; its report says ``mesher="gmsh"`` and why), so the
+    shared edges still conform; a vanishing Jacobian (`QitJacobianError`) stays an error.
     """
     from cadbridge.model import Face, Model
 
@@ -1099,8 +1109,15 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
         label = _face_label(model, f)
         stage(f"QIT: {label}")
         rep = QitFaceReport(face=f)
-        tris = _mesh_face(model, f, [[edges[i] for i in lp] for lp in face_loops[f]], opt, dx_th, label,
-                          node_x, node_face, node_uv, rep)
+        loops_f = [[edges[i] for i in lp] for lp in face_loops[f]]
+        try:
+            tris = _mesh_face(model, f, loops_f, opt, dx_th, label, node_x, node_face, node_uv, rep)
+        except QitError as exc:
+            if not fallback or isinstance(exc, QitJacobianError):
+                raise
+            stage(f"QIT: {label} refused ({str(exc).split(';')[0].removeprefix(label + ': ')}); meshing it with gmsh")
+            rep = QitFaceReport(face=f, mesher="gmsh", refused=str(exc))
+            tris = _fallback_face(model, f, loops_f, opt, label, node_x, node_face, node_uv, rep)
         rep.triangles = len(tris)
         if reports is not None:
             reports.append(rep)
@@ -1311,6 +1328,56 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
     return local0, uv0, x0
 
 
+def _fallback_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, label: str,
+                   node_x: list, node_face: list, node_uv: list, rep: QitFaceReport) -> np.ndarray:
+    """A face QIT refused, meshed by gmsh in its metric-scaled (u, v) on QIT's edge vertices
+    (`cadbridge.mesh.qit_fallback`); appends its interior vertices to the node registry and
+    returns its triangles (global ids), CCW about Su x Sv."""
+    from cadbridge.mesh.qit_fallback import mesh_loops_in_parameter_space
+
+    s = model.faces[f].surface
+    loop_ids, loop_uv = [], []
+    for lp in loops:
+        ids, uvs = [], []
+        for e in lp:
+            ids += list(e.nodes[:-1])
+            uvs.append(e.uv[:-1])
+        if ids:
+            loop_ids.append(ids)
+            loop_uv.append(np.concatenate(uvs))
+    e_ids = np.array([k for ids in loop_ids for k in ids], dtype=np.int64)
+    if len(e_ids) < 3:
+        raise QitError(f"{label}: boundary too short for a mesh at size {opt.size:g} (fewer than 3 edge vertices)")
+    e_uv = np.concatenate(loop_uv)
+    u0, u1, v0, v1 = s.domain
+    c = np.clip(e_uv, [u0, v0], [u1, v1])
+    d = s.derivatives(c[:, 0], c[:, 1], order=1)
+    scale = np.array([np.linalg.norm(d[:, 1, 0], axis=1).mean(), np.linalg.norm(d[:, 0, 1], axis=1).mean()])
+    scale = np.maximum(scale, 1e-12 * max(scale.max(), 1e-300))
+    try:
+        uv, tris = mesh_loops_in_parameter_space(loop_uv, scale, opt.size, label)
+    except MeshError as exc:
+        raise QitError(f"{rep.refused}; {exc}") from exc
+    n_loop = len(e_ids)
+    x_in = s.evaluate(uv[n_loop:, 0], uv[n_loop:, 1]) if len(uv) > n_loop else np.zeros((0, 3))
+    all_x = np.concatenate([np.array([node_x[k] for k in e_ids]), x_in])
+    folded = _n_folded(s, uv, all_x, tris)
+    if folded:
+        raise QitError(f"{rep.refused}; the gmsh fallback in its (u, v) folded {folded} triangles too; "
+                       "mesh this file with --mesher gmsh")
+    base = len(node_x)
+    for k in range(len(x_in)):
+        node_x.append(x_in[k])
+        node_face.append(f)
+        node_uv.append(uv[n_loop + k])
+    gid = np.concatenate([e_ids, base + np.arange(len(x_in))])
+    out = gid[tris]
+    keep = (out[:, 0] != out[:, 1]) & (out[:, 1] != out[:, 2]) & (out[:, 2] != out[:, 0])  # seams
+    rep.edge_vertices = n_loop
+    rep.seam_dropped = int((~keep).sum())
+    return out[keep]
+
+
 def _n_folded(s, uv: np.ndarray, x: np.ndarray, tris: np.ndarray) -> int:
     """Triangles whose 3D normal is against Su x Sv at their (u, v) centroid."""
     u0, u1, v0, v1 = s.domain
@@ -1391,7 +1458,8 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
     """`cadbridge.mesh.generate.mesh_cad` with ``mesher="qit"``: read the IGES file and mesh
     all its faces with QIT (default size: bounding-box diagonal / 20, as gmsh's default).
     Raises `MeshError` (one line) for what QIT does not do: quads, structured meshes,
-    crease lines inside faces (``embed_curves``)."""
+    crease lines inside faces (``embed_curves``). Faces QIT refuses are meshed by gmsh on
+    QIT's edge vertices (``qit_mesh(..., fallback=True)``, named in the progress output)."""
     from pathlib import Path
 
     from cadbridge.iges import IgesError, read_iges
@@ -1412,6 +1480,12 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
                         "QIT does not embed curves: mesh this file with --mesher gmsh")
     if size is None:
         size = model.size() / 20.0
-    mesh = qit_mesh(model, size, options, progress=progress)
+    reports: list = []
+    mesh = qit_mesh(model, size, options, progress=progress, fallback=True, reports=reports)
+    import warnings
+
+    for r in reports:
+        if r.mesher == "gmsh":
+            warnings.warn(f"{r.refused.split(';')[0]}; meshing it with gmsh on QIT's edge vertices", stacklevel=2)
     mesh.name = path.stem
     return mesh
