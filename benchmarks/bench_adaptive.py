@@ -9,7 +9,8 @@ coarsest uniform mesh to the adaptive one is the efficiency. The default `cadbri
 mesh (gmsh curvature sizing, 12 elements per turn) is listed too.
 
 Samples: the U-shape die (R 5 and planes), a punch with R 3 and R 30 rounds (box 120 x 80 x
-30, vertical edges R 30, top edges R 3, generated here with cadquery), and the production
+30, vertical edges R 30, top edges R 3, generated here with cadquery), the torus patch (tube
+R 5, sweep R 20-25, a free R 20 border), and the production
 die `iges_samples/production_die_nurbs.igs` when it exists locally (never generated here).
 
     python benchmarks/bench_adaptive.py [--quick] [--out benchmarks/results/adaptive.md]
@@ -122,7 +123,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         punch = Path(tmp) / "punch_r3_r30_nurbs.igs"
         make_punch(punch)
-        samples = [ROOT / "iges_samples" / "ushape_die_nurbs.igs", punch]
+        samples = [ROOT / "iges_samples" / "ushape_die_nurbs.igs", punch, ROOT / "iges_samples" / "torus_patch.igs"]
         prod = ROOT / "iges_samples" / "production_die_nurbs.igs"
         if prod.is_file() and not a.quick and not a.no_production:
             samples.append(prod)
