@@ -167,3 +167,38 @@ def test_face_base_feet_on_open_and_closed_cylinders(angle):
     assert np.abs(par.distance - 0.01).max() <= 1e-9
     feet = s.evaluate(par.u, par.v)
     assert np.abs(np.linalg.norm(feet - s.evaluate(u, v), axis=1)).max() <= 1e-7
+
+
+@pytest.mark.parametrize("text", ["1 2 3\n4 5 6\n7 8 9.5\n", "x,y,z\n1,2,3\n4, 5, 6\n7,8,9.5\n",
+                                  "# scan\n\n1;2;3\n4;5;6\n7;8;9.5\n", "1\t2\t3\t0 0 1\n4 5 6 0 0 1\n7 8 9.5 0 0 1\n"])
+def test_text_reader_fast_path_equals_the_line_reader(tmp_path, text):
+    # reference: the line-by-line reader (`_read_text` without its numpy fast path)
+    from cadbridge import fitting
+
+    path = tmp_path / "p.xyz"
+    path.write_text(text)
+    fast = fitting._read_text_fast(path)
+    assert fast is not None
+    rows = [[float(t) for t in ln.replace(",", " ").replace(";", " ").split()[:3]] for ln in text.splitlines()
+            if ln.strip() and ln.strip()[0] not in "#x"]
+    assert np.array_equal(fast, np.array(rows))
+
+
+def test_beyond_csv_lists_exactly_the_flagged_points(tmp_path):
+    # reference: the fit's own arrays (the CSV round-trips them exactly, %.17g)
+    from cadbridge.fitting import fit_points, write_fit_outputs
+
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(0, 50, (4000, 2))
+    z = 0.01 * xy[:, 0] ** 2 / 50 + rng.normal(0, 0.004, len(xy))
+    z[:40] += 0.5  # outliers
+    rep = fit_points(np.column_stack([xy, z]), tolerance=0.005)
+    paths = write_fit_outputs(rep, tmp_path / "f.igs")
+    csv = [p for p in paths if p.name.endswith("_beyond.csv")][0]
+    a = np.loadtxt(csv, delimiter=",", skiprows=1, ndmin=2)
+    f = rep.fit
+    sel = np.nonzero((f.distance > f.tolerance) | f.outliers)[0]
+    assert f.outliers[:40].all() and len(sel) > 40
+    assert np.array_equal(a[:, 0], sel) and np.array_equal(a[:, 1:4], rep.points[sel])
+    assert np.array_equal(a[:, 4], f.u[sel]) and np.array_equal(a[:, 6], f.signed[sel])
+    assert np.array_equal(a[:, 8], f.outliers[sel])
