@@ -18,12 +18,13 @@ Around the solve (`fit_surface`):
 
 - robust reweighting: Huber (k = 1.345) while refining, then Tukey's biweight (c = 4.685) on the
   final net, applied to each point's residual contrast (its signed distance minus the median of
-  its 8 nearest neighbours' in space), scale 1.4826 MAD, never below the tolerance: an isolated
+  its 8 nearest neighbours' on the surface, `nearest_neighbours`), scale 1.4826 MAD, never below the tolerance: an isolated
   outlier is rejected, a coherent region the current net does not follow yet is not (it gets
   knots instead); points below half weight keep their parameters;
-- parameter correction: every iteration re-projects the points onto the current fit (Newton point
-  inversion, P&T §6.1 / §9.4.1 "parameter correction", Hoschek 1988) starting from their current
-  (u, v);
+- parameter correction: after every solve each point takes `CORRECTION_STEPS` Gauss-Newton steps
+  of Hoschek's correction (Hoschek 1988; P&T §9.4.1) from its current (u, v) onto the new fit;
+  the final fit's feet by Newton point inversion (P&T §6.1, the kernel of `cadbridge.nurbs.project`),
+  both in one compiled pass (`reproject`);
 - knot insertion: a cell (knot span pair) whose deviation statistic exceeds the tolerance gets a
   knot in the middle of its u-span and/or v-span (the direction(s) along which its residuals vary),
   until no cell exceeds the tolerance ("tolerance") or the control net limit is reached
