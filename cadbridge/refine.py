@@ -191,25 +191,15 @@ def shape_check(tools: list, model, projector, grid: int, orders: bool = False):
     order of every element's error (E,) (`_error_order`)."""
     from cadbridge.tool_errors import tool_errors
 
-    from cadbridge.nagata.errors import angle_deg
-    from cadbridge.tool_errors import _on_faces
-
     per, per_order, surf, nrm = {}, {}, [], []
     for t in tools:
         nm = t.nagata
         g = nm.sample_grid(grid)
-        # the surface error of `cadbridge.tool_errors` (distance to the element's face, one
-        # projection); where no foot is found there, the full measurement with its fallback
-        face = np.asarray(t.element_face, dtype=np.int64)[g.elem]
-        d, ncad, _ = _on_faces(model, g.points, face, g.elem, g.normals)
-        n_err = angle_deg(g.normals, ncad)
-        miss = np.flatnonzero(~np.isfinite(d) | (face < 0))
-        if len(miss):
-            err = tool_errors(nm, g.elem[miss], g.eta[miss], g.zeta[miss], t.element_face, model, projector.project)
-            d[miss], n_err[miss] = err.surface, err.normal
-        # and the distance to the trimmed CAD: beyond a curved trim edge the patch's straight
-        # boundary leaves the face sideways, which the normal distance to the surface misses
-        bnd = np.linalg.norm(g.points - projector.project(g.points).foot, axis=1)
+        # what the loop measures (`cadbridge.tool_errors`: surface error against the element's
+        # face, boundary error against the trimmed CAD and, along free edges, the face's
+        # boundary curves), on this grid's points
+        err = tool_errors(nm, g.elem, g.eta, g.zeta, t.element_face, model, projector.project)
+        d, n_err, bnd = err.surface, err.normal, err.boundary
         shape = np.maximum(np.abs(d), bnd)
         e = np.zeros(nm.n_elements)
         np.maximum.at(e, g.elem, shape)
