@@ -337,7 +337,7 @@ def face_base(points: np.ndarray, model: Model, face: int | None = None) -> Para
     joined into one strip (`join_strip`). Feet on the base's edge are kept (the fit extends
     over the data; parameter correction moves them onto the fit)."""
     from cadbridge.nurbs.fit import reproject
-    from cadbridge.nurbs.project import FAILED, project_to_surface, surface_samples
+    from cadbridge.nurbs.project import FAILED, project_to_surface, smooth_pieces, surface_samples
 
     if not model.faces:
         raise FitInputError("the base CAD has no faces")
@@ -353,7 +353,9 @@ def face_base(points: np.ndarray, model: Model, face: int | None = None) -> Para
     # local-minimum check (3/4 of the time on a million points) only for the points that came
     # out far from the base or whose Newton did not end on an orthogonal foot
     smp = surface_samples(base)
-    if smp.closed_u or smp.closed_v:  # a closed base (full cylinder): Newton must wrap across the seam
+    if smp.closed_u or smp.closed_v or len(smooth_pieces(base)) > 1:
+        # a closed base (full cylinder: Newton must wrap across the seam) or one with crease
+        # lines inside (each smooth piece projected onto, the nearest kept): the projection module
         res = project_to_surface(base, points, tol=1e-10, global_check=False)
         u, v, dist, ok = res.u.copy(), res.v.copy(), res.distance.copy(), res.status != FAILED
     else:
