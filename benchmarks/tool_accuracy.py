@@ -23,6 +23,10 @@ For every file of iges_samples/*.igs and ../shared/iges_real/*, in tri and in qu
    along a sharp face border whose chord centroid is nearer the neighbour face, the element
    goes instead to the face, among those nearest its centroid and its corners, whose surface
    holds the corners best; the row counts such elements (and those on no single face).
+   A sample whose foot is on the border of that surface's parameter domain lies beyond the
+   surface (e.g. an element whose centroid is nearest one face but which runs over its
+   neighbour): it is measured to the trimmed faces (``BRepExtrema_DistShapeShape`` to the
+   compound of all faces) where that is smaller; the row counts such samples.
 
 Pass: max Nagata surface error <= 0.25 x max flat surface error, or both below 1e-9 x size
 (size = diagonal of the tool file's node box, the largest over the file's tools).
@@ -89,6 +93,7 @@ class Row:
     straddling: int = 0  # elements whose corners lie on no single face (within 1e-6 x size)
     node_gap: float = 0.0  # max distance of an element's corner nodes to its face's surface
     exit_code_first: int | None = None  # of the plain convert, when a retry with --allow-worse followed
+    beyond_border: int = 0  # samples beyond their face's surface border measured to the trimmed faces
 
     def _ok(self, nag: float, flat: float) -> bool:
         if self.exit_code != 0 or self.refused or self.unassigned or self.no_projection or not self.rebuild_dev <= 1e-9:
@@ -234,6 +239,21 @@ class OccReference:
             return out, npart, edge
         return out
 
+    def trimmed_distance(self, x: np.ndarray) -> np.ndarray:
+        """Distance (M,) of points x (M, 3) to the trimmed faces (BRepExtrema_DistShapeShape
+        to the compound of all faces)."""
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.gp import gp_Pnt
+
+        out = np.full(len(x), np.inf)
+        for i, xx in enumerate(x):
+            d = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, xx))).Vertex(),
+                                           self.faces_compound)
+            if d.IsDone() and d.NbSolution() > 0:
+                out[i] = d.Value()
+        return out
+
     def nearest_face(self, x: np.ndarray) -> int:
         """Index (0-based, TopExp.MapShapes order) of the face nearest to point x; -1 if none."""
         from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
@@ -336,6 +356,15 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
             s = fa == k
             dn, pn, en = occ.distance(int(k), xn[s], normal_part=True)
             df, pf, ef = occ.distance(int(k), xf[s], normal_part=True)
+            # a foot on the border of the surface's domain: the sample lies beyond the surface,
+            # where the CAD is the neighbouring face (an element whose centroid is nearest one
+            # face but runs over another): the distance to the trimmed faces, if smaller
+            for d_, e_, x_ in ((dn, en, xn[s]), (df, ef, xf[s])):
+                b = np.flatnonzero(e_)
+                if len(b):
+                    dt = occ.trimmed_distance(x_[b])
+                    row.beyond_border += int(np.count_nonzero(dt < d_[b]))
+                    d_[b] = np.minimum(d_[b], dt)
             nag_max, flat_max = max(nag_max, float(dn.max())), max(flat_max, float(df.max()))
             nag_n, flat_n = max(nag_n, float(pn.max())), max(flat_n, float(pf.max()))
             row.no_projection += int(np.count_nonzero(~np.isfinite(dn)) + np.count_nonzero(~np.isfinite(df)))
@@ -375,6 +404,8 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
             notes.append(f"{r.reassigned} elements to the face holding their corners, not the one nearest the centroid")
         if r.straddling:
             notes.append(f"{r.straddling} elements with corners on no single face")
+        if r.beyond_border:
+            notes.append(f"{r.beyond_border} samples beyond their face's surface border measured to the trimmed faces")
         if r.no_projection:
             notes.append(f"{r.no_projection} samples without an OCC projection")
         if r.exit_code == 0 and np.isfinite(r.nagata) and r.worst_nagata[1]:
@@ -395,7 +426,8 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
         "max deviation / node-box diagonal, independent reader tests/toolfile_reference.py). Corner-node gap: max "
         "distance of an element's corner nodes (CAD points) to the OCC surface it is measured against, a floor of "
         "both errors (the file's own edge/surface gaps, or elements across faces). dist = distance (GeomAPI_ProjectPointOnSurf) to the untrimmed OCC surface of the "
-        "face nearest the element's flat centroid (BRepExtrema_DistShapeShape); normal part = |(x - foot) . n(foot)|, "
+        "face nearest the element's flat centroid (BRepExtrema_DistShapeShape), or, for a sample whose foot is on that "
+        "surface's domain border (it lies beyond the surface), the distance to the trimmed faces where smaller; normal part = |(x - foot) . n(foot)|, "
         "which ignores how far a sample lies beyond the border of the surface's parameter domain. "
         f"Grid {div} divisions per patch; at most {max_samples} samples per row (every k-th element beyond).")
     return "\n".join(out)

@@ -93,7 +93,7 @@ def _face_curves(face) -> list[NurbsCurve]:
     curves: list[NurbsCurve] = []
     if tr is not None:
         for loop in ([tr.outer] if tr.outer is not None else []) + list(tr.inner):
-            curves += [c for c in loop.curves if isinstance(c, NurbsCurve) and c.dim == 2]
+            curves += [c for c in loop.curves if getattr(c, "dim", 2) == 2]
     if tr is None or tr.outer is None:
         u0, u1, v0, v1 = face.surface.domain
         for p0, p1 in (((u0, v0), (u1, v0)), ((u1, v0), (u1, v1)), ((u1, v1), (u0, v1)), ((u0, v1), (u0, v0))):
@@ -115,9 +115,28 @@ def _curve_feet(surf, curve: NurbsCurve, pts: NDArray, size: float, samples: int
     t = np.ascontiguousarray(ts[np.asarray(k)], dtype=float)
     t0, t1 = curve.domain
     closed = float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size
-    _trim_newton_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
-                        u0, u1, v0, v1, curve._pw, curve.knots, curve.degree, curve.rational, float(t0), float(t1),
-                        closed, np.ascontiguousarray(pts, dtype=float), t, 1e-12 * size, 40)
+    pts = np.ascontiguousarray(pts, dtype=float)
+    if isinstance(curve, NurbsCurve):
+        _trim_newton_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
+                            u0, u1, v0, v1, curve._pw, curve.knots, curve.degree, curve.rational, float(t0),
+                            float(t1), closed, pts, t, 1e-12 * size, 40)
+    else:  # an exactly mapped analytic trim curve (`iges.analytic.MappedCurve`): the same steps
+        for _ in range(40):
+            c = _curve_ders(curve, t, 2)  # (M, 3, 2): uv, uv', uv''
+            d = surf.derivatives(np.clip(c[:, 0, 0], u0, u1), np.clip(c[:, 0, 1], v0, v1), order=2)
+            up, vp, upp, vpp = c[:, 1, 0], c[:, 1, 1], c[:, 2, 0], c[:, 2, 1]
+            c1 = d[:, 1, 0] * up[:, None] + d[:, 0, 1] * vp[:, None]
+            c2 = (d[:, 2, 0] * (up * up)[:, None] + 2.0 * d[:, 1, 1] * (up * vp)[:, None] + d[:, 0, 2] * (vp * vp)[:, None]
+                  + d[:, 1, 0] * upp[:, None] + d[:, 0, 1] * vpp[:, None])
+            r = d[:, 0, 0] - pts
+            fp = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
+            fp = np.where(fp > 0, fp, np.einsum("ij,ij->i", c1, c1) + 1e-300)
+            tn = t - np.einsum("ij,ij->i", r, c1) / fp
+            tn = t0 + np.mod(tn - t0, t1 - t0) if closed else np.clip(tn, t0, t1)
+            step = np.abs(tn - t) * np.linalg.norm(c1, axis=1)
+            t = tn
+            if np.all(step <= 1e-12 * size):
+                break
     c = _curve_ders(curve, t, 0)[:, 0]
     x = surf.evaluate(np.clip(c[:, 0], u0, u1), np.clip(c[:, 1], v0, v1))
     return np.linalg.norm(x - pts, axis=1), t
@@ -130,6 +149,31 @@ def _curve_tangent(surf, curve: NurbsCurve, t: NDArray) -> NDArray:
     c = _curve_ders(curve, np.clip(t, t0, t1), 1)  # (M, 2, 2): uv, uv'
     d = surf.derivatives(np.clip(c[:, 0, 0], u0, u1), np.clip(c[:, 0, 1], v0, v1), order=1)
     return d[:, 1, 0] * c[:, 1, 0:1] + d[:, 0, 1] * c[:, 1, 1:2]
+
+
+def boundary_curve_distance(face, points: NDArray, size: float) -> NDArray:
+    """Distance (M,) of (M, 3) points to the nearest boundary curve of ``face`` (trim loops,
+    or the domain's four sides), exact (Newton on each curve on the surface)."""
+    best = np.full(len(points), np.inf)
+    if len(points):
+        for cv in _face_curves(face):  # the face's few boundary curves
+            dist, _ = _curve_feet(face.surface, cv, points, size)
+            np.minimum(best, dist, out=best)
+    return best
+
+
+def free_edge_samples(nm, elem: NDArray, eta: NDArray, zeta: NDArray) -> NDArray:
+    """(M,) bool: which samples (elem, eta, zeta) of the `NagataMesh` ``nm`` lie on a free
+    edge (an edge of one element only), corners included."""
+    topo = nm.edges
+    free_inst = topo["count"][topo["inst_edge"]] == 1
+    inst = nm._elem_inst[elem]  # (M, 4) instance of each local edge, -1 padding
+    tri = nm.element_kind[elem] == 3
+    e0, e1 = np.isclose(eta, 0.0, atol=1e-12), np.isclose(eta, 1.0, atol=1e-12)
+    z0, z1 = np.isclose(zeta, 0.0, atol=1e-12), np.isclose(zeta, 1.0, atol=1e-12)
+    on = np.stack([z0, e1, np.where(tri, np.isclose(eta, zeta, atol=1e-12), z1), ~tri & e0], 1)  # local edges c1..c4
+    free = np.where(inst >= 0, free_inst[np.maximum(inst, 0)], False)
+    return np.any(on & free, axis=1)
 
 
 def boundary_conormals(nodes: NDArray, blocks: list[NDArray], corner_normals: list[NDArray],

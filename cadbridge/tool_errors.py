@@ -7,8 +7,10 @@ For sample points x(e, eta, zeta) of the patches (element e):
   The CAD normal is taken on e's side of a crease knot line of that face (one-sided at the
   knot), so a sample on a crease edge is compared with its own side's normal.
 * **boundary error**: distance from x to the *trimmed* model (nearest face, trims decided
-  on the trim curves). It includes the straight boundary chords of patches along curved trim
-  edges, e.g. patches bridging the chords of a hole's circle.
+  on the trim curves); on the tool's free edges also the distance to the face's boundary
+  curve (`cadbridge.boundary_edges.boundary_curve_distance`), so that an edge that leaves a
+  trim curve counts on both sides of it: patches bridging into a hole and patch edges that
+  bulge back into the material.
 * **flat surface error**: the surface error of the flat element (linear triangle, bilinear
   quadrilateral through the same corners) at the same (eta, zeta): what the tool would be
   without Nagata patches. A Nagata surface worse than that is not worth writing.
@@ -80,14 +82,36 @@ def flat_points(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray) -> np.n
     return out
 
 
+CREASE_DEG = 5.0
+"""A knot line whose normal jump exceeds this is a crease the errors respect (elements are
+measured on their own side of it); the same angle decides which elements straddle a crease
+(`cadbridge.creases.straddling_elements`). Smaller jumps (a C0 parametrisation of smooth
+geometry, 1e-5 rad on the QIT paper's Ex. 7.2) are measured on the whole surface."""
+
+_PIECES: dict = {}
+
+
+def _crease_pieces(surface) -> list:
+    """The surface split along its knot lines with a normal jump above `CREASE_DEG`."""
+    hit = _PIECES.get(id(surface))
+    if hit is None or hit[0] is not surface:
+        u0, u1, v0, v1 = surface.domain
+        ku, kv = surface.crease_knots(np.radians(CREASE_DEG))
+        eu, ev = np.concatenate([[u0], ku, [u1]]), np.concatenate([[v0], kv, [v1]])
+        pieces = ([surface] if len(eu) == 2 and len(ev) == 2 else
+                  [surface.with_domain((a, b, c, d)) for a, b in zip(eu[:-1], eu[1:]) for c, d in zip(ev[:-1], ev[1:])])
+        hit = _PIECES[id(surface)] = (surface, pieces)
+    return hit[1]
+
+
 def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarray,
               ref_normals: np.ndarray, piece_uv: np.ndarray | None = None):
     """Project each point onto the untrimmed surface of its face; on a face with crease knot
-    lines (`nurbs.project.smooth_pieces`), onto the smooth piece its element lies on (the
+    lines (jump above `CREASE_DEG`), onto the smooth piece its element lies on (the
     piece holding the element's mean foot parameter, or ``piece_uv`` (M, 2)), with the
     one-sided normal where the foot is on the piece's crease edge.
     Returns signed distance (M,), normal aligned with ``ref_normals`` (M, 3), (u, v) (M, 2)."""
-    from cadbridge.nurbs.project import FAILED, project_to_surface, smooth_pieces
+    from cadbridge.nurbs.project import FAILED, project_to_surface
 
     dist = np.full(len(points), np.nan)
     nrm = np.full((len(points), 3), np.nan)
@@ -96,7 +120,7 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
         sel = np.flatnonzero(face == f)
         s = model.faces[f].surface
         pr = project_to_surface(s, points[sel])
-        pieces = smooth_pieces(s)
+        pieces = _crease_pieces(s)
         if len(pieces) > 1:
             if piece_uv is None:
                 _, inv = np.unique(elem[sel], return_inverse=True)
@@ -180,6 +204,14 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
         nf = np.asarray(ft.normal, dtype=float)
         nf = nf * np.where(np.einsum("ij,ij->i", nf, pn[miss]) < 0, -1.0, 1.0)[:, None]
         flat_surface[miss] = np.einsum("ij,ij->i", flat[miss] - ft.foot, nf)
+    # free edges: two-sided, the distance to the boundary curve of the element's face
+    from cadbridge.boundary_edges import boundary_curve_distance, free_edge_samples
+
+    on_free = np.flatnonzero(free_edge_samples(nm, elem, eta, zeta) & (face >= 0))
+    size = model.size()
+    for f in np.unique(face[on_free]):  # loop over the faces owning free edges
+        sel = on_free[face[on_free] == f]
+        boundary[sel] = np.maximum(boundary[sel], boundary_curve_distance(model.faces[int(f)], pts[sel], size))
     normal = angle_deg(pn, ncad)
     for name, a in (("surface", surface), ("flat surface", flat_surface), ("normal", normal), ("boundary", boundary)):
         if not np.all(np.isfinite(a)):

@@ -201,3 +201,24 @@ def test_solidworks_120_trims_agree_with_occ() -> None:
     assert len(faces120) == 8 and all(f.trims is not None for _, f in faces120)
     for i, f in faces120:
         _agree_with_occ(f, occ[i], size, n=250, min_ok=0.99, seed=i)
+
+
+def test_mapped_trim_curve_derivative_at_its_ends() -> None:
+    """The U-die's fillet trims (120 faces, angles mapped onto the rational arc's parameter):
+    the derivative at each end of a mapped curve is its one-sided limit, as a central finite
+    difference just inside shows (reference: the curve's own points). Before, x - start_in
+    rounding past the sweep made the end look clipped (f' = 0), and Newton stalled there."""
+    from cadbridge.iges.analytic import MappedCurve
+
+    model = read_iges(SAMPLES / "ushape_tools_analytic.igs")
+    curves = [c for f in model.faces if f.trims and f.trims.outer for c in f.trims.outer.curves
+              if isinstance(c, MappedCurve)]
+    assert curves
+    for c in curves:
+        t0, t1 = c.domain
+        h = 1e-6 * (t1 - t0)
+        for t, inside in ((t0, t0 + 2 * h), (t1, t1 - 2 * h)):
+            d = c.derivatives(np.array([t, inside]), 1)[:, 1]
+            fd = (c.evaluate(np.array([inside + h]))[0] - c.evaluate(np.array([inside - h]))[0]) / (2 * h)
+            np.testing.assert_allclose(d[1], fd, rtol=1e-5, atol=1e-9)
+            np.testing.assert_allclose(d[0], d[1], rtol=1e-4, atol=1e-9)

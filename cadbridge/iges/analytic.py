@@ -265,7 +265,10 @@ class ArcMap:
         q = 1.0 / np.tan(d / 4)
         out = [self.start_out + (k + 0.5 * (1.0 + tt * q)) * d]
         if order >= 1:
-            inside = (r >= 0.0) & (r <= self.sweep)  # f is constant where x is clipped: f' = f'' = 0
+            # f is constant where x is clipped: f' = f'' = 0; the ends themselves (up to rounding
+            # of x - start_in, 2e-16 there on the U-die's fillets) are inside
+            tol = 1e-12 * max(abs(self.sweep), 1.0)
+            inside = (r >= -tol) & (r <= self.sweep + tol)
             f1 = np.where(inside, 0.25 * d * q * (1.0 + tt * tt), 0.0)
             out.append(f1)
             if order >= 2:
