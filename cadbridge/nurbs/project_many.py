@@ -226,6 +226,11 @@ def _inward_starts(rows, sid, u, v, us, us_off, vs, vs_off, domain, out_u, out_v
 
 
 # ---------------------------------------------------------------------------- driver
+def _workers(n: int) -> int:
+    """Threads of a sample-tree query of n points: all cores for large ones (same result)."""
+    return -1 if n >= 4096 else 1
+
+
 def _tasks(sid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Runs of equal surface id (sid sorted) cut into pieces of at most _TASK pairs."""
     n = len(sid)
@@ -423,7 +428,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         if start is None:
             for a, b in zip(starts, stops):
                 s = int(sid[a])
-                _, i_ = pack.samples[s].tree.query(p[a:b])
+                _, i_ = pack.samples[s].tree.query(p[a:b], workers=_workers(b - a))
                 first[a:b] = np.asarray(i_).reshape(b - a) + pack.s_off[s]
             start = pack.suv[first]
         run = _Run(pack, sid, p, tol, max_iter)
@@ -448,7 +453,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         rows = a + np.flatnonzero(need[a:b])
         if not len(rows):
             continue
-        d_, i_ = smp.tree.query(p[rows], k=ks)
+        d_, i_ = smp.tree.query(p[rows], k=ks, workers=_workers(len(rows)))
         dk[rows, :ks] = np.asarray(d_).reshape(len(rows), ks)
         ik[rows, :ks] = np.asarray(i_).reshape(len(rows), ks) + pack.s_off[s]
         ik[rows, ks:] = ik[rows, :1]
