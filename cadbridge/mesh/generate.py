@@ -171,13 +171,15 @@ class FaceInfo:
     other pair; radius: arc radius (model units) for fillets. A "chained" face has four
     corners but sides made of several curves (e.g. OCC splits a torus' tube arc at its
     equator): corners are its four corner point tags, pairs the (curve, opposite curve)
-    pairs that must get equal counts (opposite sides with as many curves, paired in order),
-    sums the (curve, [opposite curves]) where one curve faces several (a draw bead's long
-    side against the binder's pieces): its count is the sum of theirs.
+    pairs that must get equal counts (opposite sides with as many curves, paired in order).
+    Faces whose single curve faces several (the production die's draw beads against the
+    binder's pieces) stay unstructured: mapping them with summed counts broke the die's
+    second pass (159-192 mm elements on the beads, 1.6 mm error), so they go to gmsh's
+    MeshAdapt fallback, slower but right.
     """
 
     __slots__ = ("tag", "surface_type", "curves", "kind", "radius_pair", "length_pair", "radius", "corners",
-                 "pairs", "sums")
+                 "pairs")
 
     def __init__(self, tag: int, surface_type: str, curves: list[int]) -> None:
         self.tag = tag
@@ -188,7 +190,6 @@ class FaceInfo:
         self.length_pair: int | None = None
         self.corners: list[int] = []
         self.pairs: list[tuple[int, int]] = []
-        self.sums: list[tuple[int, list[int]]] = []  # (single curve, opposite side's curves): equal totals
         self.radius: float | None = None
 
     def __repr__(self) -> str:
@@ -213,10 +214,9 @@ def _curve_shape(gmsh, c: int) -> tuple[str, float, float]:
 def _chained_sides(gmsh, loop: list[int], corner_deg: float = 20.0):
     """Four corners of a face whose single boundary ``loop`` (signed curve tags in order) has
     more than four curves: the points where the boundary turns by more than ``corner_deg``.
-    Returns (corner point tags (4,), [(curve, opposite curve), ...], [(curve, [opposite
-    curves]), ...]) when there are exactly four corners and opposite sides have as many
-    curves (paired in order, the opposite side walked backwards) or one of them is a single
-    curve (its count is then the sum of the other side's), else None."""
+    Returns (corner point tags (4,), [(curve, opposite curve), ...]) when there are exactly
+    four corners and opposite sides have as many curves (paired in order, the opposite side
+    walked backwards), else None."""
     ends = []
     for c in loop:  # loop over the (few) boundary curves
         (_, p0), (_, p1) = gmsh.model.getBoundary([(1, abs(c))], combined=False, oriented=True)
@@ -239,16 +239,13 @@ def _chained_sides(gmsh, loop: list[int], corner_deg: float = 20.0):
         return None
     sides = [[abs(loop[j % n]) for j in range(corners[k], corners[k + 1] if k < 3 else corners[0] + n)]
              for k in range(4)]
-    pairs, sums = [], []
+    pairs = []
     for k in (0, 1):
         a, b = sides[k], sides[k + 2][::-1]
-        if len(a) == len(b):
-            pairs += list(zip(a, b))
-        elif len(a) == 1 or len(b) == 1:
-            sums.append((a[0], b) if len(a) == 1 else (b[0], a))
-        else:
+        if len(a) != len(b):
             return None
-    return [ends[i][0] for i in corners], pairs, sums
+        pairs += list(zip(a, b))
+    return [ends[i][0] for i in corners], pairs
 
 
 def _classify(gmsh, fillet_max_radius: float | None) -> tuple[list[FaceInfo], dict[int, tuple[str, float, float]]]:
@@ -261,7 +258,7 @@ def _classify(gmsh, fillet_max_radius: float | None) -> tuple[list[FaceInfo], di
         if fi.kind == "other" and len(curves) > 4 and len(set(curves)) == len(curves):
             chain = _chained_sides(gmsh, [t for d, t in loops if d == 1])
             if chain is not None:
-                fi.kind, fi.corners, fi.pairs, fi.sums = "chained", chain[0], chain[1], chain[2]
+                fi.kind, fi.corners, fi.pairs = "chained", chain[0], chain[1]
         for c in curves:
             if c not in shapes:
                 shapes[c] = _curve_shape(gmsh, c)
@@ -321,9 +318,6 @@ def _structured_counts(
         elif f.kind == "chained":
             for a, b in f.pairs:
                 union(a, b)
-            for c, cs in f.sums:  # classes of their own; `_balance_sums` ties their totals
-                for x in (c, *cs):
-                    find(x)
     role: dict[int, set[str]] = {}
     for f in faces:
         if f.kind == "fillet":
@@ -355,58 +349,6 @@ def _structured_counts(
             n = max(1, math.ceil(max(shapes[c][2] for c in cs) / size - 1e-9))
         for c in cs:
             counts[c] = int(n)
-    return _balance_sums(counts, faces)
-
-
-def _balance_sums(counts: dict[int, int], faces: list[FaceInfo]) -> dict[int, int]:
-    """Make every chained face's single curve as long (in elements) as the curves facing
-    it: raise the smaller side (the single curve's class, or the longest-counted curve's
-    class on the other side) until all sums hold. A face whose sums do not settle within a
-    few rounds is meshed unstructured instead (its kind becomes "other")."""
-    sums = [(f, c, cs) for f in faces if f.kind == "chained" for c, cs in f.sums]
-    if not sums:
-        return counts
-    parent: dict[int, int] = {}
-
-    def find(a: int) -> int:
-        parent.setdefault(a, a)
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for f in faces:
-        if f.kind in ("four-sided", "fillet"):
-            c = f.curves
-            parent[find(c[0])] = find(c[2])
-            parent[find(c[1])] = find(c[3])
-        elif f.kind == "chained":
-            for a, b in f.pairs:
-                parent[find(a)] = find(b)
-    members: dict[int, list[int]] = {}
-    for c in counts:
-        members.setdefault(find(c), []).append(c)
-
-    def raise_to(c: int, n: int) -> None:
-        for m in members.get(find(c), [c]):
-            counts[m] = n
-
-    for _ in range(20):  # rounds: counts only grow
-        changed = False
-        for f, c, cs in sums:
-            total = sum(counts[x] for x in cs)
-            if counts[c] < total:
-                raise_to(c, total)
-                changed = True
-            elif counts[c] > total:
-                big = max(cs, key=lambda x: counts[x])
-                raise_to(big, counts[big] + counts[c] - total)
-                changed = True
-        if not changed:
-            return counts
-    for f, c, cs in sums:
-        if counts[c] != sum(counts[x] for x in cs):
-            f.kind = "other"
     return counts
 
 
@@ -627,9 +569,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         if kw["background_sizes"] is not None:
             _background_field(g, sess, kw["background_sizes"], 2.0)
         if kw["structured"]:
-            half = _balance_sums({c: max(1, math.ceil(n / 2)) for c, n in counts.items()}, faces)
-            for c, n in half.items():
-                g.model.mesh.setTransfiniteCurve(c, n + 1)
+            for c, n in counts.items():
+                g.model.mesh.setTransfiniteCurve(c, max(1, math.ceil(n / 2)) + 1)
         g.model.mesh.generate(2)
         _check_all_meshed(g, surfaces, path)
         mesh = _collect(g, surfaces, kw["parametric"], path)
