@@ -36,7 +36,8 @@ from scipy.spatial import cKDTree
 
 from cadbridge.nagata.edge import edge_coefficient, edge_coefficient_conormal
 from cadbridge.nurbs.curve import NurbsCurve
-from cadbridge.trims import _curve_ders, _trim_newton_kernel
+from cadbridge.mesh.topology import edge_table
+from cadbridge.trims import _curve_ders, curve_newton
 
 MAX_TANGENT_DEG = 45.0
 """An end tangent further than this from the chord: the edge does not follow the curve."""
@@ -59,34 +60,6 @@ class BoundaryConormals:
         return self.pairs, self.p, self.q
 
 
-def free_edges(blocks: list[NDArray]) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Edges used by exactly one element, in the element's winding.
-
-    blocks: element blocks (E_b, 3|4) in global order. Returns (a (B,), b (B,) node ids,
-    element (B,) global id, local corners (B, 2) of a and b)."""
-    a, b, el, la, lb = [], [], [], [], []
-    off = 0
-    for blk in blocks:
-        k = blk.shape[1]
-        for j in range(k):  # loop over the 3 or 4 local edges, not over elements
-            a.append(blk[:, j])
-            b.append(blk[:, (j + 1) % k])
-            el.append(off + np.arange(len(blk)))
-            la.append(np.full(len(blk), j))
-            lb.append(np.full(len(blk), (j + 1) % k))
-        off += len(blk)
-    if not a:
-        z = np.zeros(0, np.int64)
-        return z, z, z, np.zeros((0, 2), np.int64)
-    a, b, el = np.concatenate(a), np.concatenate(b), np.concatenate(el)
-    loc = np.stack([np.concatenate(la), np.concatenate(lb)], 1)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    key = lo * np.int64(max(int(hi.max(initial=0)) + 1, 1)) + hi
-    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
-    one = cnt[inv.ravel()] == 1
-    return a[one], b[one], el[one], loc[one]
-
-
 def _face_curves(face) -> list[NurbsCurve]:
     """The (u, v) boundary curves of a face: its trim loops, or its domain's four sides."""
     tr = face.trims
@@ -104,39 +77,15 @@ def _face_curves(face) -> list[NurbsCurve]:
 def _curve_feet(surf, curve: NurbsCurve, pts: NDArray, size: float, samples: int = 16):
     """Nearest points of ``S(curve(t))`` to (M, 3) points: (distance (M,), parameter t (M,)).
 
-    Start at the nearest of ``samples`` points per knot span, then Newton with t clamped to
-    the curve's domain (wrapped through the seam of a closed curve), as
-    `cadbridge.trims.project_to_trims` does for one curve."""
+    Start at the nearest of ``samples`` points per knot span, then `cadbridge.trims.curve_newton`."""
     u0, u1, v0, v1 = surf.domain
     ts = curve.sample_parameters(samples)
     c = _curve_ders(curve, ts, 0)[:, 0]
     xs = surf.evaluate(np.clip(c[:, 0], u0, u1), np.clip(c[:, 1], v0, v1))
     _, k = cKDTree(xs).query(pts)
     t = np.ascontiguousarray(ts[np.asarray(k)], dtype=float)
-    t0, t1 = curve.domain
     closed = float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size
-    pts = np.ascontiguousarray(pts, dtype=float)
-    if isinstance(curve, NurbsCurve):
-        _trim_newton_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
-                            u0, u1, v0, v1, curve._pw, curve.knots, curve.degree, curve.rational, float(t0),
-                            float(t1), closed, pts, t, 1e-12 * size, 40)
-    else:  # an exactly mapped analytic trim curve (`iges.analytic.MappedCurve`): the same steps
-        for _ in range(40):
-            c = _curve_ders(curve, t, 2)  # (M, 3, 2): uv, uv', uv''
-            d = surf.derivatives(np.clip(c[:, 0, 0], u0, u1), np.clip(c[:, 0, 1], v0, v1), order=2)
-            up, vp, upp, vpp = c[:, 1, 0], c[:, 1, 1], c[:, 2, 0], c[:, 2, 1]
-            c1 = d[:, 1, 0] * up[:, None] + d[:, 0, 1] * vp[:, None]
-            c2 = (d[:, 2, 0] * (up * up)[:, None] + 2.0 * d[:, 1, 1] * (up * vp)[:, None] + d[:, 0, 2] * (vp * vp)[:, None]
-                  + d[:, 1, 0] * upp[:, None] + d[:, 0, 1] * vpp[:, None])
-            r = d[:, 0, 0] - pts
-            fp = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
-            fp = np.where(fp > 0, fp, np.einsum("ij,ij->i", c1, c1) + 1e-300)
-            tn = t - np.einsum("ij,ij->i", r, c1) / fp
-            tn = t0 + np.mod(tn - t0, t1 - t0) if closed else np.clip(tn, t0, t1)
-            step = np.abs(tn - t) * np.linalg.norm(c1, axis=1)
-            t = tn
-            if np.all(step <= 1e-12 * size):
-                break
+    curve_newton(surf, curve, pts, t, closed, 1e-12 * size)
     c = _curve_ders(curve, t, 0)[:, 0]
     x = surf.evaluate(np.clip(c[:, 0], u0, u1), np.clip(c[:, 1], v0, v1))
     return np.linalg.norm(x - pts, axis=1), t
@@ -176,28 +125,36 @@ def free_edge_samples(nm, elem: NDArray, eta: NDArray, zeta: NDArray) -> NDArray
     return np.any(on & free, axis=1)
 
 
-def boundary_conormals(nodes: NDArray, blocks: list[NDArray], corner_normals: list[NDArray],
-                       element_face: NDArray, model) -> BoundaryConormals:
+def boundary_conormals(mesh, corner_normals: list[NDArray], element_face: NDArray, model) -> BoundaryConormals:
     """Conormals at both ends of the free edges that follow a face's boundary curve.
 
-    nodes (N, 3); blocks / corner_normals per block ((E_b, k), (E_b, k, 3)), global element
-    order; element_face (E,) face index of each element. The loop runs over the faces that
-    own free edges and their boundary curves, vectorised over those edges."""
-    a, b, el, loc = free_edges(blocks)
+    mesh: `cadbridge.mesh.Mesh` (its blocks in global element order); corner_normals per
+    block (E_b, k, 3); element_face (E,) face index of each element. The free edges come from
+    `cadbridge.mesh.topology.edge_table`; the loop runs over the faces that own free edges and
+    their boundary curves, vectorised over those edges."""
+    nodes = mesh.nodes
+    t = edge_table(mesh)
+    free = np.flatnonzero(t.counts == 1)
+    first = t.ptr[free]
+    el, side = t.elems[first], t.side[first]
+    e = t.edges[free]
+    fwd = t.forward[first]
+    a, b = np.where(fwd, e[:, 0], e[:, 1]), np.where(fwd, e[:, 1], e[:, 0])  # in the element's winding
     size = model.size()
     nb = len(a)
     pairs, ps, qs = [np.zeros((0, 2), np.int64)], [np.zeros((0, 3))], [np.zeros((0, 3))]
     if nb == 0:
         return BoundaryConormals(pairs[0], ps[0], qs[0], 0, 0)
-    starts = np.concatenate([[0], np.cumsum([len(blk) for blk in blocks])])
+    starts = np.concatenate([[0], np.cumsum([len(c) for c in corner_normals])])
     blk_of = np.searchsorted(starts, el, side="right") - 1
     n_a = np.empty((nb, 3))
     n_b = np.empty((nb, 3))
     for i, cn in enumerate(corner_normals):  # per block
         m = blk_of == i
-        e = el[m] - starts[i]
-        n_a[m] = cn[e, loc[m, 0]]
-        n_b[m] = cn[e, loc[m, 1]]
+        k = cn.shape[1]
+        ei = el[m] - starts[i]
+        n_a[m] = cn[ei, side[m]]
+        n_b[m] = cn[ei, (side[m] + 1) % k]
     ef = np.asarray(element_face, dtype=np.int64)[el]
     kept = 0
     cos_max = np.cos(np.radians(MAX_TANGENT_DEG))

@@ -273,7 +273,7 @@ def build_tool(
             from cadbridge.boundary_edges import boundary_conormals
 
             progress.stage(f"{name}: boundary edges along the trim curves")
-            edge_normals = boundary_conormals(mesh.nodes, _blocks(mesh), corner_normals, ef, model).as_edge_normals()
+            edge_normals = boundary_conormals(mesh, corner_normals, ef, model).as_edge_normals()
     progress.stage(f"{name}: Nagata patches")
     nm = NagataMesh(mesh.nodes, _blocks(mesh), corner_normals, edge_normals=edge_normals)
     grid = sample_divisions(nm, grid)

@@ -736,6 +736,43 @@ def _box_distance(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray
     return np.linalg.norm(np.maximum(0.0, np.maximum(lo - pts, pts - hi)), axis=1)
 
 
+def curve_newton(surf, curve, pts: np.ndarray, t: np.ndarray, closed: bool, eps: float, max_iter: int = 40) -> None:
+    """Newton for the nearest point of the curve on the surface, C(t) = S(c(t)), to (M, 3)
+    points, from start parameters t (M,), updated in place: f(t) = (C - P).C',
+    f' = C'.C' + (C - P).C'' (C' = Su u' + Sv v', C'' = Suu u'^2 + 2 Suv u' v' + Svv v'^2
+    + Su u'' + Sv v''; C'.C' where f' <= 0), t clamped to the curve's domain (wrapped through
+    the seam of a ``closed`` curve), until a step moves C by at most ``eps``. Compiled for 2D
+    NURBS curves; the same steps in numpy for others (the analytic dies' mapped curves)."""
+    u0, u1, v0, v1 = surf.domain
+    t0, t1 = curve.domain
+    if isinstance(curve, NurbsCurve) and curve.dim == 2:
+        _trim_newton_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
+                            u0, u1, v0, v1, curve._pw, curve.knots, curve.degree, curve.rational, float(t0),
+                            float(t1), closed, np.ascontiguousarray(pts, dtype=float), t, eps, int(max_iter))
+        return
+    done = np.zeros(len(t), dtype=bool)
+    for _ in range(max_iter):
+        act = np.nonzero(~done)[0]
+        if not len(act):
+            break
+        c = _curve_ders(curve, t[act], 2)  # (A, 3, 2): uv, uv', uv''
+        d = surf.derivatives(np.clip(c[:, 0, 0], u0, u1), np.clip(c[:, 0, 1], v0, v1), order=2)
+        up, vp, upp, vpp = c[:, 1, 0], c[:, 1, 1], c[:, 2, 0], c[:, 2, 1]
+        su, sv = d[:, 1, 0], d[:, 0, 1]
+        c1 = su * up[:, None] + sv * vp[:, None]
+        c2 = (d[:, 2, 0] * (up * up)[:, None] + 2.0 * d[:, 1, 1] * (up * vp)[:, None]
+              + d[:, 0, 2] * (vp * vp)[:, None] + su * upp[:, None] + sv * vpp[:, None])
+        r = d[:, 0, 0] - pts[act]
+        f = np.einsum("ij,ij->i", r, c1)
+        fp = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
+        fp = np.where(fp > 0, fp, np.einsum("ij,ij->i", c1, c1) + 1e-300)
+        tn = t[act] - f / fp
+        tn = t0 + np.mod(tn - t0, t1 - t0) if closed else np.clip(tn, t0, t1)
+        step = np.abs(tn - t[act]) * np.linalg.norm(c1, axis=1)
+        t[act] = tn
+        done[act[step <= eps]] = True
+
+
 def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     """Nearest points of the trim loops (outer and holes) of ``face`` to (N, 3) points.
 
@@ -744,10 +781,8 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     the distance to the boundary from above (U), and a curve is kept for a point only if the
     point's distance to the curve's sample box grown by r (0.55 x its longest sample chord:
     every curve point is within r of a sample) is <= U. On the kept pairs only: start from
-    the curve's nearest sample, then Newton on f(t) = (C - P).C' with f' = C'.C' + (C - P).C''
-    (C' = Su u' + Sv v', C'' = Suu u'^2 + 2 Suv u' v' + Svv v'^2 + Su u'' + Sv v''), t clamped
-    to the curve's domain (wrapped through the seam of a closed curve); the nearest over the
-    kept curves wins. Vectorised over points;
+    the curve's nearest sample, then Newton (`curve_newton`); the nearest over the kept curves
+    wins. Vectorised over points;
     the loop runs over the (few) trim curves of the face.
     Returns (u (N,), v (N,), foot (N, 3), distance (N,), ok (N,) bool: orthogonal foot or
     curve end). Raises ValueError if the face has no trim loops.
@@ -803,33 +838,8 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
         # of stopping at the end it started from
         closed = float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size
         _, k = xtree.query(q)
-        t = ts[np.asarray(k)]
-        done = np.zeros(m, dtype=bool)
-        if isinstance(curve, NurbsCurve) and curve.dim == 2:  # compiled, same steps
-            t = np.ascontiguousarray(t, dtype=float)
-            _trim_newton_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
-                                u0, u1, v0, v1, curve._pw, curve.knots, curve.degree, curve.rational, float(t0),
-                                float(t1), closed, np.ascontiguousarray(q), t, eps1, int(max_iter))
-            done[:] = True
-        for _ in range(max_iter):
-            act = np.nonzero(~done)[0]
-            if not len(act):
-                break
-            uu, vv, c, d = on_surface(curve, t[act], 2)
-            up, vp, upp, vpp = c[:, 1, 0], c[:, 1, 1], c[:, 2, 0], c[:, 2, 1]
-            su, sv = d[:, 1, 0], d[:, 0, 1]
-            c1 = su * up[:, None] + sv * vp[:, None]
-            c2 = (d[:, 2, 0] * (up * up)[:, None] + 2.0 * d[:, 1, 1] * (up * vp)[:, None]
-                  + d[:, 0, 2] * (vp * vp)[:, None] + su * upp[:, None] + sv * vpp[:, None])
-            r = d[:, 0, 0] - q[act]
-            f = np.einsum("ij,ij->i", r, c1)
-            fp = np.einsum("ij,ij->i", c1, c1) + np.einsum("ij,ij->i", r, c2)
-            fp = np.where(fp > 0, fp, np.einsum("ij,ij->i", c1, c1) + 1e-300)
-            tn = t[act] - f / fp
-            tn = t0 + np.mod(tn - t0, t1 - t0) if closed else np.clip(tn, t0, t1)
-            step = np.abs(tn - t[act]) * np.linalg.norm(c1, axis=1)
-            t[act] = tn
-            done[act[step <= eps1]] = True
+        t = np.ascontiguousarray(ts[np.asarray(k)], dtype=float)
+        curve_newton(surf, curve, q, t, closed, eps1, max_iter)
         uu, vv, c, d = on_surface(curve, t, 1)
         c1 = d[:, 1, 0] * c[:, 1, 0:1] + d[:, 0, 1] * c[:, 1, 1:2]
         r = d[:, 0, 0] - q
