@@ -1141,14 +1141,7 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
     ds = _DSMesh(surf, opt.surface_tol, opt.max_depth, label)
     rep.ds_partitions = len(ds.leaves)
     # edge vertices of this face, loop by loop (global ids, uv here)
-    loop_ids, loop_uv = [], []
-    for lp in loops:
-        ids, uvs = [], []
-        for e in lp:
-            ids += list(e.nodes[:-1])
-            uvs.append(e.uv[:-1])
-        loop_ids.append(ids)
-        loop_uv.append(np.concatenate(uvs) if uvs else np.zeros((0, 2)))
+    loop_ids, loop_uv = _loop_vertices(loops)
     e_ids = np.array([k for ids in loop_ids for k in ids], dtype=np.int64)
     e_uv = np.concatenate(loop_uv)
     e_x = np.array([node_x[k] for k in e_ids])
@@ -1328,6 +1321,20 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
     return local0, uv0, x0
 
 
+def _loop_vertices(loops: list[list[_Edge]]) -> tuple[list[list[int]], list[np.ndarray]]:
+    """Per loop of a face, its edge vertices in loop order (global ids, each edge's last
+    vertex left to the next edge) and their (u, v) on this face, (n, 2)."""
+    loop_ids, loop_uv = [], []
+    for lp in loops:
+        ids, uvs = [], []
+        for e in lp:
+            ids += list(e.nodes[:-1])
+            uvs.append(e.uv[:-1])
+        loop_ids.append(ids)
+        loop_uv.append(np.concatenate(uvs) if uvs else np.zeros((0, 2)))
+    return loop_ids, loop_uv
+
+
 def _fallback_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, label: str,
                    node_x: list, node_face: list, node_uv: list, rep: QitFaceReport) -> np.ndarray:
     """A face QIT refused, meshed by gmsh in its metric-scaled (u, v) on QIT's edge vertices
@@ -1336,15 +1343,9 @@ def _fallback_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, lab
     from cadbridge.mesh.qit_fallback import mesh_loops_in_parameter_space
 
     s = model.faces[f].surface
-    loop_ids, loop_uv = [], []
-    for lp in loops:
-        ids, uvs = [], []
-        for e in lp:
-            ids += list(e.nodes[:-1])
-            uvs.append(e.uv[:-1])
-        if ids:
-            loop_ids.append(ids)
-            loop_uv.append(np.concatenate(uvs))
+    loop_ids, loop_uv = _loop_vertices(loops)
+    keep = [i for i, ids in enumerate(loop_ids) if ids]
+    loop_ids, loop_uv = [loop_ids[i] for i in keep], [loop_uv[i] for i in keep]
     e_ids = np.array([k for ids in loop_ids for k in ids], dtype=np.int64)
     if len(e_ids) < 3:
         raise QitError(f"{label}: boundary too short for a mesh at size {opt.size:g} (fewer than 3 edge vertices)")
