@@ -33,21 +33,25 @@ def _as_128(surfaces, tmp_path) -> Model:
 _CACHE = {}
 
 
+def case_model(name: str, tmp) -> Model:
+    """The model of a test case: the paper's Ex. 7.1 ("71") or 7.2 ("72") as 128 entities,
+    the trimmed-hole sample ("hole") or the ANSA file (anything else; skips without it)."""
+    if name == "71":
+        return _as_128([example_71()], tmp)
+    if name == "72":
+        return _as_128(example_72(), tmp)
+    if name == "hole":
+        return read_iges(ROOT / "iges_samples" / "trimmed_hole.igs")
+    p = REAL / "occt_OCC131-2_ANSA9.igs"
+    if not p.is_file():
+        pytest.skip("shared/iges_real absent")
+    return read_iges(p)
+
+
 def _mesh(key, tmp_path_factory):
     if key not in _CACHE:
         name, R = key
-        tmp = tmp_path_factory.mktemp("qit")
-        if name == "71":
-            model = _as_128([example_71()], tmp)
-        elif name == "72":
-            model = _as_128(example_72(), tmp)
-        elif name == "hole":
-            model = read_iges(ROOT / "iges_samples" / "trimmed_hole.igs")
-        else:
-            p = REAL / "occt_OCC131-2_ANSA9.igs"
-            if not p.is_file():
-                pytest.skip("shared/iges_real absent")
-            model = read_iges(p)
+        model = case_model(name, tmp_path_factory.mktemp("qit"))
         reps = []
         _CACHE[key] = (model, qit_mesh(model, R, reports=reps), reps)
     return _CACHE[key]

@@ -11,13 +11,11 @@ invariants of tests/test_qit.py against OpenCASCADE; the paper's own mesh of eac
 import numpy as np
 import pytest
 
-from cadbridge.iges import read_iges
 from cadbridge.mesh.qit import QitOptions, qit_mesh
-from cadbridge.mesh.qit_examples import example_71, example_72
 from cadbridge.mesh.qit_relax import relax_vertices, valence_flips, vertex_angle_sums
 from cadbridge.mesh.quality import mesh_quality, triangle_angles
 from cadbridge.nurbs.surface import NurbsSurface
-from test_qit import ROOT, _as_128, check_invariants
+from test_qit import case_model, check_invariants
 
 
 def _tilted_plane() -> NurbsSurface:
@@ -57,6 +55,19 @@ def test_relocation_restores_the_lattice_on_a_tilted_plane():
     assert triangle_angles(x2, tris).min() > ang0
 
 
+def _flip_strip(x: np.ndarray, **kw):
+    """The strip b0..b3 (on the edge y = 0), i0..i2 above, with the diagonal b1-i1 flipped
+    to b2-i0, through valence_flips (options ``kw``) with its outline as constraints:
+    (defect, out, flips)."""
+    b0, b1, b2, b3, i0, i1, i2 = range(7)
+    defect = np.array([(b0, b1, i0), (b1, b2, i0), (b2, i1, i0), (b2, i2, i1), (b2, b3, i2)])
+    loop = [b0, b1, b2, b3, i2, i1, i0]
+    cons = {(min(p, q), max(p, q)) for p, q in zip(loop, loop[1:] + loop[:1])}
+    alpha = vertex_angle_sums(defect, x, np.ones(7, dtype=bool))
+    out, n = valence_flips(defect, x[:, :2], x, alpha, cons, **kw)
+    return defect, out, n
+
+
 def test_valence_flip_restores_the_strip_along_a_straight_edge():
     # equilateral strip along y = 0: b0..b3 on the edge, i0..i2 at height sqrt(3)/2; the
     # diagonal b1-i1 flipped to b2-i0 gives b1 2 triangles and b2 4; the flip rule brings
@@ -64,11 +75,7 @@ def test_valence_flip_restores_the_strip_along_a_straight_edge():
     h = np.sqrt(3) / 2
     x = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [0.5, h, 0], [1.5, h, 0], [2.5, h, 0]], dtype=float)
     b0, b1, b2, b3, i0, i1, i2 = range(7)
-    defect = np.array([(b0, b1, i0), (b1, b2, i0), (b2, i1, i0), (b2, i2, i1), (b2, b3, i2)])
-    loop = [b0, b1, b2, b3, i2, i1, i0]
-    cons = {(min(p, q), max(p, q)) for p, q in zip(loop, loop[1:] + loop[:1])}
-    alpha = vertex_angle_sums(defect, x, np.ones(7, dtype=bool))
-    out, n = valence_flips(defect, x[:, :2], x, alpha, cons)
+    defect, out, n = _flip_strip(x)
     assert n == 1
     val = np.bincount(out.ravel(), minlength=7)
     assert val[b1] == val[b2] == 3
@@ -81,15 +88,11 @@ def test_valence_flip_respects_the_angle_guard():
     h = np.sqrt(3) / 2
     x = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0], [1.054, 0.461, 0], [1.454, 0.703, 0], [2.5, h, 0]])
     b0, b1, b2, b3, i0, i1, i2 = range(7)
-    defect = np.array([(b0, b1, i0), (b1, b2, i0), (b2, i1, i0), (b2, i2, i1), (b2, b3, i2)])
-    loop = [b0, b1, b2, b3, i2, i1, i0]
-    cons = {(min(p, q), max(p, q)) for p, q in zip(loop, loop[1:] + loop[:1])}
-    alpha = vertex_angle_sums(defect, x, np.ones(7, dtype=bool))
-    out, n = valence_flips(defect, x[:, :2], x, alpha, cons)
+    defect, out, n = _flip_strip(x)
     new = np.array([(b1, i1, i0), (b1, b2, i1)])
     assert triangle_angles(x, defect[1:3]).max() < 100.0 and triangle_angles(x, new).max() > 125.0
     assert n == 0 and np.array_equal(out, defect)
-    _, n_free = valence_flips(defect, x[:, :2], x, alpha, cons, min_angle=0.0, max_angle=180.0)
+    _, _, n_free = _flip_strip(x, min_angle=0.0, max_angle=180.0)
     assert n_free == 1  # without the guard the valence rule alone would flip it
 
 
@@ -100,13 +103,7 @@ def _mesh(key, tmp_path_factory, **kw):
     ck = key + tuple(sorted(kw.items()))
     if ck not in _CACHE:
         name, R = key
-        tmp = tmp_path_factory.mktemp("qit_relax")
-        if name == "71":
-            model = _as_128([example_71()], tmp)
-        elif name == "72":
-            model = _as_128(example_72(), tmp)
-        else:
-            model = read_iges(ROOT / "iges_samples" / "trimmed_hole.igs")
+        model = case_model(name if name in ("71", "72") else "hole", tmp_path_factory.mktemp("qit_relax"))
         _CACHE[ck] = (model, qit_mesh(model, R, QitOptions(size=R, **kw)))
     return _CACHE[ck]
 
