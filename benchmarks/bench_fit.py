@@ -17,6 +17,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import sys
 import time
@@ -144,6 +145,22 @@ def _reset_peak() -> bool:
         return False
 
 
+def timed_scale_fit(model, x):
+    """The timed scale fit (``trim=True``, tolerance 0.01 mm on the die base): (report, {wall,
+    cpu [s], load0, load1 (load average before / after), peak, before (RSS [MB]), peak_over})."""
+    from cadbridge.fitting import fit_points
+
+    reset = _reset_peak()
+    before = _rss_mb("VmRSS")
+    load0 = os.getloadavg()[0]
+    t, c = time.perf_counter(), time.process_time()
+    rep = fit_points(x, base=model, tolerance=0.01, trim=True)
+    dt, dc = time.perf_counter() - t, time.process_time() - c
+    load1 = os.getloadavg()[0]
+    peak = _rss_mb("VmHWM") if reset else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return rep, dict(wall=dt, cpu=dc, load0=load0, load1=load1, peak=peak, before=before, peak_over=peak - before)
+
+
 def scale_bench(n: int, repeat: int = 1) -> None:
     import os
 
@@ -155,14 +172,8 @@ def scale_bench(n: int, repeat: int = 1) -> None:
     # compile (or load from numba's cache) outside the timing, the large-input path included
     fit_points(x[:120000], base=model, tolerance=0.01)
     for r in range(repeat):
-        reset = _reset_peak()
-        before = _rss_mb("VmRSS")
-        load0 = os.getloadavg()[0]
-        t, c = time.perf_counter(), time.process_time()
-        rep = fit_points(x, base=model, tolerance=0.01, trim=True)
-        dt, dc = time.perf_counter() - t, time.process_time() - c
-        load1 = os.getloadavg()[0]
-        peak = _rss_mb("VmHWM") if reset else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        rep, m = timed_scale_fit(model, x)
+        dt, dc, load0, load1, peak, before = (m[k] for k in ("wall", "cpu", "load0", "load1", "peak", "before"))
         f = rep.fit
         print(f"scale: {n} points in {dt:.1f} s wall, {dc:.1f} s CPU ({n / dt:,.0f} points/s); load average "
               f"{load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores; net {f.surface.shape}, stop {f.stop}; "

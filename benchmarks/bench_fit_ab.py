@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 CHILD = r"""
-import json, os, resource, sys, time
+import json, sys
 from pathlib import Path
 sys.path.insert(0, sys.argv[1])                    # the cadbridge under test
 sys.path.insert(1, str(Path(sys.argv[2]) / "tests"))  # die_scan of this tree
@@ -33,20 +33,14 @@ sys.path.insert(2, str(Path(sys.argv[2]) / "benchmarks"))
 import cadbridge
 assert Path(cadbridge.__file__).resolve().is_relative_to(Path(sys.argv[1]).resolve()), cadbridge.__file__
 from test_fit_points import die_scan
-from bench_fit import _reset_peak, _rss_mb, cad_error
+from bench_fit import cad_error, timed_scale_fit
 from cadbridge.fitting import fit_points
 n = int(sys.argv[3])
 model, _, x, _ = die_scan(n)
 fit_points(x[:120000], base=model, tolerance=0.01)
-reset = _reset_peak()
-before = _rss_mb("VmRSS")
-load0 = os.getloadavg()[0]
-t, c = time.perf_counter(), time.process_time()
-rep = fit_points(x, base=model, tolerance=0.01, trim=True)
-dt, dc = time.perf_counter() - t, time.process_time() - c
-peak = _rss_mb("VmHWM") if reset else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+rep, m = timed_scale_fit(model, x)
 f = rep.fit
-print(json.dumps(dict(wall=dt, cpu=dc, load0=load0, load1=os.getloadavg()[0], peak_over=peak - before,
+print(json.dumps(dict(wall=m["wall"], cpu=m["cpu"], load0=m["load0"], load1=m["load1"], peak_over=m["peak_over"],
                       net=list(f.surface.shape), stop=f.stop, rms=f.rms, outliers=int(f.outliers.sum()),
                       cad=cad_error(rep, model))))
 """
