@@ -1,0 +1,401 @@
+"""Fold lines inside CAD faces: where a NURBS surface runs back over itself.
+
+Some real faces are parametrised over more than their sheet: the control net overshoots and
+turns back, so the surface folds along a line in (u, v) and the part beyond the fold lies
+back on the sheet (a Z-fold; FACE(274) of the OCC corpus file ``OCC131-2_ANSA9``, whose v
+rows go x 3549.8 -> 3545.8 -> 3547.6, folds twice). The surface stays smooth in (u, v), but
+along a line crossing the fold its speed nearly vanishes: the map is nearly singular there, a
+cusp, and the normal turns by ~180 degrees within a hair's width (micrometres). One
+quadratic Nagata patch cannot fold, and the exact normal right at the fold is the hairpin's
+(perpendicular to both sheets), which no patch should take. So
+
+* `fold_lines` finds the fold lines of every face on the exact surface: on each across-line
+  (v-line at fixed u, or u-line at fixed v) the normal reverses between two samples (more
+  than 120 degrees), the fold point is the speed minimum ``S_s . S_ss = 0`` between them
+  (bisection on analytic derivatives), and it is a fold when the across-line's radius of
+  curvature there is below ``1e-5 x`` model size (tighter than any mesh can follow; a
+  real fillet is a radius the mesher resolves). Each line is returned with an exact 3D
+  curve for the mesher (a cubic interpolant of the fold points, refined until it lies on the
+  fold within ``1e-9 x`` model size), so mesh edges follow it (the crease route of
+  `cadbridge.creases`, `mesh.generate.mesh_cad(embed_curves=...)`);
+* `cusp_normal`: the sheets' common tangent plane at the fold, the limit of the normal from
+  either side: ``unit(S_t x S_ss)`` (S_t along the line, S_ss the across second derivative;
+  at a true cusp S_s = 0 and the sheets are tangent to S_t and S_ss);
+* `apply_fold_normals` gives every element corner at a node on a fold that normal, oriented
+  by the element's winding (one-sided normals: each element keeps its own sheet's side);
+* `fold_straddling` names the elements with corners on both sides of a fold (the guard's
+  "straddles a crease"; a user mesh that does so is stopped).
+
+Fold lines are found where they cross a whole family of across-lines (the same number of
+folds on every line of the family, a line v = f(u) or u = f(v) over the face's domain); a
+fold that ends inside a face is reported by `fold_lines`' ``partial`` list and left to the
+guard.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.interpolate import make_interp_spline
+from scipy.spatial import cKDTree
+
+from cadbridge.model import Model
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = ["FoldLine", "Folds", "apply_fold_normals", "cusp_normal", "fold_lines", "fold_straddling", "folds_for"]
+
+REVERSAL_COS = np.cos(np.radians(120.0))
+"""Adjacent samples whose normals are further apart than 120 degrees bracket a turn-back."""
+FOLD_RADIUS = 1e-5
+"""A turn-back is a fold when the across radius of curvature at it is below this x model size."""
+CURVE_TOL = 1e-9
+"""The fold's 3D curve lies on the exact fold points within this x model size."""
+_SAMPLES_PER_SPAN = 16
+_MAX_POINTS = 1025
+
+
+@dataclass(frozen=True)
+class FoldLine:
+    """One fold line of a face.
+
+    face     index into ``model.faces``
+    across   "v": the line crosses the v-lines, v = f(u) (t = u, s = v); "u": u = f(v)
+    t, s     (M,) exact fold points (t, f(t)) over the face's domain, t increasing
+    lo, hi   (M,) the bracket of each fold point (normal reversed between them)
+    curve    3D `NurbsCurve` of the line parametrised by t (cubic interpolant of S(t, f(t)))
+    points   (M, 3) S(t, f(t))
+    deviation  max distance of ``curve`` from the exact fold points between its nodes
+    radius   (M,) radius of curvature of the across-line at the fold points
+    """
+
+    face: int
+    across: str
+    t: np.ndarray
+    s: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    curve: NurbsCurve
+    points: np.ndarray
+    deviation: float
+    radius: np.ndarray
+
+    def uv(self, t=None, s=None) -> tuple[np.ndarray, np.ndarray]:
+        """(u, v) of line parameters t and across parameters s (default: the fold points)."""
+        t = self.t if t is None else t
+        s = self.s if s is None else s
+        return (t, s) if self.across == "v" else (s, t)
+
+
+@dataclass
+class Folds:
+    """What `fold_lines` finds: ``lines`` (`FoldLine`) and ``partial`` (face, across) pairs
+    where the normal turns back on some across-lines only (a fold ending inside the face;
+    not split)."""
+
+    lines: list[FoldLine] = field(default_factory=list)
+    partial: list[tuple[int, str]] = field(default_factory=list)
+
+
+def _unit(a: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    return a / np.where(n > 0, n, 1.0)
+
+
+def _ders(surface: NurbsSurface, across: str, t, s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(S_t, S_s, S_ss) at line parameter t, across parameter s, each (N, 3)."""
+    u, v = (t, s) if across == "v" else (s, t)
+    d = surface.derivatives(np.asarray(u, dtype=float), np.asarray(v, dtype=float), order=2)
+    if across == "v":
+        return d[:, 1, 0], d[:, 0, 1], d[:, 0, 2]
+    return d[:, 0, 1], d[:, 1, 0], d[:, 2, 0]
+
+
+def _normals(surface: NurbsSurface, across: str, t, s) -> np.ndarray:
+    u, v = (t, s) if across == "v" else (s, t)
+    d = surface.derivatives(np.asarray(u, dtype=float), np.asarray(v, dtype=float), order=1)
+    return _unit(np.cross(d[:, 1, 0], d[:, 0, 1]))
+
+
+def _grid(knots: np.ndarray, lo: float, hi: float, per_span: int) -> np.ndarray:
+    k = np.unique(np.clip(knots, lo, hi))
+    k = k[(k >= lo) & (k <= hi)]
+    k = np.unique(np.concatenate([[lo, hi], k]))
+    pieces = [np.linspace(a, b, per_span + 1)[:-1] for a, b in zip(k[:-1], k[1:]) if b > a]
+    return np.concatenate(pieces + [[hi]])
+
+
+def _turn_backs(nn: np.ndarray, gs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Brackets where the normal turns back along each grid line: nn (T, S, 3) unit normals on
+    lines t (rows) at samples gs (S,). Samples one and two apart are compared (a hairpin
+    thinner than the spacing may hold one sample, at 90 degrees from both neighbours), and
+    overlapping brackets of a line merged. Returns line index (K,), bracket lo, hi (K,)."""
+    T, S = nn.shape[:2]
+    rev = np.zeros((T, S - 1), dtype=bool)  # span j (samples j, j+1) inside a turn-back
+    one = np.einsum("ijk,ijk->ij", nn[:, 1:], nn[:, :-1]) < REVERSAL_COS
+    rev |= one
+    if S > 2:
+        two = np.einsum("ijk,ijk->ij", nn[:, 2:], nn[:, :-2]) < REVERSAL_COS
+        rev[:, :-1] |= two
+        rev[:, 1:] |= two
+    # runs of True spans per line -> one bracket each
+    pad = np.zeros((T, 1), dtype=bool)
+    edge = np.diff(np.concatenate([pad, rev, pad], axis=1).astype(np.int8), axis=1)
+    ts, js = np.nonzero(edge == 1)
+    te, je = np.nonzero(edge == -1)  # same row-major order: runs pair up
+    return ts, gs[js], gs[je]
+
+
+def _fold_points(surface: NurbsSurface, across: str, t: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 iters: int = 60) -> np.ndarray:
+    """Fold point s in [lo, hi] on each across-line t (N,): the speed minimum S_s . S_ss = 0
+    (bisection; where the bracket ends do not change its sign, the point where the normal is
+    orthogonal to the normal at lo)."""
+    a, b = lo.astype(float).copy(), hi.astype(float).copy()
+    _, sa, ssa = _ders(surface, across, t, a)
+    _, sb, ssb = _ders(surface, across, t, b)
+    ga = np.einsum("ij,ij->i", sa, ssa)
+    gb = np.einsum("ij,ij->i", sb, ssb)
+    speed = (ga < 0) & (gb > 0)
+    na = _normals(surface, across, t, a)
+    for _ in range(iters):  # bisection, vectorised over the lines
+        m = 0.5 * (a + b)
+        _, sm, ssm = _ders(surface, across, t, m)
+        g_speed = np.einsum("ij,ij->i", sm, ssm)
+        g_normal = -np.einsum("ij,ij->i", _normals(surface, across, t, m), na)
+        left = np.where(speed, g_speed > 0, g_normal > 0)  # the root lies in [a, m]
+        b = np.where(left, m, b)
+        a = np.where(left, a, m)
+    return 0.5 * (a + b)
+
+
+def _across_radius(surface: NurbsSurface, across: str, t, s) -> np.ndarray:
+    """Radius of curvature |S_s|^3 / |S_s x S_ss| of the across-line at (t, s), (N,)."""
+    _, ss, sss = _ders(surface, across, t, s)
+    c = np.linalg.norm(np.cross(ss, sss), axis=1)
+    return np.linalg.norm(ss, axis=1) ** 3 / np.where(c > 0, c, 1e-300)
+
+
+def cusp_normal(surface: NurbsSurface, across: str, t, s) -> np.ndarray:
+    """Unit normal of the sheets' common tangent plane at fold points (t, s), (N, 3):
+    unit(S_t x S_ss) (module docs); sign as the surface's normal on the side s < fold."""
+    st, _, sss = _ders(surface, across, np.atleast_1d(t), np.atleast_1d(s))
+    n = np.cross(st, sss) if across == "v" else np.cross(sss, st)
+    # S_s ~ S_ss (s - s*): on the side s < s*, S_u x S_v ~ -(S_t x S_ss) (across "v")
+    return -_unit(n)
+
+
+def _line_curve(surface: NurbsSurface, across: str, t0: float, t1: float, t: np.ndarray,
+                lo: np.ndarray, hi: np.ndarray, tol: float):
+    """Fold points on a uniform t grid fine enough that their cubic interpolant lies on the
+    exact fold within ``tol`` at the midpoints; returns (t, s, lo, hi, points, curve, dev)."""
+    u0, u1, v0, v1 = surface.domain
+    s_min, s_max = (v0, v1) if across == "v" else (u0, u1)
+    n = 17
+    while True:
+        tt = np.linspace(t0, t1, n)
+        # brackets: linear in t between the coarse grid's brackets, widened to the coarse
+        # bracket width (the fold moves smoothly)
+        w = float(np.max(hi - lo))
+        c_lo = np.maximum(np.interp(tt, t, lo) - 0.5 * w, s_min)
+        c_hi = np.minimum(np.interp(tt, t, hi) + 0.5 * w, s_max)
+        ss = _fold_points(surface, across, tt, c_lo, c_hi)
+        u, v = (tt, ss) if across == "v" else (ss, tt)
+        pts = surface.evaluate(u, v)
+        spl = make_interp_spline(tt, pts, k=3)
+        curve = NurbsCurve(3, spl.t, spl.c)
+        tm = 0.5 * (tt[1:] + tt[:-1])
+        sm = _fold_points(surface, across, tm, np.maximum(np.interp(tm, t, lo) - 0.5 * w, s_min),
+                          np.minimum(np.interp(tm, t, hi) + 0.5 * w, s_max))
+        um, vm = (tm, sm) if across == "v" else (sm, tm)
+        dev = float(np.max(np.linalg.norm(curve.evaluate(tm) - surface.evaluate(um, vm), axis=1)))
+        if dev <= tol or 2 * n - 1 > _MAX_POINTS:
+            return tt, ss, c_lo, c_hi, pts, curve, dev
+        n = 2 * n - 1
+
+
+def fold_lines(model: Model, per_span: int = _SAMPLES_PER_SPAN) -> Folds:
+    """Fold lines of every face of ``model`` (module docs). Faces without a turn-back cost
+    one grid of normals each: ``per_span`` samples per knot span in both directions."""
+    size = model.size()
+    out = Folds()
+    for k, face in enumerate(model.faces):  # loop over faces, vectorised over the grid
+        s = face.surface
+        u0, u1, v0, v1 = s.domain
+        gu = _grid(s.knots_u, u0, u1, per_span)
+        gv = _grid(s.knots_v, v0, v1, per_span)
+        U, V = np.meshgrid(gu, gv, indexing="ij")
+        n = _normals(s, "v", U.ravel(), V.ravel()).reshape(len(gu), len(gv), 3)
+        x = s.evaluate(U.ravel(), V.ravel()).reshape(len(gu), len(gv), 3)
+        # lengths of the v-lines (fixed u) and u-lines: a collapsed line (a pole) has normals
+        # of round-off along it, no turn-back
+        len_v = np.linalg.norm(np.diff(x, axis=1), axis=2).sum(axis=1)
+        len_u = np.linalg.norm(np.diff(x, axis=0), axis=2).sum(axis=0)
+        found = False
+        for across, nn, gt, gs, (t0, t1), ln in (("v", n, gu, gv, (u0, u1), len_v),
+                                                 ("u", n.transpose(1, 0, 2), gv, gu, (v0, v1), len_u)):
+            ti, lo, hi = _turn_backs(nn, gs)
+            keep = ln[ti] > 1e-6 * size
+            ti, lo, hi = ti[keep], lo[keep], hi[keep]
+            if not len(ti):
+                continue
+            sf = _fold_points(s, across, gt[ti], lo, hi)
+            st = np.linalg.norm(_ders(s, across, gt[ti], sf)[0], axis=1)
+            # a fold: the across-line's radius below FOLD_RADIUS x size, on a line the surface
+            # does not collapse (a pole, S_t = 0, has normals of round-off along it)
+            fold = (_across_radius(s, across, gt[ti], sf) < FOLD_RADIUS * size) & (st > 1e-6 * size / (t1 - t0))
+            ti, lo, hi = ti[fold], lo[fold], hi[fold]
+            if not len(ti):
+                continue  # tight radii the mesher can follow, not folds
+            counts = np.bincount(ti, minlength=len(gt))
+            if counts.min() != counts.max():
+                out.partial.append((k, across))
+                continue
+            kk = int(counts[0])
+            order = np.lexsort((lo, ti))  # per line t, the folds in s order
+            lo, hi = lo[order].reshape(len(gt), kk), hi[order].reshape(len(gt), kk)
+            for j in range(kk):  # loop over the (one or two) fold lines of this family
+                tt, ss, c_lo, c_hi, pts, curve, dev = _line_curve(s, across, t0, t1, gt, lo[:, j], hi[:, j],
+                                                                  CURVE_TOL * size)
+                out.lines.append(FoldLine(k, across, tt, ss, c_lo, c_hi, curve, pts, dev,
+                                          _across_radius(s, across, tt, ss)))
+                found = True
+        if found:  # a fold line of one family crosses some lines of the other: not partial
+            out.partial = [p for p in out.partial if p[0] != k]
+    return out
+
+
+_FOLDS_KEY = "_cadbridge_folds"
+
+
+def folds_for(model: Model) -> Folds:
+    """`fold_lines` of ``model``, computed once and cached on the model object (rebuilt when
+    its face list changed)."""
+    key = tuple((id(f), id(f.surface)) for f in model.faces)
+    hit = model.__dict__.get(_FOLDS_KEY)
+    if hit is not None and hit[0] == key:
+        return hit[1]
+    folds = fold_lines(model)
+    model.__dict__[_FOLDS_KEY] = (key, folds)
+    return folds
+
+
+def _nearest_on_line(line: FoldLine, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance (K,) of points x (K, 3) to the fold line's polyline of exact fold points,
+    and the line parameter t (K,) of the nearest point."""
+    p = line.points
+    _, i = cKDTree(p).query(x)
+    best_d = np.full(len(x), np.inf)
+    best_t = np.zeros(len(x))
+    for off in (-1, 0):  # the two segments at the nearest vertex
+        a = np.clip(i + off, 0, len(p) - 2)
+        pa, pb = p[a], p[a + 1]
+        d = pb - pa
+        w = np.clip(np.einsum("ij,ij->i", x - pa, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0, 1)
+        dist = np.linalg.norm(pa + w[:, None] * d - x, axis=1)
+        better = dist < best_d
+        best_d = np.where(better, dist, best_d)
+        best_t = np.where(better, line.t[a] + w * (line.t[a + 1] - line.t[a]), best_t)
+    return best_d, best_t
+
+
+def fold_nodes(nodes: np.ndarray, folds: Folds, model: Model, tol: float | None = None):
+    """Nodes lying on a fold line: (node ids (K,), fold line index (K,), line parameter (K,)).
+    ``tol`` default 1e-6 x model size (a 3D distance; mesh nodes off the line lie an element
+    away)."""
+    tol = 1e-6 * model.size() if tol is None else float(tol)
+    ids, which, tpar = [], [], []
+    for j, line in enumerate(folds.lines):  # loop over the (few) fold lines
+        lo, hi = line.points.min(0) - tol, line.points.max(0) + tol
+        cand = np.flatnonzero(np.all((nodes >= lo) & (nodes <= hi), axis=1))
+        if not len(cand):
+            continue
+        d, t = _nearest_on_line(line, nodes[cand])
+        on = d <= tol
+        ids.append(cand[on])
+        which.append(np.full(int(on.sum()), j))
+        tpar.append(t[on])
+    if not ids:
+        z = np.zeros(0, dtype=np.int64)
+        return z, z, np.zeros(0)
+    return np.concatenate(ids), np.concatenate(which), np.concatenate(tpar)
+
+
+def _element_normals(nodes: np.ndarray, conn: np.ndarray) -> np.ndarray:
+    x = nodes[conn]
+    if conn.shape[1] == 3:
+        return np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0])
+    return np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 1])
+
+
+def apply_fold_normals(cn, mesh, model: Model, folds: Folds, flip: bool = False) -> int:
+    """Give every corner at a fold node whose element lies on the fold's face the cusp normal
+    (`cusp_normal` at the node's point of the line), oriented by the element's winding; the
+    node normal becomes the cusp normal too (oriented as before) and the node a crease node.
+    ``cn`` is a `cadbridge.normals.cad.CadNormals` over ``mesh`` (changed in place). Returns
+    the number of nodes changed."""
+    if not folds.lines:
+        return 0
+    nodes = np.asarray(mesh.nodes, dtype=float)
+    ids, which, tpar = fold_nodes(nodes, folds, model)
+    if not len(ids):
+        return 0
+    nrm = np.empty((len(ids), 3))
+    for j in np.unique(which):  # loop over fold lines
+        m = which == j
+        line = folds.lines[j]
+        s = _fold_points(model.faces[line.face].surface, line.across, tpar[m],
+                         np.interp(tpar[m], line.t, line.lo), np.interp(tpar[m], line.t, line.hi))
+        nrm[m] = cusp_normal(model.faces[line.face].surface, line.across, tpar[m], s)
+    line_face = np.array([folds.lines[j].face for j in which])
+    at = np.full(len(nodes), -1)
+    at[ids] = np.arange(len(ids))
+    sign = -1.0 if flip else 1.0
+    for b, (conn, cnb, ef) in enumerate(zip([np.asarray(c.data) for c in mesh.cells], cn.corner_normals,
+                                            cn.element_face)):
+        k = at[conn]  # (E, k) row into ids, or -1
+        hit = (k >= 0) & (np.asarray(ef)[:, None] == line_face[np.maximum(k, 0)])
+        if not hit.any():
+            continue
+        ei, ki = np.nonzero(hit)
+        en = _element_normals(nodes, conn[ei])
+        n = nrm[k[ei, ki]]
+        n = n * np.where(np.einsum("ij,ij->i", n, en) < 0, -1.0, 1.0)[:, None]
+        cnb[ei, ki] = n * sign  # as `cad_normals`: the element's side, times the flip
+    old = cn.normals[ids]
+    cn.normals[ids] = nrm * np.where(np.einsum("ij,ij->i", nrm, old) < 0, -1.0, 1.0)[:, None]
+    cn.crease[ids] = True
+    return len(ids)
+
+
+def fold_straddling(blocks: list[np.ndarray], model: Model, folds: Folds, node_face: np.ndarray,
+                    node_u: np.ndarray, node_v: np.ndarray, element_face: list[np.ndarray] | None = None
+                    ) -> np.ndarray:
+    """Global ids (over ``blocks`` in order) of elements with corners strictly on both sides
+    of a fold line of their face, (K,): every corner's foot on the fold's face with its across
+    parameter s beyond the fold's bracket on one side (s < lo) for one corner and on the
+    other (s > hi) for another. Corners inside the bracket (on the fold) count on neither."""
+    out = []
+    offset = 0
+    for bi, conn in enumerate(blocks):  # loop over blocks
+        conn = np.asarray(conn)
+        bad = np.zeros(len(conn), dtype=bool)
+        f = node_face[conn]
+        for line in folds.lines:  # loop over fold lines
+            on = np.all(f == line.face, axis=1)
+            if element_face is not None:
+                on |= np.asarray(element_face[bi]) == line.face
+            e = np.flatnonzero(on & np.all(f == line.face, axis=1))
+            if not len(e):
+                continue
+            t = (node_u if line.across == "v" else node_v)[conn[e]]
+            s = (node_v if line.across == "v" else node_u)[conn[e]]
+            lo = np.interp(t, line.t, line.lo)
+            hi = np.interp(t, line.t, line.hi)
+            below = (s < lo).any(axis=1)
+            above = (s > hi).any(axis=1)
+            bad[e[below & above]] = True
+        out.append(offset + np.flatnonzero(bad))
+        offset += len(conn)
+    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
