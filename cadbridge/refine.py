@@ -327,7 +327,8 @@ def refine_mesh(
     from cadbridge.inflection_nodes import move_nodes_to_inflections
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.mesh import MeshError
-    from cadbridge.mesh.sizing import SizeField, curvature_samples, edge_length_for_tolerance
+    from cadbridge.mesh.sizing import (MAX_TURN, SizeField, curvature_samples, edge_length_for_tolerance,
+                                       patch_curvature)
     from cadbridge.nagata.admissibility import edge_admissibility
     from cadbridge.normals.cad import cad_normals
     from cadbridge.pipeline import NoProgress, _tools_from_mesh
@@ -348,15 +349,26 @@ def refine_mesh(
     t_loop = 0.95 * tolerance  # the loop aims a little below: the denser check decides
 
     progress.stage("principal curvatures of the CAD faces (sizing by the Nagata error law)")
-    pts, kmax, _ = curvature_samples(model)
-    field_ = SizeField(pts, edge_length_for_tolerance(t_loop, kmax, h_max), h_min, h_max, gradation)
+    pts, kmax, frames = curvature_samples(model, frames=True)
+    # isotropic elements (unmapped faces): both directions' errors add up on doubly curved
+    # surfaces (`patch_curvature`); no edge turns the normal by more than MAX_TURN
+    h_law = edge_length_for_tolerance(t_loop, patch_curvature(frames.k1, frames.k2), h_max, MAX_TURN, kmax)
+    field_ = SizeField(pts, h_law, h_min, h_max, gradation)
     marks = SizeField(np.zeros((0, 3)), np.zeros(0), h_min, h_max, gradation)  # refinement requests only
     structured = (element == "quad") if structured is None else bool(structured)
 
     def curve_size(x, k):
-        # sides of mapped faces: the law on the curve's own curvature (integrated along it),
-        # and the refinement marks (a request that holds along the whole, uniformly divided side)
-        return (np.maximum(edge_length_for_tolerance(t_loop, k, h_max), h_min), marks(x))
+        # sides of mapped faces: the law for the mesh lines along the side inside its faces
+        # (`CurvatureFrames.side_curvature`: normal and geodesic curvature along it, half the
+        # tolerance where the face also curves across it), integrated along it, no edge
+        # turning by more than MAX_TURN; and the refinement marks (a request that holds along
+        # the whole, uniformly divided side). x: ordered points along the side.
+        x = np.asarray(x, dtype=float).reshape(-1, 3)
+        tan = np.gradient(x, axis=0) if len(x) > 1 else np.zeros_like(x)
+        tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
+        k_side = frames.side_curvature(x, tan, k)
+        h = edge_length_for_tolerance(t_loop, k_side, h_max, MAX_TURN, k)
+        return (np.maximum(h, h_min), marks(x))
 
     mesh_kw = dict(element=element, size=h_max, curvature_elements=0, structured=structured,
                    curve_size=curve_size if structured else None)
@@ -445,6 +457,8 @@ def refine_mesh(
             marks_p.extend([cen, corners])
             marks_h.extend([h_new, np.repeat(h_new, k_per)])
 
+        n_turned = 0
+        worst: list[str] = []
         for t in tools:
             e = np.zeros(t.nagata.n_elements)
             np.maximum.at(e, t.grid["element"], _shape_error(t.grid))
@@ -455,8 +469,23 @@ def refine_mesh(
             bad = np.flatnonzero(e > t_loop)
             n_above += len(bad)
             above_all += [(t.name, int(i) + 1, float(e[i])) for i in bad]
+            worst += _worst_elements(t, e, bad, model)
             if len(bad):
                 mark(t, bad, e[bad], 0.75, order[bad])
+            # elements whose CAD normal turns by more than MAX_TURN between their corners (a
+            # quadratic patch over a nearly reversing normal breaks) are halved too, whatever
+            # their error on the loop grid
+            turn = _normal_turn(t.nagata)
+            hs_all = _element_sizes(t.nagata)
+            turned = np.setdiff1d(np.flatnonzero((turn > MAX_TURN * 1.05) & (hs_all > 1.3 * h_min)), bad)
+            n_turned += len(turned)
+            if len(turned):
+                mark(t, turned, np.full(len(turned), t_loop * 16.0), 0.5, np.full(len(turned), 4.0))
+        if worst:
+            actions.append(f"pass {p}: worst elements above {t_loop:.3g}: " + "; ".join(worst[:6]))
+        if n_turned:
+            actions.append(f"pass {p}: {n_turned} elements whose CAD normal turns by more than "
+                           f"{math.degrees(MAX_TURN):.0f} degrees between corners: refined")
         if inflections:
             n_inadm = len(bad_full)
             if bad_full and (p == 1 or p == max_passes):
@@ -508,6 +537,36 @@ def refine_mesh(
     met = not above_all
     return AdaptiveResult(mesh, tools, passes, tolerance, met, check_best, floor, actions, above_all, h_min,
                           time.perf_counter() - t_start)
+
+
+def _normal_turn(nm) -> np.ndarray:
+    """Largest angle (E,) [rad] between the corner normals of each element of the
+    `NagataMesh` ``nm`` (the CAD normals the patches interpolate)."""
+    out = np.zeros(nm.n_elements)
+    for cn, glob in ((nm.tri_corner_normals, nm.tri_global), (nm.quad_corner_normals, nm.quad_global)):
+        if len(cn) == 0:
+            continue
+        n = cn / np.maximum(np.linalg.norm(cn, axis=2, keepdims=True), 1e-300)
+        dots = np.einsum("eid,ejd->eij", n, n)  # (E, k, k)
+        out[glob] = np.arccos(np.clip(dots.min(axis=(1, 2)), -1.0, 1.0))
+    return out
+
+
+def _worst_elements(t, e: np.ndarray, bad: np.ndarray, model, n: int = 3) -> list[str]:
+    """Up to ``n`` lines on the worst of the elements ``bad`` of tool ``t`` (errors ``e``
+    (E,)): element (1-based), error, size (most curved edge), corner normal turn, CAD face."""
+    if len(bad) == 0:
+        return []
+    top = bad[np.argsort(-e[bad])[:n]]
+    hs = _element_sizes(t.nagata)[top]
+    turn = np.degrees(_normal_turn(t.nagata)[top])
+    out = []
+    for i, h, tn in zip(top, hs, turn):  # loop over the (few) worst
+        f = int(t.element_face[i]) if t.element_face is not None else -1
+        name = model.faces[f].name if 0 <= f < len(model.faces) and model.faces[f].name else ""
+        out.append(f"{t.name} {int(i) + 1}: {e[i]:.3g} at size {h:.3g}, normal turn {tn:.0f} deg, face {f}"
+                   + (f" {name}" if name else ""))
+    return out
 
 
 def _error_order(n_elements: int, elem: np.ndarray, grid: dict) -> np.ndarray:

@@ -31,7 +31,8 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["NAGATA_ERROR_CONSTANT", "SizeField", "arc_error", "curvature_samples", "edge_length_for_tolerance"]
+__all__ = ["MAX_TURN", "NAGATA_ERROR_CONSTANT", "CurvatureFrames", "SizeField", "arc_error", "curvature_samples",
+           "edge_length_for_tolerance", "patch_curvature"]
 
 NAGATA_ERROR_CONSTANT = 6.0e-4 / 0.52 ** 4
 """C of e = C h^4 / R^3 (thesis Fig. 8: 0.060 % radial error at normalized edge length 0.52)."""
@@ -44,29 +45,60 @@ def arc_error(h: ArrayLike, radius: ArrayLike) -> NDArray:
     return NAGATA_ERROR_CONSTANT * h ** 4 / r ** 3
 
 
-def edge_length_for_tolerance(tolerance: float, curvature: ArrayLike, h_max: float = math.inf) -> NDArray:
+MAX_TURN = math.pi / 3
+"""Largest turn of the normal along one element edge [rad] (60 degrees): beyond it the arc
+law, an asymptotic expansion in h / R, no longer holds (and a quadratic edge over a nearly
+reversing normal is what makes broken patches), so h <= MAX_TURN R."""
+
+
+def edge_length_for_tolerance(tolerance: float, curvature: ArrayLike, h_max: float = math.inf,
+                              max_turn: float | None = None, turn_curvature: ArrayLike | None = None) -> NDArray:
     """Target edge length (N,) [length] for a shape ``tolerance`` [length] where the largest
     |principal curvature| is ``curvature`` (N,) [1/length]: eq. (size) of the module docs,
-    ``h_max`` where the surface is flat."""
+    ``h_max`` where the surface is flat. With ``max_turn`` [rad] also h <= max_turn / |k|
+    (k = ``turn_curvature``, default ``curvature``): no edge turns the normal by more."""
     if not (tolerance > 0 and math.isfinite(tolerance)):
         raise ValueError(f"shape tolerance must be a positive number, got {tolerance!r}")
     k = np.abs(np.asarray(curvature, dtype=float))
     with np.errstate(divide="ignore"):
         h = (tolerance / (NAGATA_ERROR_CONSTANT * k ** 3)) ** 0.25
     h = np.where(np.isfinite(h), h, h_max)
+    if max_turn is not None:
+        kt = k if turn_curvature is None else np.abs(np.asarray(turn_curvature, dtype=float))
+        with np.errstate(divide="ignore"):
+            h = np.minimum(h, np.where(kt > 0, max_turn / np.where(kt > 0, kt, 1.0), h_max))
     return np.minimum(h, h_max)
 
 
-def curvature_samples(model, per_span: int = 4, min_per_side: int = 9, max_per_side: int = 200):
-    """Points on every face of ``model`` and the largest |principal curvature| there.
+def patch_curvature(k1: ArrayLike, k2: ArrayLike) -> NDArray:
+    """Curvature k_p (N,) [1/length] for the law e = C h^4 k_p^3 of an element of side h
+    sized alike in both directions over a surface of principal curvatures k1, k2 (N,):
+
+        k_p^3 = max(|k1|^3 + |k2|^3, |k1 + k2|^3 / 2)                               (patch)
+
+    A Nagata quad's interior error is about the sum of its sides' errors, and at its centre
+    that of its diagonal (length sqrt(2) h, normal curvature (k1 + k2) / 2 at 45 degrees by
+    Euler: 4 C h^4 |(k1 + k2) / 2|^3). A cylinder keeps k (its sides dominate); a sphere
+    gets 4^(1/3) k: a Nagata quad on a sphere is 3.8x the single-edge law
+    (`tests/test_adaptive_law.py`), on a torus (r 4, R 10) the diagonal term is within
+    0.9-1.1x of the measured error of near-square quads. Saddles are not covered by it (the
+    sides' sum is, to 1.5x)."""
+    a, b = np.asarray(k1, dtype=float), np.asarray(k2, dtype=float)
+    return np.cbrt(np.maximum(np.abs(a) ** 3 + np.abs(b) ** 3, np.abs(a + b) ** 3 / 2))
+
+
+def curvature_samples(model, per_span: int = 4, min_per_side: int = 9, max_per_side: int = 200,
+                      frames: bool = False):
+    """Points on every face of ``model`` and the largest |principal curvature| there (with
+    ``frames``: a `CurvatureFrames` of the same samples instead of the face index).
 
     Each face's underlying surface is sampled on a (u, v) grid with ``per_span`` points per
     knot span (at least ``min_per_side`` per side), so curvature changes inside spans are
     seen. Returns points (M, 3), k_max (M,) [1/length] (NaN at degenerate points are
-    dropped) and face index (M,)."""
+    dropped) and face index (M,) (or the `CurvatureFrames`)."""
     from cadbridge.nurbs.curvature import principal_curvatures
 
-    pts, ks, fs = [], [], []
+    pts, ks, fs, fr = [], [], [], []
     for i, f in enumerate(model.faces):  # loop over faces, vectorised over samples
         s = f.surface
         u0, u1, v0, v1 = s.domain
@@ -77,13 +109,94 @@ def curvature_samples(model, per_span: int = 4, min_per_side: int = 9, max_per_s
         vv = np.linspace(v0, v1, nv)
         U, V = np.meshgrid(uu, vv, indexing="ij")
         U, V = U.ravel(), V.ravel()
-        k1, k2 = principal_curvatures(s, U, V)
+        if frames:
+            k1, k2, d1, d2 = principal_curvatures(s, U, V, directions=True)
+        else:
+            k1, k2 = principal_curvatures(s, U, V)
         k = np.maximum(np.abs(k1), np.abs(k2))
         ok = np.isfinite(k)
         pts.append(s.evaluate(U[ok], V[ok]))
         ks.append(k[ok])
         fs.append(np.full(int(ok.sum()), i))
-    return np.concatenate(pts), np.concatenate(ks), np.concatenate(fs)
+        if frames:
+            fr.append((k1[ok], k2[ok], d1[ok], d2[ok]))
+    P, K = np.concatenate(pts), np.concatenate(ks)
+    if frames:
+        k1, k2, d1, d2 = (np.concatenate([f[m] for f in fr]) for m in range(4))
+        return P, K, CurvatureFrames(P, k1, k2, d1, d2)
+    return P, K, np.concatenate(fs)
+
+
+class CurvatureFrames:
+    """Principal curvatures and directions at sample points of the CAD faces, for sizing the
+    sides of mapped faces by the error of the mesh lines *along* them.
+
+    points (M, 3), k1, k2 (M,) [1/length], d1, d2 (M, 3) unit principal directions (from
+    `curvature_samples(..., frames=True)`). `side_curvature` gives, at points of a face side
+    with tangents t and space curvature k, the curvature k_eff for the law h = (t / (C
+    k_eff^3))^(1/4) of the edges along that side inside the face next to it:
+
+        e_side = C h^4 (|k_n|^3 + k_g^2 |k_x|) / s                                  (side)
+
+    k_n = k1 (t.d1)^2 + k2 (t.d2)^2 the normal curvature along the side (Euler), k_x = k1
+    (t.d2)^2 + k2 (t.d1)^2 the normal curvature across it, k_g^2 = k^2 - k_n^2 its geodesic
+    curvature. The k_g term: a chord between two nodes on a side that bends in the tangent
+    plane (a corner blend's rail on the floor, k_n = 0, k_g = 1 / rho) cuts inwards by
+    k_g h^2 / 8, and the surface falls away across it by k_x (k_g h^2 / 8)^2 / 2 = k_g^2 k_x
+    h^4 / 128 (C = 1 / 122): on a torus tube r 4 of sweep R 10 the top rail's chords are
+    50-300x the normal-curvature law and within 0.7-1.5x of (side). s = 1/2 where the
+    surface also curves across the side (|k_x| above 1 % of its largest curvature): the
+    patch error is about the sum of both directions' edge errors, so each gets half the
+    tolerance. Only samples of faces the side lies on count: x must sit on the sample's
+    osculating paraboloid, | |n.(x - s)| - |k_d| d^2 / 2 | <= 0.05 |k_d| d^2 / 2 + 1e-6 d (d
+    = |x - s| in the tangent plane, k_d the normal curvature towards x: a plane leaving a
+    fillet tangentially is k_d d^2 / 2 off the fillet's paraboloid, rejected; points of the
+    face itself are O(k' d^3) off); of those, the sample that asks
+    for the most wins (several faces meet at a side). Where no sample passes, the side's own
+    curvature: k_eff = |k|.
+    """
+
+    def __init__(self, points, k1, k2, d1, d2, neighbours: int = 8) -> None:
+        from scipy.spatial import cKDTree
+
+        self.points = np.asarray(points, dtype=float).reshape(-1, 3)
+        self.k1, self.k2 = np.asarray(k1, dtype=float), np.asarray(k2, dtype=float)
+        self.d1, self.d2 = np.asarray(d1, dtype=float), np.asarray(d2, dtype=float)
+        self.neighbours = int(min(neighbours, max(len(self.points), 1)))
+        self._tree = cKDTree(self.points) if len(self.points) else None
+
+    def side_curvature(self, x: ArrayLike, t: ArrayLike, k: ArrayLike) -> NDArray:
+        """k_eff (N,) of eq. (side) at points x (N, 3) of a side with unit tangents t (N, 3)
+        and space curvature k (N,); |k| where there are no samples."""
+        x = np.asarray(x, dtype=float).reshape(-1, 3)
+        t = np.asarray(t, dtype=float).reshape(-1, 3)
+        k = np.abs(np.asarray(k, dtype=float)).ravel()
+        if self._tree is None or len(x) == 0:
+            return k
+        _, j = self._tree.query(x, k=self.neighbours)
+        j = j.reshape(len(x), -1)  # (N, J)
+        d1, d2, k1, k2 = self.d1[j], self.d2[j], self.k1[j], self.k2[j]
+        # on the sample's face? (osculating paraboloid test of the class docs)
+        dx = x[:, None, :] - self.points[j]
+        nrm = np.cross(d1, d2)
+        nrm /= np.maximum(np.linalg.norm(nrm, axis=2, keepdims=True), 1e-300)
+        p1, p2 = np.einsum("njd,njd->nj", dx, d1), np.einsum("njd,njd->nj", dx, d2)
+        dist2 = p1 * p1 + p2 * p2
+        k_dx = np.abs(k1 * p1 * p1 + k2 * p2 * p2) / np.maximum(dist2, 1e-300)  # normal curvature towards x
+        off = np.abs(np.abs(np.einsum("njd,njd->nj", dx, nrm)) - 0.5 * k_dx * dist2)
+        on = off <= 0.05 * 0.5 * k_dx * dist2 + 1e-6 * np.sqrt(dist2 + 1e-300)
+        a = np.einsum("nd,njd->nj", t, d1)
+        b = np.einsum("nd,njd->nj", t, d2)
+        tan2 = np.maximum(a * a + b * b, 1e-300)  # the side's tangent projected on the face's plane
+        a2, b2 = a * a / tan2, b * b / tan2
+        kn = k1 * a2 + k2 * b2
+        kx = k1 * b2 + k2 * a2
+        kg2 = np.maximum(k[:, None] ** 2 - kn ** 2, 0.0)
+        kmax = np.maximum(np.abs(k1), np.abs(k2))
+        share = np.where(np.abs(kx) > 1e-2 * kmax, 0.5, 1.0)
+        e = np.where(on, (np.abs(kn) ** 3 + kg2 * np.abs(kx)) / share, -1.0)  # (N, J): e / (C h^4)
+        best = np.max(e, axis=1)
+        return np.where(best >= 0, np.cbrt(np.maximum(best, 0.0)), k)
 
 
 class SizeField:
