@@ -330,72 +330,200 @@ def _element_normals(nodes: np.ndarray, conn: np.ndarray) -> np.ndarray:
 
 
 def apply_fold_normals(cn, mesh, model: Model, folds: Folds, flip: bool = False) -> int:
-    """Give every corner at a fold node whose element lies on the fold's face the cusp normal
-    (`cusp_normal` at the node's point of the line), oriented by the element's winding; the
-    node normal becomes the cusp normal too (oriented as before) and the node a crease node.
-    ``cn`` is a `cadbridge.normals.cad.CadNormals` over ``mesh`` (changed in place). Returns
-    the number of nodes changed."""
+    """One-sided normals at fold lines, in place on ``cn`` (a `cadbridge.normals.cad.CadNormals`
+    over ``mesh``):
+
+    * every corner at a fold node (`fold_nodes`) whose element lies on the fold's face takes
+      the cusp normal (`cusp_normal` at the node's point of the line), oriented by the
+      element's winding; the node normal becomes the cusp normal (its sign kept) and the
+      node a crease node;
+    * a corner whose foot lay on another sheet than its element's (`fold_sides`) takes the
+      normal of its element's sheet at its foot there, oriented by the element's winding.
+
+    Returns the number of corners changed."""
     if not folds.lines:
         return 0
     nodes = np.asarray(mesh.nodes, dtype=float)
-    ids, which, tpar = fold_nodes(nodes, folds, model)
-    if not len(ids):
-        return 0
-    nrm = np.empty((len(ids), 3))
-    for j in np.unique(which):  # loop over fold lines
-        m = which == j
-        line = folds.lines[j]
-        s = _fold_points(model.faces[line.face].surface, line.across, tpar[m],
-                         np.interp(tpar[m], line.t, line.lo), np.interp(tpar[m], line.t, line.hi))
-        nrm[m] = cusp_normal(model.faces[line.face].surface, line.across, tpar[m], s)
-    line_face = np.array([folds.lines[j].face for j in which])
-    at = np.full(len(nodes), -1)
-    at[ids] = np.arange(len(ids))
+    blocks = [np.asarray(c.data) for c in mesh.cells]
     sign = -1.0 if flip else 1.0
-    for b, (conn, cnb, ef) in enumerate(zip([np.asarray(c.data) for c in mesh.cells], cn.corner_normals,
-                                            cn.element_face)):
-        k = at[conn]  # (E, k) row into ids, or -1
-        hit = (k >= 0) & (np.asarray(ef)[:, None] == line_face[np.maximum(k, 0)])
-        if not hit.any():
+    changed = 0
+    changed += _mesher_feet(cn, mesh, model, folds, blocks, sign)
+    ids, which, tpar = fold_nodes(nodes, folds, model)
+    if len(ids):
+        nrm = np.empty((len(ids), 3))
+        for j in np.unique(which):  # loop over fold lines
+            m = which == j
+            line = folds.lines[j]
+            surf = model.faces[line.face].surface
+            s = _fold_points(surf, line.across, tpar[m], np.interp(tpar[m], line.t, line.lo),
+                             np.interp(tpar[m], line.t, line.hi))
+            nrm[m] = cusp_normal(surf, line.across, tpar[m], s)
+        line_face = np.array([folds.lines[j].face for j in which])
+        at = np.full(len(nodes), -1)
+        at[ids] = np.arange(len(ids))
+        for conn, cnb, ef in zip(blocks, cn.corner_normals, cn.element_face):  # loop over blocks
+            k = at[conn]  # (E, k) row into ids, or -1
+            hit = (k >= 0) & (np.asarray(ef)[:, None] == line_face[np.maximum(k, 0)])
+            ei, ki = np.nonzero(hit)
+            n = nrm[k[ei, ki]]
+            n = n * np.where(np.einsum("ij,ij->i", n, _element_normals(nodes, conn[ei])) < 0, -1.0, 1.0)[:, None]
+            cnb[ei, ki] = n * sign  # as `cad_normals`: the element's side, times the flip
+            changed += len(ei)
+        old = cn.normals[ids]
+        cn.normals[ids] = nrm * np.where(np.einsum("ij,ij->i", nrm, old) < 0, -1.0, 1.0)[:, None]
+        cn.crease[ids] = True
+    _, moved = fold_sides(blocks, model, folds, nodes, cn.face, cn.u, cn.v)
+    for bi, ei, ki, f, u, v in moved:  # corners on both sheets: their element's sheet's normal
+        if not len(ei):
             continue
-        ei, ki = np.nonzero(hit)
-        en = _element_normals(nodes, conn[ei])
-        n = nrm[k[ei, ki]]
-        n = n * np.where(np.einsum("ij,ij->i", n, en) < 0, -1.0, 1.0)[:, None]
-        cnb[ei, ki] = n * sign  # as `cad_normals`: the element's side, times the flip
-    old = cn.normals[ids]
-    cn.normals[ids] = nrm * np.where(np.einsum("ij,ij->i", nrm, old) < 0, -1.0, 1.0)[:, None]
-    cn.crease[ids] = True
-    return len(ids)
+        d = model.faces[f].surface.derivatives(u, v, order=1)
+        n = _unit(np.cross(d[:, 1, 0], d[:, 0, 1]))
+        n = n * np.where(np.einsum("ij,ij->i", n, _element_normals(nodes, blocks[bi][ei])) < 0, -1.0, 1.0)[:, None]
+        cn.corner_normals[bi][ei, ki] = n * sign
+        cn.crease[blocks[bi][ei, ki]] = True
+        changed += len(ei)
+    return changed
 
 
-def fold_straddling(blocks: list[np.ndarray], model: Model, folds: Folds, node_face: np.ndarray,
-                    node_u: np.ndarray, node_v: np.ndarray, element_face: list[np.ndarray] | None = None
-                    ) -> np.ndarray:
-    """Global ids (over ``blocks`` in order) of elements with corners strictly on both sides
-    of a fold line of their face, (K,): every corner's foot on the fold's face with its across
-    parameter s beyond the fold's bracket on one side (s < lo) for one corner and on the
-    other (s > hi) for another. Corners inside the bracket (on the fold) count on neither."""
-    out = []
-    offset = 0
+def _mesher_feet(cn, mesh, model: Model, folds: Folds, blocks: list[np.ndarray], sign: float) -> int:
+    """Nodes on a folded face whose mesher (u, v) (gmsh's ``node_uv``) is a foot on that face
+    too (S(u, v) within 1e-9 x size of the node) take it, with its normal (oriented as the
+    node's, and per corner by the element's winding): where the sheets overlap, the global
+    projection may have chosen another sheet than the one the mesher put the node on.
+    Returns the number of nodes changed."""
+    uv = mesh.point_data.get("node_uv") if getattr(mesh, "point_data", None) else None
+    if uv is None:
+        return 0
+    uv = np.asarray(uv, dtype=float)
+    nodes = np.asarray(mesh.nodes, dtype=float)
+    if uv.shape != (len(nodes), 2):
+        return 0
+    tol = 1e-9 * model.size()
+    count = 0
+    for f in sorted({line.face for line in folds.lines}):  # loop over folded faces
+        cand = np.flatnonzero((cn.face == f) & np.isfinite(uv).all(axis=1))
+        if not len(cand):
+            continue
+        surf = model.faces[f].surface
+        u0, u1, v0, v1 = surf.domain
+        uu, vv = uv[cand, 0], uv[cand, 1]
+        inside = (uu >= u0) & (uu <= u1) & (vv >= v0) & (vv <= v1)
+        cand, uu, vv = cand[inside], uu[inside], vv[inside]
+        if not len(cand):
+            continue
+        d = surf.derivatives(uu, vv, order=1)
+        ok = (np.linalg.norm(d[:, 0, 0] - nodes[cand], axis=1) <= tol) & (
+            (np.abs(uu - cn.u[cand]) > 0) | (np.abs(vv - cn.v[cand]) > 0))
+        cand, uu, vv = cand[ok], uu[ok], vv[ok]
+        if not len(cand):
+            continue
+        n = _unit(np.cross(d[ok, 1, 0], d[ok, 0, 1]))
+        cn.u[cand], cn.v[cand] = uu, vv
+        cn.normals[cand] = n * np.where(np.einsum("ij,ij->i", n, cn.normals[cand]) < 0, -1.0, 1.0)[:, None]
+        at = np.full(len(nodes), -1)
+        at[cand] = np.arange(len(cand))
+        for conn, cnb, ef in zip(blocks, cn.corner_normals, cn.element_face):  # loop over blocks
+            k = at[conn]
+            ei, ki = np.nonzero((k >= 0) & (np.asarray(ef)[:, None] == f))
+            m = n[k[ei, ki]]
+            m = m * np.where(np.einsum("ij,ij->i", m, _element_normals(nodes, conn[ei])) < 0, -1.0, 1.0)[:, None]
+            cnb[ei, ki] = m * sign
+        count += len(cand)
+    return count
+
+
+def fold_sides(blocks: list[np.ndarray], model: Model, folds: Folds, nodes: np.ndarray, node_face: np.ndarray,
+               node_u: np.ndarray, node_v: np.ndarray):
+    """Elements across fold lines, and corners whose foot lay on the wrong sheet.
+
+    For each fold line, every corner whose foot lies on the fold's face is on the side +1 / -1
+    (s > f(t) / s < f(t), f(t) the exact fold point of its across-line, `_fold_points`), or
+    on neither when it lies on the line (`fold_nodes`, within 1e-6 x size). Near a fold the
+    sheets overlap, so a node's global foot may lie on either: a corner on the other side
+    from the rest of its element that lies on its element's sheet as well (projected onto it
+    from the other corners' mean (u, v): within 1e-6 x size, foot on their side) takes its
+    element's side. Returns (straddle, moved): straddle per block (E_b,) bool, corners on
+    both sides still; moved: list of (block, element (M,), corner (M,), face, u (M,), v (M,))
+    the re-projected corners and their feet on their element's sheet."""
+    from cadbridge.nurbs.project import project_to_surface
+
+    nodes = np.asarray(nodes, dtype=float)
+    tol = 1e-6 * model.size()
+    on_line = np.zeros(len(nodes), dtype=bool)
+    on_line[fold_nodes(nodes, folds, model)[0]] = True
+    straddle, moved = [], []
     for bi, conn in enumerate(blocks):  # loop over blocks
         conn = np.asarray(conn)
         bad = np.zeros(len(conn), dtype=bool)
-        f = node_face[conn]
         for line in folds.lines:  # loop over fold lines
-            on = np.all(f == line.face, axis=1)
-            if element_face is not None:
-                on |= np.asarray(element_face[bi]) == line.face
-            e = np.flatnonzero(on & np.all(f == line.face, axis=1))
+            surf = model.faces[line.face].surface
+            mine = (node_face[conn] == line.face) & ~on_line[conn]  # (E, k) corners on its sheets
+            e = np.flatnonzero(mine.sum(axis=1) >= 2)
             if not len(e):
                 continue
-            t = (node_u if line.across == "v" else node_v)[conn[e]]
-            s = (node_v if line.across == "v" else node_u)[conn[e]]
-            lo = np.interp(t, line.t, line.lo)
-            hi = np.interp(t, line.t, line.hi)
-            below = (s < lo).any(axis=1)
-            above = (s > hi).any(axis=1)
-            bad[e[below & above]] = True
-        out.append(offset + np.flatnonzero(bad))
-        offset += len(conn)
-    return np.concatenate(out) if out else np.zeros(0, dtype=np.int64)
+            c = conn[e]
+            t = (node_u if line.across == "v" else node_v)[c]
+            sv = (node_v if line.across == "v" else node_u)[c]
+            fp = _fold_points(surf, line.across, t.ravel(), np.interp(t.ravel(), line.t, line.lo),
+                              np.interp(t.ravel(), line.t, line.hi)).reshape(t.shape)
+            sd = (np.sign(sv - fp) * mine[e]).astype(np.int64)
+            for pref in (1, -1):  # the majority's sheet first, then (ties, failures) the other
+                mixed = np.flatnonzero((sd > 0).any(axis=1) & (sd < 0).any(axis=1))
+                if not len(mixed):
+                    break
+                tot = sd[mixed].sum(axis=1)
+                maj = np.where(tot != 0, np.sign(tot) * pref, pref)  # the sheet tried
+                ri, ki = np.nonzero(sd[mixed] == -maj[:, None])  # corners on the other side
+                rows = mixed[ri]
+                w = (sd[rows] == maj[ri, None]).astype(float)  # the corners on the sheet tried
+                uu, vv = node_u[c[rows]], node_v[c[rows]]
+                uv0 = np.column_stack([(uu * w).sum(1) / w.sum(1), (vv * w).sum(1) / w.sum(1)])
+                pr = project_to_surface(surf, nodes[c[rows, ki]], uv0=uv0, global_check=False)
+                ft, fs = (pr.u, pr.v) if line.across == "v" else (pr.v, pr.u)
+                ffp = _fold_points(surf, line.across, ft, np.interp(ft, line.t, line.lo),
+                                   np.interp(ft, line.t, line.hi))
+                ok = (pr.distance <= tol) & (np.sign(fs - ffp) == maj[ri])
+                # an element moves only if all its other-side corners lie on the sheet tried
+                all_ok = np.ones(len(mixed), dtype=bool)
+                np.logical_and.at(all_ok, ri, ok)
+                ok &= all_ok[ri]
+                sd[rows[ok], ki[ok]] = maj[ri[ok]]
+                moved.append((bi, e[rows[ok]], ki[ok], line.face, pr.u[ok], pr.v[ok]))
+            bad[e[(sd > 0).any(axis=1) & (sd < 0).any(axis=1)]] = True
+        straddle.append(bad)
+    return straddle, moved
+
+
+def fold_straddling(blocks: list[np.ndarray], model: Model, folds: Folds, nodes: np.ndarray,
+                    node_face: np.ndarray, node_u: np.ndarray, node_v: np.ndarray) -> np.ndarray:
+    """Global ids (over ``blocks`` in order) of elements with corners strictly on both sides
+    of a fold line (`fold_sides`: a corner on the line is on neither; a corner lying on both
+    sheets is on its element's), (K,) sorted."""
+    if not folds.lines:
+        return np.zeros(0, dtype=np.int64)
+    straddle, _ = fold_sides(blocks, model, folds, nodes, node_face, node_u, node_v)
+    return np.flatnonzero(np.concatenate(straddle)) if straddle else np.zeros(0, dtype=np.int64)
+
+
+def fold_reference_normals(model: Model, feet: np.ndarray, normals: np.ndarray, orient: np.ndarray) -> np.ndarray:
+    """The CAD normals an error measure should compare with, (M, 3): ``normals`` (M, 3) at
+    the ``feet`` (M, 3), except at feet on a fold line (`fold_nodes`, within 1e-6 x size:
+    inside the hairpin, whose own normal is perpendicular to both sheets), which take the
+    cusp normal there (`cusp_normal`), oriented to the side of ``orient`` (M, 3)."""
+    folds = folds_for(model)
+    out = np.array(normals, dtype=float, copy=True)
+    if not folds.lines:
+        return out
+    feet = np.asarray(feet, dtype=float)
+    good = np.flatnonzero(np.isfinite(feet).all(axis=1))
+    ids, which, tpar = fold_nodes(feet[good], folds, model)
+    ids = good[ids]
+    for j in np.unique(which):  # loop over fold lines
+        m = which == j
+        line = folds.lines[j]
+        surf = model.faces[line.face].surface
+        s = _fold_points(surf, line.across, tpar[m], np.interp(tpar[m], line.t, line.lo),
+                         np.interp(tpar[m], line.t, line.hi))
+        n = cusp_normal(surf, line.across, tpar[m], s)
+        out[ids[m]] = n * np.where(np.einsum("ij,ij->i", n, orient[ids[m]]) < 0, -1.0, 1.0)[:, None]
+    return out

@@ -606,9 +606,11 @@ def _normals(mesh: Mesh, model, method: str, *, tolerance=None, flip=False, allo
     element faces per block | None, `CadNormals` | None)."""
     blocks = _blocks(mesh)
     if method == "cad":
+        from cadbridge.folds import apply_fold_normals, folds_for
         from cadbridge.normals.cad import cad_normals
 
         cn = cad_normals(mesh, model, tolerance=tolerance, flip=flip, allow_far=allow_far)
+        apply_fold_normals(cn, mesh, model, folds_for(model), flip=flip)  # one-sided normals on fold lines
         return cn.normals, cn.corner_normals, cn.face, cn.distance, cn.element_face, cn
     from cadbridge.normals.estimators import estimate_normals
 
@@ -657,6 +659,9 @@ def _tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far
         straddle[straddling_elements(_blocks(mesh), model, cn.face, cn.u, cn.v,
                                      mesh.nodes if between else None, cn.normals if between else None,
                                      element_face=cn.element_face)] = True
+        from cadbridge.folds import fold_straddling, folds_for
+
+        straddle[fold_straddling(_blocks(mesh), model, folds_for(model), mesh.nodes, cn.face, cn.u, cn.v)] = True
     if model is None:
         groups = {"": [np.ones(len(b), dtype=bool) for b in mesh.cells]}
     else:
@@ -787,10 +792,13 @@ def convert(
     progress.stage(f"reading {cad}")
     model = read_iges(cad)  # fails early, before anything is meshed or written, on a bad file
     from cadbridge.creases import crease_lines
+    from cadbridge.folds import folds_for
 
     creases = crease_lines(model)  # C0 knot lines where the normal jumps: mesh edges go there
+    folds = folds_for(model).lines  # lines where a face runs back over itself: mesh edges too
     progress.stage(f"meshing {Path(cad).name} with {mesher}"
-                   + (f" ({len(creases)} crease lines inside faces become mesh edges)" if creases else ""))
+                   + (f" ({len(creases)} crease lines inside faces become mesh edges)" if creases else "")
+                   + (f" ({len(folds)} fold lines inside faces become mesh edges)" if folds else ""))
     projector = CadProjector(model, progress)
     adaptive = None
     if shape_tolerance is not None:  # sized and refined for a Nagata shape tolerance
@@ -802,7 +810,8 @@ def convert(
     else:
         mesh = mesh_cad(cad, element=element, size=size, structured=structured,
                         radius_divisions=radius_divisions, length_divisions=length_divisions,
-                        curvature_elements=curvature_elements, embed_curves=[c.curve for c in creases],
+                        curvature_elements=curvature_elements,
+                        embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
                         mesher=mesher)
     mesh.name = Path(cad).stem
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,

@@ -185,6 +185,9 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
     # elements without a face: measure against the trimmed projection's face
     face = np.where(face >= 0, face, np.asarray(trimmed.face, dtype=np.int64))
     surface, ncad, uv = _on_faces(model, pts, face, elem, pn)
+    from cadbridge.folds import fold_reference_normals  # on a fold line: the sheets' cusp normal
+
+    ncad = fold_reference_normals(model, pts - surface[:, None] * ncad, ncad, pn)
     # the flat element lies on the same smooth piece as its Nagata patch
     _, inv = np.unique(elem, return_inverse=True)
     ok = np.isfinite(uv[:, 0])
