@@ -25,6 +25,7 @@ class Diagnostic:
     line: int | None = None  # 1-based line number in the file
     de: int | None = None  # directory entry sequence number (odd, 1-based)
     entity_type: int | None = None
+    kind: str | None = None  # "reread": the face was read otherwise than the file says (see `mesh_source`)
 
     def __str__(self) -> str:
         where = []

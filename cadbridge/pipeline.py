@@ -808,11 +808,14 @@ def convert(
                                model=model, projector=projector, progress=progress)
         mesh = adaptive.mesh
     else:
-        mesh = mesh_cad(cad, element=element, size=size, structured=structured,
-                        radius_divisions=radius_divisions, length_divisions=length_divisions,
-                        curvature_elements=curvature_elements,
-                        embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
-                        mesher=mesher)
+        from cadbridge.mesh_source import mesh_source
+
+        with mesh_source(cad, model) as source:  # the file as cadbridge read it (faces re-read by the reader)
+            mesh = mesh_cad(source, element=element, size=size, structured=structured,
+                            radius_divisions=radius_divisions, length_divisions=length_divisions,
+                            curvature_elements=curvature_elements,
+                            embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
+                            mesher=mesher)
     mesh.name = Path(cad).stem
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
                              orient=True, meshed_per_face=True)
