@@ -298,7 +298,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
             radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
             curvature_elements=args.curvature_elements, method=args.method, grid=args.grid, flip=args.flip, tolerance=args.tolerance, progress=progress,
             allow_worse=args.allow_worse, shape_tolerance=args.shape_tolerance, min_size=args.min_size,
-            mesher=args.mesher,
+            mesher=args.mesher, full_report=args.full_report,
         )
     if getattr(result, "adaptive", None) is not None:
         _say(result.adaptive.summary())
@@ -420,6 +420,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--grid", type=int, default=10, help="grid divisions per patch for errors and viewing")
     p.add_argument("--allow-worse", action="store_true",
                    help="write a tool even if its Nagata surface is worse than its flat mesh (for inspection)")
+    p.add_argument("--full-report", action="store_true",
+                   help="also the per-patch listings (grid CSV, coefficient listing, Nagata IGES) of tools above "
+                        "50 000 elements (default: only up to that size)")
     _add_mesh_options(p)
     _add_normal_options(p)
     p.set_defaults(func=cmd_convert)

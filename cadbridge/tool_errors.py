@@ -179,11 +179,11 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
 
     elem = np.asarray(elem, dtype=np.int64)
     pts, pn = nm.evaluate(elem, eta, zeta)
-    face = np.asarray(element_face, dtype=np.int64)[elem]
-    trimmed = project_trimmed(pts)
-    boundary = np.linalg.norm(pts - trimmed.foot, axis=1)
+    face = np.asarray(element_face, dtype=np.int64)[elem].copy()
     # elements without a face: measure against the trimmed projection's face
-    face = np.where(face >= 0, face, np.asarray(trimmed.face, dtype=np.int64))
+    nof = np.flatnonzero(face < 0)
+    if len(nof):
+        face[nof] = np.asarray(project_trimmed(pts[nof]).face, dtype=np.int64)
     surface, ncad, uv = _on_faces(model, pts, face, elem, pn)
     from cadbridge.folds import fold_reference_normals  # on a fold line: the sheets' cusp normal
 
@@ -198,10 +198,23 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
     # where Newton found no foot on the element's own face, the nearest trimmed face stands in
     # (counted in ``fallback``; the distance is then an upper bound of the surface error)
     miss = np.flatnonzero(~np.isfinite(surface) | ~np.isfinite(flat_surface))
+    # boundary error: where the own face's foot is inside its trims and no other face comes
+    # within |surface error|, that foot is the nearest point of the trimmed model; the rest
+    # goes through the trimmed projection (the same number, without the global search)
+    boundary = np.full(len(pts), np.nan)
+    own, own_d = own_face_nearest(model, pts, face, uv)
+    own[miss] = False
+    boundary[own] = own_d[own]
+    rest = np.flatnonzero(~own)
+    at = np.full(len(pts), -1, dtype=np.int64)
+    at[rest] = np.arange(len(rest))
+    if len(rest):
+        trimmed = project_trimmed(pts[rest])
+        boundary[rest] = np.linalg.norm(pts[rest] - trimmed.foot, axis=1)
     if len(miss):
-        n_t = np.asarray(trimmed.normal, dtype=float)[miss]
+        n_t = np.asarray(trimmed.normal, dtype=float)[at[miss]]
         n_t = n_t * np.where(np.einsum("ij,ij->i", n_t, pn[miss]) < 0, -1.0, 1.0)[:, None]
-        surface[miss] = np.einsum("ij,ij->i", pts[miss] - trimmed.foot[miss], n_t)
+        surface[miss] = np.einsum("ij,ij->i", pts[miss] - trimmed.foot[at[miss]], n_t)
         ncad[miss] = n_t
         ft = project_trimmed(flat[miss])
         nf = np.asarray(ft.normal, dtype=float)
@@ -222,6 +235,37 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
             raise ValueError(f"{name} error could not be measured at {len(bad)} sample points, e.g. on element "
                              f"{int(elem[bad[0]]) + 1} (1-based) at {pts[bad[0]].tolist()}")
     return ToolErrors(surface, normal, boundary, flat_surface, face, len(miss))
+
+
+def own_face_nearest(model: Model, pts: np.ndarray, face: np.ndarray, uv: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M, 3) whose foot (u, v) (M, 2) on the untrimmed surface of ``face`` (M,) (the
+    nearest point of that surface, `_on_faces`) is also their nearest point of the trimmed
+    model: the foot lies inside the face's trims (decided on the trim curves,
+    `Face.contains`) and no sub-patch box or slab of another face (`cadbridge.search`'s
+    index, which holds the surfaces) comes within the foot's distance d of the point.
+    Faces with crease knot lines (measured on one smooth piece) are left out.
+    Returns (ok (M,) bool, d (M,) = |x - S(u, v)|, NaN where not computed)."""
+    from cadbridge.search import _candidate_pairs, index_for
+
+    ok = (face >= 0) & np.all(np.isfinite(uv), axis=1)
+    dist = np.full(len(pts), np.nan)
+    for f in np.unique(face[ok]):  # loop over faces, vectorised over points
+        sel = np.flatnonzero(ok & (face == f))
+        fc = model.faces[int(f)]
+        if len(_crease_pieces(fc.surface)) > 1:
+            ok[sel] = False
+            continue
+        ok[sel] = fc.contains(uv[sel, 0], uv[sel, 1])
+        dist[sel] = np.linalg.norm(pts[sel] - fc.surface.evaluate(uv[sel, 0], uv[sel, 1]), axis=1)
+    ok &= np.isfinite(dist)
+    sel = np.flatnonzero(ok)
+    if len(sel):
+        d = dist[sel]
+        bound = d + 1e-9 * d + 1e-12 * model.size()
+        cp, _ = _candidate_pairs(index_for(model), pts[sel], bound, exclude=face[sel])
+        ok[sel[cp]] = False
+    return ok, dist
 
 
 def worst_elements(err: ToolErrors, elem: np.ndarray, n_elements: int, floor: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
