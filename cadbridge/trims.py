@@ -269,6 +269,36 @@ def _sampled_bounds(c, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.nd
     return _GENERIC_SAFETY * np.maximum(dev, curv), graph
 
 
+def _halve_edges(c, bounds, t: np.ndarray, p: np.ndarray, bd: np.ndarray, graph: np.ndarray, bad: np.ndarray):
+    """Polygon of curve ``c`` with the edges ``bad`` (M,) halved at their parameter midpoint:
+    parameters t (M+1,), vertices p (M+1, 2), chord bounds bd and graph flags (M,) of the new
+    polygon (B more vertices and edges, in parameter order)."""
+    bi = np.flatnonzero(bad)
+    tm = 0.5 * (t[bi] + t[bi + 1])
+    pm = np.asarray(_curve_ders(c, tm, 0)[:, 0], dtype=float)[:, :2]
+    bl, gl = bounds(c, t[bi], tm, p[bi], pm)
+    br, gr = bounds(c, tm, t[bi + 1], pm, p[bi + 1])
+    m = len(bd)
+    # vertex i moves by the number of midpoints before it; midpoint of edge i follows vertex i
+    shift = np.zeros(m + 1, dtype=np.int64)
+    shift[1:] = np.cumsum(bad)
+    vi = np.arange(m + 1) + shift
+    mi = bi + shift[bi] + 1
+    t2 = np.empty(m + 1 + len(bi))
+    p2 = np.empty((len(t2), 2))
+    t2[vi], t2[mi] = t, tm
+    p2[vi], p2[mi] = p, pm
+    # edge i (kept) starts at vertex i; a halved edge becomes (left, right) at mi - 1, mi
+    ei = np.arange(m) + shift[:-1]
+    bd2 = np.empty(len(t2) - 1)
+    g2 = np.empty(len(t2) - 1, dtype=bool)
+    keep = ~bad
+    bd2[ei[keep]], g2[ei[keep]] = bd[keep], graph[keep]
+    bd2[mi - 1], g2[mi - 1] = bl, gl
+    bd2[mi], g2[mi] = br, gr
+    return t2, p2, bd2, g2
+
+
 # ---------------------------------------------------------------------------------------
 # grid index of polygon edges (numba kernels)
 
@@ -468,15 +498,16 @@ class LoopBoundary:
         for k, c in enumerate(self.curves):
             bounds = _bezier_bounds if isinstance(c, NurbsCurve) else _sampled_bounds
             t, p = ts[k], ps[k]
+            bd, graph = bounds(c, t[:-1], t[1:], p[:-1], p[1:])
             for r in range(_MAX_ROUNDS + 1):
                 e0, e1 = t[:-1], t[1:]
-                bd, graph = bounds(c, e0, e1, p[:-1], p[1:])
                 long = np.linalg.norm(p[1:] - p[:-1], axis=1) > lmax
                 bad = (bd > target) | ~graph | long
                 if r == _MAX_ROUNDS or not bad.any():
                     break
-                t = np.sort(np.concatenate([t, 0.5 * (e0[bad] + e1[bad])]))
-                p = np.asarray(_curve_ders(c, t, 0)[:, 0], dtype=float)[:, :2]
+                # halve the bad edges: only the new points and the new edges are computed
+                # (evaluation and bounds are per point / per edge: the same values as a full pass)
+                t, p, bd, graph = _halve_edges(c, bounds, t, p, bd, graph, bad)
             if not np.all(np.isfinite(bd)):
                 raise ValueError(f"LoopBoundary: curve {k} ({c!r}) has no finite chord bound after {_MAX_ROUNDS} halvings")
             a.append(p[:-1]), b.append(p[1:]), band.append(bd + 1e-14 * self.size * (bd > 0))

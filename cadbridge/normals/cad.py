@@ -165,11 +165,10 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
         offset += len(c)
     todo = np.concatenate(todo)
     if len(todo):
-        cells = np.concatenate([c.astype(np.int64) for c in blocks]) if len({c.shape[1] for c in blocks}) == 1 else None
-        if cells is not None:  # one element kind: only the centroids needed
-            cent = nodes[cells[todo]].mean(axis=1)
-        else:
-            cent = np.concatenate([nodes[c].mean(axis=1) for c in blocks])[todo]
+        # the centroids of those elements only, block by block (no copy of the whole cell arrays)
+        starts = np.cumsum([0] + [len(c) for c in blocks])
+        cent = np.concatenate([nodes[c[todo[(todo >= a) & (todo < a + len(c))] - a]].mean(axis=1)
+                               for a, c in zip(starts[:-1], blocks)])
         cp = project_points(cent, model, max_distance=None)
         face[todo], u[todo], v[todo] = cp.face, cp.u, cp.v
     return face, u, v
