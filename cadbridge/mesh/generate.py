@@ -78,6 +78,8 @@ class GmshSession:
         try:
             if gmsh.isInitialized():
                 self._prev_model = gmsh.model.getCurrent()
+                if self._prev_model.startswith(self._model):  # nested in another call: a name of its own
+                    self._model = f"{self._prev_model}-nested"
             else:
                 gmsh.initialize(readConfigFiles=False, interruptible=False)
                 self._owner = True
@@ -530,6 +532,12 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         "Mesh.RecombinationAlgorithm": 1,
         "Mesh.Smoothing": 10,
         "Mesh.SubdivisionAlgorithm": 0,
+        # gmsh retries a face whose 1D mesh crosses itself in (u, v) after splitting edges there:
+        # with recombination each retry costs more (the Inventor spring: > 200 s at the default
+        # 10), and where it succeeds it fills zero-width cusp strips with sliver triangles
+        # (nodes 1e-13 apart, corner normals reversed). Faces still empty after one retry are
+        # meshed by cadbridge.mesh.empty_faces, which cuts such strips off.
+        "Mesh.MaxRetries": 1,
     }
     _apply(sess, mopts)
     if kw["size_callback"] is not None:
@@ -555,6 +563,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
                 if kw["element"] == "quad":
                     g.model.mesh.setRecombine(2, f.tag)
     g.model.mesh.generate(2)
+    filled = _fill_empty(g, surfaces, size, kw, path, subdivided=False)
     _check_all_meshed(g, surfaces, path)
     mesh = _collect(g, surfaces, kw["parametric"], path)
     if kw["element"] == "quad" and len(mesh.triangles):
@@ -572,6 +581,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
             for c, n in counts.items():
                 g.model.mesh.setTransfiniteCurve(c, max(1, math.ceil(n / 2)) + 1)
         g.model.mesh.generate(2)
+        filled = _fill_empty(g, surfaces, size, kw, path, subdivided=True)
         _check_all_meshed(g, surfaces, path)
         mesh = _collect(g, surfaces, kw["parametric"], path)
         if len(mesh.triangles):
@@ -582,6 +592,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     from cadbridge.mesh.cleanup import merge_close_nodes
 
     mesh, merged = merge_close_nodes(mesh, MERGE_TOLERANCE * size)
+    mesh.notes += filled
     if merged:
         mesh.notes.append(f"mesh: {merged.summary()}")
     return mesh
@@ -615,6 +626,15 @@ def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
         h, hu = (np.asarray(a, dtype=float) for a in h)
         return float(max(np.sum(ds / h), np.sum(ds) / np.min(hu)))
     return float(np.sum(ds / np.asarray(h, dtype=float)))
+
+
+def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdivided: bool) -> list[str]:
+    """Mesh the surfaces gmsh left without elements ourselves (`cadbridge.mesh.empty_faces`:
+    in their (u, v) on gmsh's boundary nodes); one note per face."""
+    from cadbridge.mesh.empty_faces import fill_empty_faces
+
+    return fill_empty_faces(g, surfaces, size=size, curvature_elements=kw["curvature_elements"],
+                            element=kw["element"], subdivided=subdivided, label=str(path))
 
 
 def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:

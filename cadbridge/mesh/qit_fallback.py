@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["mesh_loops_in_parameter_space"]
+__all__ = ["mesh_loops_in_parameter_space", "mesh_planar_loops"]
 
 
 def mesh_loops_in_parameter_space(loops_uv: list[np.ndarray], scale: np.ndarray, size: float,
@@ -25,6 +25,21 @@ def mesh_loops_in_parameter_space(loops_uv: list[np.ndarray], scale: np.ndarray,
     Returns uv (N, 2) -- the loop vertices first, in the order given, then the interior
     vertices -- and triangles (T, 3) into it, counter-clockwise in (u, v).
     """
+    uv, tris, _ = mesh_planar_loops(loops_uv, scale, size, label)
+    return uv, tris
+
+
+def mesh_planar_loops(loops_uv: list[np.ndarray], scale: np.ndarray, size: float, label: str, *,
+                      point_sizes: list[np.ndarray] | None = None,
+                      recombine: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`mesh_loops_in_parameter_space` with sizes per loop vertex (``point_sizes``, one (n_i,)
+    array per loop, scaled units; the size then grows from them inside up to ``size``) and,
+    with ``recombine``, gmsh's Blossom recombination into quads (triangles may remain).
+
+    Returns uv (N, 2) as there, triangles (T, 3) and quads (Q, 4), counter-clockwise in (u, v).
+    Works inside a caller's gmsh session too (a private model; every option it sets is
+    restored on exit).
+    """
     from cadbridge.mesh.generate import GmshSession
     from cadbridge.mesh.mesh import MeshError
 
@@ -34,9 +49,10 @@ def mesh_loops_in_parameter_space(loops_uv: list[np.ndarray], scale: np.ndarray,
         g = sess.gmsh
         geo = g.model.geo
         pt_tags, line_tags, loops = [], [], []
-        for lp in loops_uv:
+        for li, lp in enumerate(loops_uv):
             q = np.asarray(lp, dtype=float) * scale
-            pts = [geo.addPoint(float(a), float(b), 0.0, float(size)) for a, b in q]
+            hs = np.full(len(q), float(size)) if point_sizes is None else np.asarray(point_sizes[li], dtype=float)
+            pts = [geo.addPoint(float(a), float(b), 0.0, float(h)) for (a, b), h in zip(q, hs)]
             lines = [geo.addLine(pts[i], pts[(i + 1) % len(pts)]) for i in range(len(pts))]
             loops.append(geo.addCurveLoop(lines))
             pt_tags += pts
@@ -46,10 +62,16 @@ def mesh_loops_in_parameter_space(loops_uv: list[np.ndarray], scale: np.ndarray,
         for ln in line_tags:
             g.model.mesh.setTransfiniteCurve(ln, 2)  # the loop segments stay single elements
         sess.set("Mesh.Algorithm", 6)
-        sess.set("Mesh.MeshSizeMin", size)
+        sess.set("Mesh.MeshSizeMin", size if point_sizes is None else 0.0)
         sess.set("Mesh.MeshSizeMax", size)
         sess.set("Mesh.MeshSizeFromCurvature", 0)
         sess.set("Mesh.MeshSizeExtendFromBoundary", 1)
+        # a caller's session may have set these (all-quad subdivision, no point sizes)
+        sess.set("Mesh.MeshSizeFromPoints", 1)
+        sess.set("Mesh.SubdivisionAlgorithm", 0)
+        sess.set("Mesh.RecombineAll", 1 if recombine else 0)
+        sess.set("Mesh.RecombinationAlgorithm", 1)
+        sess.set("Mesh.ElementOrder", 1)
         try:
             g.model.mesh.generate(2)
         except Exception as exc:  # gmsh raises a plain Exception
@@ -59,18 +81,25 @@ def mesh_loops_in_parameter_space(loops_uv: list[np.ndarray], scale: np.ndarray,
         index = {int(t): k for k, t in enumerate(tags)}
         loop_node = [int(g.model.mesh.getNodes(0, p)[0][0]) for p in pt_tags]
         et, _, en = g.model.mesh.getElements(2, surf)
-        blocks = [np.asarray(n, dtype=np.int64).reshape(-1, 3) for t, n in zip(et, en) if t == 2]
-        if not blocks:
+        tri_nodes = [np.asarray(n, dtype=np.int64).reshape(-1, 3) for t, n in zip(et, en) if t == 2]
+        quad_nodes = [np.asarray(n, dtype=np.int64).reshape(-1, 4) for t, n in zip(et, en) if t == 3]
+        if not tri_nodes and not quad_nodes:
             raise MeshError(f"{label}: the gmsh fallback made no triangles (its edge loops in (u, v) "
                             "cross or enclose no area)")
-        tri_nodes = np.concatenate(blocks)
     order = {t: k for k, t in enumerate(loop_node)}  # gmsh node tag -> local id
     interior = [int(t) for t in tags if int(t) not in order]
     for k, t in enumerate(interior):
         order[t] = n_loop + k
-    tris = np.vectorize(order.__getitem__)(tri_nodes)
     uv = np.concatenate([np.concatenate(loops_uv), xyz[[index[t] for t in interior], :2] / scale])
-    a, b, c = uv[tris[:, 0]], uv[tris[:, 1]], uv[tris[:, 2]]
-    neg = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) < 0
-    tris[neg] = tris[neg][:, [0, 2, 1]]
-    return uv, tris
+    out = []
+    for blocks, k in ((tri_nodes, 3), (quad_nodes, 4)):
+        if not blocks:
+            out.append(np.zeros((0, k), dtype=np.int64))
+            continue
+        el = np.vectorize(order.__getitem__)(np.concatenate(blocks)).reshape(-1, k)
+        p = uv[el]  # (E, k, 2): shoelace area, clockwise ones reversed
+        area = np.sum(p[:, :, 0] * np.roll(p[:, :, 1], -1, axis=1) - np.roll(p[:, :, 0], -1, axis=1) * p[:, :, 1],
+                      axis=1)
+        el[area < 0] = el[area < 0][:, ::-1]
+        out.append(el)
+    return uv, out[0], out[1]
