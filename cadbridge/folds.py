@@ -147,27 +147,43 @@ def _turn_backs(nn: np.ndarray, gs: np.ndarray) -> tuple[np.ndarray, np.ndarray,
     return ts, gs[js], gs[je]
 
 
+def _speed_slope(surface: NurbsSurface, across: str, t, s) -> np.ndarray:
+    _, ss, sss = _ders(surface, across, t, s)
+    return np.einsum("ij,ij->i", ss, sss)
+
+
 def _fold_points(surface: NurbsSurface, across: str, t: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                  iters: int = 60) -> np.ndarray:
-    """Fold point s in [lo, hi] on each across-line t (N,): the speed minimum S_s . S_ss = 0
-    (bisection; where the bracket ends do not change its sign, the point where the normal is
-    orthogonal to the normal at lo)."""
-    a, b = lo.astype(float).copy(), hi.astype(float).copy()
-    _, sa, ssa = _ders(surface, across, t, a)
-    _, sb, ssb = _ders(surface, across, t, b)
-    ga = np.einsum("ij,ij->i", sa, ssa)
-    gb = np.einsum("ij,ij->i", sb, ssb)
-    speed = (ga < 0) & (gb > 0)
+    """Fold point s in [lo, hi] on each across-line t (N,): the speed minimum S_s . S_ss = 0.
+    The turn-back is first bisected on the normal (the point where it is orthogonal to the
+    normal at lo), then the smallest bracket around that point over which S_s . S_ss goes
+    from - to + is bisected (where none is found, the normal's point is kept)."""
+    t = np.asarray(t, dtype=float)
+    a, b = np.asarray(lo, dtype=float).copy(), np.asarray(hi, dtype=float).copy()
+    lo0, hi0 = a.copy(), b.copy()
     na = _normals(surface, across, t, a)
-    for _ in range(iters):  # bisection, vectorised over the lines
+    for _ in range(iters):  # bisection on the normal, vectorised over the lines
         m = 0.5 * (a + b)
-        _, sm, ssm = _ders(surface, across, t, m)
-        g_speed = np.einsum("ij,ij->i", sm, ssm)
-        g_normal = -np.einsum("ij,ij->i", _normals(surface, across, t, m), na)
-        left = np.where(speed, g_speed > 0, g_normal > 0)  # the root lies in [a, m]
+        left = np.einsum("ij,ij->i", _normals(surface, across, t, m), na) < 0  # turned: root in [a, m]
         b = np.where(left, m, b)
         a = np.where(left, a, m)
-    return 0.5 * (a + b)
+    m0 = 0.5 * (a + b)
+    w = hi0 - lo0
+    a, b = m0.copy(), m0.copy()
+    found = np.zeros(len(t), dtype=bool)
+    for h in np.geomspace(1e-10, 1.0, 21):  # widen until the speed slope changes sign
+        ta, tb = np.maximum(lo0, m0 - h * w), np.minimum(hi0, m0 + h * w)
+        ok = ~found & (_speed_slope(surface, across, t, ta) < 0) & (_speed_slope(surface, across, t, tb) > 0)
+        a, b = np.where(ok, ta, a), np.where(ok, tb, b)
+        found |= ok
+        if found.all():
+            break
+    for _ in range(iters):  # bisection on the speed slope
+        m = 0.5 * (a + b)
+        left = _speed_slope(surface, across, t, m) > 0
+        b = np.where(found & left, m, b)
+        a = np.where(found & ~left, m, a)
+    return np.where(found, 0.5 * (a + b), m0)
 
 
 def _across_radius(surface: NurbsSurface, across: str, t, s) -> np.ndarray:

@@ -116,10 +116,15 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
     dist = np.full(len(points), np.nan)
     nrm = np.full((len(points), 3), np.nan)
     uv = np.full((len(points), 2), np.nan)
+    from cadbridge.folds import folds_for
+
+    folded = {line.face for line in folds_for(model).lines}
     for f in np.unique(face[face >= 0]):  # loop over faces, vectorised over points
         sel = np.flatnonzero(face == f)
         s = model.faces[f].surface
-        pr = project_to_surface(s, points[sel])
+        # on a folded face the sheets lie close: Newton from the nearest grid sample alone can
+        # end on another sheet than the nearest one
+        pr = project_to_surface(s, points[sel], n_starts=4 if f in folded else 1)
         pieces = _crease_pieces(s)
         if len(pieces) > 1:
             if piece_uv is None:
