@@ -235,24 +235,117 @@ class OccReference:
                     else:
                         npart[i] = out[i]
                     edge[i] = min(u - u0, u1 - u) <= eu or min(v - v0, v1 - v) <= ev
+        miss = np.flatnonzero(~np.isfinite(out))
+        if len(miss):  # no foot (e.g. at the pole of a surface of revolution): BRepExtrema instead
+            out[miss] = self._surface_face_distance(k, x[miss])
+            npart[miss] = out[miss]  # the whole distance: no foot, no normal
+            edge[miss] = True  # a pole is a border of the parameter domain
+            self.pole_feet += len(miss)
         if normal_part:
             return out, npart, edge
         return out
 
-    def trimmed_distance(self, x: np.ndarray) -> np.ndarray:
+    pole_feet = 0  # points GeomAPI_ProjectPointOnSurf found no foot for (measured by BRepExtrema)
+
+    def _surface_face_distance(self, k: int, x: np.ndarray) -> np.ndarray:
+        """Distance (M,) of points x (M, 3) to the untrimmed surface of face k as a face over its
+        whole (finite) parameter domain (BRepExtrema_DistShapeShape), where the projection
+        finds no foot."""
+        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakeVertex
+        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+        from OCP.gp import gp_Pnt
+
+        from cadbridge.occ.reference import _finite_bounds
+
+        cache = self.__dict__.setdefault("_surface_faces", {})
+        if k not in cache:
+            cache[k] = BRepBuilderAPI_MakeFace(self.surfaces[k], *_finite_bounds(self.surfaces[k]), 1e-7).Face()
+        out = np.full(len(x), np.inf)
+        for i, xx in enumerate(x):
+            d = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, xx))).Vertex(), cache[k])
+            if d.IsDone() and d.NbSolution() > 0:
+                out[i] = d.Value()
+        return out
+
+    def trimmed_distance(self, x: np.ndarray, near: int | None = None) -> np.ndarray:
         """Distance (M,) of points x (M, 3) to the trimmed faces (BRepExtrema_DistShapeShape
-        to the compound of all faces)."""
+        to the compound of all faces; with ``near`` = k, of face k and the faces sharing an
+        edge or a vertex with it, which is where a sample whose foot is on face k's domain
+        border lies)."""
         from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
         from OCP.BRepExtrema import BRepExtrema_DistShapeShape
         from OCP.gp import gp_Pnt
 
+        target = self.faces_compound if near is None else self._neighbour_compound(near)
         out = np.full(len(x), np.inf)
         for i, xx in enumerate(x):
-            d = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, xx))).Vertex(),
-                                           self.faces_compound)
+            d = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, xx))).Vertex(), target)
             if d.IsDone() and d.NbSolution() > 0:
                 out[i] = d.Value()
         return out
+
+    def _neighbour_compound(self, k: int):
+        """Compound of face k (0-based) and the faces sharing an edge or a vertex with it."""
+        from OCP.BRep import BRep_Builder
+        from OCP.TopAbs import TopAbs_EDGE, TopAbs_VERTEX
+        from OCP.TopExp import TopExp_Explorer
+        from OCP.TopoDS import TopoDS_Compound
+
+        cache = self.__dict__.setdefault("_neighbours", {})
+        if k not in cache:
+            face = self._face_index.FindKey(k + 1)
+            ids = {k}
+            for kind, name in ((TopAbs_EDGE, "EDGE"), (TopAbs_VERTEX, "VERTEX")):
+                m = self._anc[name]
+                ex = TopExp_Explorer(face, kind)
+                while ex.More():
+                    idx = m.FindIndex(ex.Current())
+                    if idx > 0:
+                        for f in m.FindFromIndex(idx):
+                            ids.add(self._face_index.FindIndex(f) - 1)
+                    ex.Next()
+            builder, comp = BRep_Builder(), TopoDS_Compound()
+            builder.MakeCompound(comp)
+            for i in sorted(i for i in ids if i >= 0):
+                builder.Add(comp, self._face_index.FindKey(i + 1))
+            cache[k] = comp
+        return cache[k]
+
+    def faces_holding(self, corners: np.ndarray, nn: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        """For elements with corner points ``corners`` (E, 4, 3) (the first ``nn`` (E,) valid),
+        the OCC face whose untrimmed surface holds all corners best and that largest corner
+        distance: (face (E,) 0-based, -1 if none; gap (E,)). Candidates are the faces whose
+        bounding box (``BRepBndLib``) holds the corners within ``tol``; no BRepExtrema."""
+        if not hasattr(self, "_box_lo"):
+            from OCP.BRepBndLib import BRepBndLib
+            from OCP.Bnd import Bnd_Box
+
+            lo, hi = [], []
+            for i in range(1, self._face_index.Extent() + 1):
+                b = Bnd_Box()
+                BRepBndLib.Add_s(self._face_index.FindKey(i), b, False)
+                x0, y0, z0, x1, y1, z1 = b.Get()
+                lo.append((x0, y0, z0))
+                hi.append((x1, y1, z1))
+            self._box_lo, self._box_hi = np.array(lo), np.array(hi)
+        valid = np.arange(corners.shape[1])[None, :] < nn[:, None]  # (E, 4)
+        clo = np.where(valid[..., None], corners, np.inf).min(axis=1)
+        chi = np.where(valid[..., None], corners, -np.inf).max(axis=1)
+        best = np.full(len(corners), -1, dtype=np.int64)
+        gap = np.full(len(corners), np.inf)
+        for f in range(len(self._box_lo)):  # loop over faces, vectorised over elements
+            els = np.flatnonzero(np.all(clo >= self._box_lo[f] - tol, axis=1) & np.all(chi <= self._box_hi[f] + tol, axis=1))
+            if not len(els):
+                continue
+            pts = corners[els][valid[els]]  # (P, 3)
+            d = self.distance(f, pts)
+            owner = np.repeat(np.arange(len(els)), nn[els])
+            g = np.full(len(els), -np.inf)
+            np.maximum.at(g, owner, d)
+            better = g < gap[els]
+            gap[els[better]] = g[better]
+            best[els[better]] = f
+        return best, gap
 
     def nearest_face(self, x: np.ndarray) -> int:
         """Index (0-based, TopExp.MapShapes order) of the face nearest to point x; -1 if none."""
@@ -289,6 +382,24 @@ class OccReference:
         return best
 
 
+def _reference(cad: Path, row: Row) -> OccReference:
+    """OCC's reading of ``cad``; where cadbridge's reader re-read faces (`cadbridge.mesh_source`:
+    parameter-space trims that contradict the file's own model-space curves), OCC reads the
+    copy whose 142s of those faces prefer their model-space curves, as the mesher does: the
+    CAD is then what the file's model-space curves say, read by OCC."""
+    import cadbridge
+    from cadbridge.mesh_source import mesh_source, reread_faces
+
+    model = cadbridge.read_iges(cad)
+    with mesh_source(cad, model) as src:
+        occ = OccReference(src)
+    if src != cad:
+        des = ", ".join(str(d) for d in reread_faces(model))
+        row.message = "; ".join(x for x in (row.message, f"OCC reads the faces DE {des} from their model-space "
+                                            "curves (142 PREF 2), as the mesher does") if x)
+    return occ
+
+
 def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
     t0 = time.perf_counter()
     files = sorted(out.glob("*.nagata"))
@@ -308,7 +419,7 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
     per = [R.sample_grid(tf, div) for tf in tfs]
     total = sum(len(p[0]) for p in per)
     stride = max(1, math.ceil(total / max_samples))
-    occ = OccReference(cad)
+    occ = _reference(cad, row)
     nag_max = flat_max = nag_n = flat_n = 0.0
     row.size = 0.0
     for tf, (elem, eta, zeta) in zip(tfs, per):
@@ -327,7 +438,15 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
         cent = np.where((tf.nn[keep_elem] == 3)[:, None], X[:, :3].mean(axis=1), X.mean(axis=1))
         face_of = {}
         ontol = 1e-6 * R.model_size(tf) * scale  # a corner node "on" a surface (nodes are CAD points)
-        for e, c, xe in zip(keep_elem, cent, X):
+        # each element to the face whose surface holds its corners (box candidates, OCC's
+        # projection); BRepExtrema's nearest face only for elements no face holds
+        held, held_gap = occ.faces_holding(np.pad(X, ((0, 0), (0, 4 - X.shape[1]), (0, 0))),
+                                           np.asarray(tf.nn[keep_elem]), ontol + 1e-9 * row.size)
+        for e, c, xe, k0, g0 in zip(keep_elem, cent, X, held, held_gap):
+            if k0 >= 0 and g0 <= ontol:
+                face_of[int(e)] = int(k0)
+                row.node_gap = max(row.node_gap, float(g0))
+                continue
             k = occ.nearest_face(c)
             corners = xe[: tf.nn[e]]
             gap = float(np.max(occ.distance(k, corners))) if k >= 0 else np.inf
@@ -362,7 +481,7 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
             for d_, e_, x_ in ((dn, en, xn[s]), (df, ef, xf[s])):
                 b = np.flatnonzero(e_)
                 if len(b):
-                    dt = occ.trimmed_distance(x_[b])
+                    dt = occ.trimmed_distance(x_[b], near=int(k))
                     row.beyond_border += int(np.count_nonzero(dt < d_[b]))
                     d_[b] = np.minimum(d_[b], dt)
             nag_max, flat_max = max(nag_max, float(dn.max())), max(flat_max, float(df.max()))
@@ -374,6 +493,9 @@ def measure(row: Row, cad: Path, out: Path, div: int, max_samples: int) -> None:
                 row.worst_nagata = (float(dn[i]), bool(en[i]), float(pn[i]))
     row.nagata, row.flat = nag_max, flat_max
     row.nagata_normal, row.flat_normal = nag_n, flat_n
+    if occ.pole_feet:
+        row.message = "; ".join(x for x in (row.message, f"{occ.pole_feet} points without a projection foot (poles) "
+                                            "measured by BRepExtrema to their untrimmed surface") if x)
     row.measure_s = time.perf_counter() - t0
 
 
