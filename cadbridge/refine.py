@@ -514,6 +514,10 @@ def refine_mesh(
                                  float(np.sqrt(np.mean(surf ** 2))), float(np.max(nerr)),
                                  float(np.sqrt(np.mean(nerr ** 2))), n_above, n_inadm, moved, checked,
                                  time.perf_counter() - t0))
+        progress.stage(f"pass {p} done: {len(mesh.nodes)} nodes, max shape error {np.max(np.abs(surf)):.3g} on the loop "
+                       f"grid" + (f", {checked:.3g} on the check" if math.isfinite(checked) else "") +
+                       f", {n_above} elements above {t_loop:.3g}" + (f" (worst: {worst[0]})" if worst else "") +
+                       f", {time.perf_counter() - t0:.0f} s")
         score = checked if math.isfinite(checked) else float(np.max(np.abs(surf)))
         if best is None or met or score < best[0]:
             best = (score, mesh, tools, above_all, floor_p, check if math.isfinite(checked) else None)
