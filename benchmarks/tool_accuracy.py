@@ -555,6 +555,33 @@ def table(rows: list[Row], div: int, max_samples: int) -> str:
     return "\n".join(out)
 
 
+def merge_table(old: str, new: str) -> str:
+    """``old``'s table with the rows of ``new`` put in place of (or beside) the rows of the
+    same (file, element), rows sorted as before; the text before the table is kept, the pass
+    count under it recomputed over the merged rows."""
+    def split(text):
+        lines = text.splitlines()
+        start = next(i for i, ln in enumerate(lines) if ln.startswith("| file |"))
+        end = start + 2
+        while end < len(lines) and lines[end].startswith("| "):
+            end += 1
+        return lines[:start], lines[start:start + 2], lines[start + 2:end], lines[end:]
+
+    pre, head, old_rows, _ = split(old)
+    _, _, new_rows, post = split(new)
+    key = lambda ln: tuple(c.strip() for c in ln.split("|")[1:3])  # noqa: E731
+    rows = {key(ln): ln for ln in old_rows}
+    rows.update({key(ln): ln for ln in new_rows})
+    merged = list(rows.values())
+    n_pass = sum(ln.split("|")[9].strip() == "yes" for ln in merged)
+    n_pass_n = sum("(no)" not in ln.split("|")[14] for ln in merged)
+    foot = [ln for ln in post if ln.strip()]
+    if foot:
+        foot[0] = f"{n_pass} of {len(merged)} pass on the distance ({n_pass_n} on the normal part):" + \
+            foot[0].split(" pass on the distance", 1)[1].split(":", 1)[1]
+    return "\n".join(pre + head + merged + [""] + foot)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--only", default=None, help="only files whose name contains this")
@@ -567,6 +594,8 @@ def main(argv=None) -> int:
     ap.add_argument("--no-retry-allow-worse", action="store_true",
                     help="do not re-run a refused conversion with --allow-worse to measure it")
     ap.add_argument("--output", default=str(RESULTS / "tool_accuracy.md"))
+    ap.add_argument("--merge", action="store_true",
+                    help="replace only the measured (file, element) rows of an existing --output table, keep the rest")
     args = ap.parse_args(argv)
     files = []
     if not args.no_samples:
@@ -603,6 +632,8 @@ def main(argv=None) -> int:
     text = table(rows, args.div, args.max_samples)
     print()
     print(text)
+    if args.merge and Path(args.output).is_file():
+        text = merge_table(Path(args.output).read_text(), text)
     Path(args.output).parent.mkdir(parents=True, exist_ok=True)
     Path(args.output).write_text(text + "\n")
     return 0 if all(r.passed for r in rows) else 1
