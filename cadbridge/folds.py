@@ -10,21 +10,25 @@ quadratic Nagata patch cannot fold, and the exact normal right at the fold is th
 (perpendicular to both sheets), which no patch should take. So
 
 * `fold_lines` finds the fold lines of every face on the exact surface: on each across-line
-  (v-line at fixed u, or u-line at fixed v) the normal reverses between two samples (more
-  than 120 degrees), the fold point is the speed minimum ``S_s . S_ss = 0`` between them
-  (bisection on analytic derivatives), and it is a fold when the across-line's radius of
-  curvature there is below ``1e-5 x`` model size (tighter than any mesh can follow; a
-  real fillet is a radius the mesher resolves). Each line is returned with an exact 3D
-  curve for the mesher (a cubic interpolant of the fold points, refined until it lies on the
-  fold within ``1e-9 x`` model size), so mesh edges follow it (the crease route of
-  `cadbridge.creases`, `mesh.generate.mesh_cad(embed_curves=...)`);
+  (v-line at fixed u, or u-line at fixed v) the normal turns by more than 120 degrees between
+  samples one or two apart; the turn is bisected on the normal, then the fold point is the
+  speed minimum ``S_s . S_ss = 0`` next to it (bisection on analytic derivatives), and it is a
+  fold when the across-line's radius of curvature there is below ``1e-5 x`` model size
+  (tighter than any mesh can follow; a real fillet is a radius the mesher resolves) on a line
+  that is not collapsed (poles are no folds). Each line is returned with a 3D curve for the
+  mesher (a cubic interpolant of the fold points, refined until it lies on the fold within
+  ``1e-9 x`` model size), so mesh edges follow it (the crease route of `cadbridge.creases`,
+  `mesh.generate.mesh_cad(embed_curves=...)`); `folds_for` caches them on the model;
 * `cusp_normal`: the sheets' common tangent plane at the fold, the limit of the normal from
   either side: ``unit(S_t x S_ss)`` (S_t along the line, S_ss the across second derivative;
   at a true cusp S_s = 0 and the sheets are tangent to S_t and S_ss);
-* `apply_fold_normals` gives every element corner at a node on a fold that normal, oriented
-  by the element's winding (one-sided normals: each element keeps its own sheet's side);
+* `apply_fold_normals` gives every element corner at a node on a fold (`fold_nodes`) that
+  normal, oriented by the element's winding (one-sided normals: each element keeps its own
+  sheet's side); where the sheets overlap, a node takes the mesher's (u, v) when that is a
+  foot too, or (`fold_sides`) is re-projected onto its element's sheet;
 * `fold_straddling` names the elements with corners on both sides of a fold (the guard's
-  "straddles a crease"; a user mesh that does so is stopped).
+  "straddles a crease"; a user mesh that does so is stopped);
+* `fold_reference_normals`: the cusp normal for error samples on a fold line.
 
 Fold lines are found where they cross a whole family of across-lines (the same number of
 folds on every line of the family, a line v = f(u) or u = f(v) over the face's domain); a
@@ -44,7 +48,8 @@ from cadbridge.model import Model
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["FoldLine", "Folds", "apply_fold_normals", "cusp_normal", "fold_lines", "fold_straddling", "folds_for"]
+__all__ = ["FoldLine", "Folds", "apply_fold_normals", "cusp_normal", "fold_lines", "fold_nodes", "fold_reference_normals",
+           "fold_sides", "fold_straddling", "folds_for"]
 
 REVERSAL_COS = np.cos(np.radians(120.0))
 """Adjacent samples whose normals are further apart than 120 degrees bracket a turn-back."""
