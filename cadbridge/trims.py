@@ -532,6 +532,24 @@ class LoopBoundary:
             g = self._grids[reach] = _EdgeGrid(self.a, self.b, self.band, reach)
         return g
 
+    def _packed(self):
+        """The loop's edges and NURBS curves in flat arrays for `_contains_kernel` (built once);
+        None if a curve is not a `NurbsCurve` (exactly mapped curves: the numpy path)."""
+        if "_pack" not in self.__dict__:
+            if not all(isinstance(c, NurbsCurve) for c in self.curves):
+                self._pack = None
+            else:
+                pws = [np.ascontiguousarray(c._pw, dtype=float) for c in self.curves]
+                kns = [np.ascontiguousarray(c.knots, dtype=float) for c in self.curves]
+                cpw_off = np.concatenate([[0], np.cumsum([w.size for w in pws])]).astype(np.int64)
+                k_off = np.concatenate([[0], np.cumsum([k.size for k in kns])]).astype(np.int64)
+                self._pack = (np.ascontiguousarray(self.curve, dtype=np.int64), np.ascontiguousarray(self.ta),
+                              np.ascontiguousarray(self.tb), np.concatenate([w.ravel() for w in pws]), cpw_off,
+                              np.array([w.shape[1] - 1 for w in pws], dtype=np.int64), np.concatenate(kns), k_off,
+                              np.array([c.degree for c in self.curves], dtype=np.int64),
+                              np.array([bool(c.rational) for c in self.curves], dtype=np.bool_))
+        return self._pack
+
     def contains(self, uv: np.ndarray, tol: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """(inside (N,) bool, on (N,) bool) for points uv (N, 2) against the exact loop:
         inside the region it encloses (even-odd rule, either orientation), and within
@@ -540,6 +558,14 @@ class LoopBoundary:
         if tol < 0 or not np.isfinite(tol):
             raise ValueError(f"tol must be finite and >= 0, got {tol!r}")
         g = self.grid(tol)
+        packed = self._packed()
+        if packed is not None:  # every curve a NURBS curve: one compiled pass
+            inside = np.empty(len(uv), dtype=bool)
+            on = np.empty(len(uv), dtype=bool)
+            _contains_kernel(np.ascontiguousarray(uv[:, 0]), np.ascontiguousarray(uv[:, 1]), g.x0, g.y0, g.h, g.nx,
+                             g.ny, g.cstart, g.cedges, g.vstart, g.vcross, g.ax, g.ay, g.bx, g.by, g.band,
+                             float(tol), *packed, float(self.size), 60, inside, on)
+            return inside, on
         inside, near = g.classify(uv, tol)
         on = np.zeros(len(uv), dtype=bool)
         ni = np.flatnonzero(near)
@@ -564,9 +590,66 @@ class LoopBoundary:
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_iter, ndu, left, right, sa, nd, aw,
+               cd):  # pragma: no cover - compiled
+    """`_lens` for one pair (point (px, py), edge a -> b of a NURBS curve over [ta, tb]), with
+    the same steps and tests (its docstring); scratch as `_curve_ders_one` (cd (3, >= 2)).
+    Returns (lens, dist)."""
+    dx, dy = bx - ax, by - ay
+    ln = np.sqrt(dx * dx + dy * dy)
+    ll = ln if ln > 0 else 1.0
+    ex, ey = dx / ll, dy / ll  # dirn
+    nx, ny = -ey, ex  # nrm
+    qx, qy = px - ax, py - ay
+    sp = qx * ex + qy * ey
+    npp = qx * nx + qy * ny
+    mid = sp > 0 and sp < ln
+    t = ta + (tb - ta) * min(max(sp / ll, 0.0), 1.0)
+    lo, hi = ta, tb
+    eps = 1e-15 * (size + max(abs(ax), abs(ay)))
+    if mid:
+        for _ in range(max_iter):
+            _curve_ders_one(cpw, knots, deg, rat, t, 1, ndu, left, right, sa, nd, aw, cd)
+            g = (cd[0, 0] - ax) * ex + (cd[0, 1] - ay) * ey - sp
+            gp = cd[1, 0] * ex + cd[1, 1] * ey
+            if g < 0:
+                lo = t
+            if g > 0:
+                hi = t
+            tn = t - g / gp
+            if not (tn > lo and tn < hi):
+                tn = 0.5 * (lo + hi)
+            if (abs(g) <= eps or hi - lo <= 4e-16 * (abs(hi) + abs(lo)) or abs(tn - t) * abs(gp) <= eps):
+                break
+            t = tn
+    _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
+    f = (cd[0, 0] - ax) * nx + (cd[0, 1] - ay) * ny
+    lens = mid and npp * f > 0 and abs(npp) < abs(f)
+    # distance to the arc: Newton on (C - p).C' from the chord's abscissa (or the near end)
+    for _ in range(8):
+        _curve_ders_one(cpw, knots, deg, rat, t, 2, ndu, left, right, sa, nd, aw, cd)
+        rx, ry = cd[0, 0] - px, cd[0, 1] - py
+        g = rx * cd[1, 0] + ry * cd[1, 1]
+        c11 = cd[1, 0] * cd[1, 0] + cd[1, 1] * cd[1, 1]
+        gp = c11 + (rx * cd[2, 0] + ry * cd[2, 1])
+        if not gp > 0:
+            gp = c11 + 1e-300
+        tn = min(max(t - g / gp, ta), tb)
+        moved = abs(tn - t) * np.sqrt(c11) > 1e-15 * size
+        t = tn
+        if not moved:
+            break
+    _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
+    rx, ry = cd[0, 0] - px, cd[0, 1] - py
+    dd = np.sqrt(rx * rx + ry * ry)
+    da = np.sqrt((ax - px) ** 2 + (ay - py) ** 2)
+    db = np.sqrt((bx - px) ** 2 + (by - py) ** 2)
+    return lens, min(dd, min(da, db))
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _lens_kernel(cpw, knots, deg, rat, ta, tb, a, b, p, size, max_iter, lens, dist):  # pragma: no cover - compiled
-    """`_lens` for a NURBS curve, pair by pair, with the same steps and tests (its docstring);
-    writes lens (K,) and dist (K,)."""
+    """`_lens` for a NURBS curve, pair by pair (`_lens_pair`); writes lens (K,) and dist (K,)."""
     dim = cpw.shape[1] - 1
     ndu = np.empty((deg + 1, deg + 1))
     left = np.empty(deg + 1)
@@ -576,57 +659,80 @@ def _lens_kernel(cpw, knots, deg, rat, ta, tb, a, b, p, size, max_iter, lens, di
     aw = np.empty((3, dim + 1))
     cd = np.empty((3, dim))
     for i in range(ta.shape[0]):
-        ax, ay = a[i, 0], a[i, 1]
-        dx, dy = b[i, 0] - ax, b[i, 1] - ay
-        ln = np.sqrt(dx * dx + dy * dy)
-        ll = ln if ln > 0 else 1.0
-        ex, ey = dx / ll, dy / ll  # dirn
-        nx, ny = -ey, ex  # nrm
-        qx, qy = p[i, 0] - ax, p[i, 1] - ay
-        sp = qx * ex + qy * ey
-        npp = qx * nx + qy * ny
-        mid = sp > 0 and sp < ln
-        t = ta[i] + (tb[i] - ta[i]) * min(max(sp / ll, 0.0), 1.0)
-        lo, hi = ta[i], tb[i]
-        eps = 1e-15 * (size + max(abs(ax), abs(ay)))
-        if mid:
-            for _ in range(max_iter):
-                _curve_ders_one(cpw, knots, deg, rat, t, 1, ndu, left, right, sa, nd, aw, cd)
-                g = (cd[0, 0] - ax) * ex + (cd[0, 1] - ay) * ey - sp
-                gp = cd[1, 0] * ex + cd[1, 1] * ey
-                if g < 0:
-                    lo = t
-                if g > 0:
-                    hi = t
-                tn = t - g / gp
-                if not (tn > lo and tn < hi):
-                    tn = 0.5 * (lo + hi)
-                if (abs(g) <= eps or hi - lo <= 4e-16 * (abs(hi) + abs(lo)) or abs(tn - t) * abs(gp) <= eps):
-                    break
-                t = tn
-        _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
-        f = (cd[0, 0] - ax) * nx + (cd[0, 1] - ay) * ny
-        lens[i] = mid and npp * f > 0 and abs(npp) < abs(f)
-        # distance to the arc: Newton on (C - p).C' from the chord's abscissa (or the near end)
-        for _ in range(8):
-            _curve_ders_one(cpw, knots, deg, rat, t, 2, ndu, left, right, sa, nd, aw, cd)
-            rx, ry = cd[0, 0] - p[i, 0], cd[0, 1] - p[i, 1]
-            g = rx * cd[1, 0] + ry * cd[1, 1]
-            c11 = cd[1, 0] * cd[1, 0] + cd[1, 1] * cd[1, 1]
-            gp = c11 + (rx * cd[2, 0] + ry * cd[2, 1])
-            if not gp > 0:
-                gp = c11 + 1e-300
-            tn = min(max(t - g / gp, ta[i]), tb[i])
-            moved = abs(tn - t) * np.sqrt(c11) > 1e-15 * size
-            t = tn
-            if not moved:
-                break
-        _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
-        rx, ry = cd[0, 0] - p[i, 0], cd[0, 1] - p[i, 1]
-        dd = np.sqrt(rx * rx + ry * ry)
-        da = np.sqrt((ax - p[i, 0]) ** 2 + (ay - p[i, 1]) ** 2)
-        db = np.sqrt((b[i, 0] - p[i, 0]) ** 2 + (b[i, 1] - p[i, 1]) ** 2)
-        dist[i] = min(dd, min(da, db))
+        lens[i], dist[i] = _lens_pair(cpw, knots, deg, rat, ta[i], tb[i], a[i, 0], a[i, 1], b[i, 0], b[i, 1],
+                                      p[i, 0], p[i, 1], size, max_iter, ndu, left, right, sa, nd, aw, cd)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _contains_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, ax, ay, bx, by, band, tol,
+                     ecurve, eta, etb, cpw, cpw_off, cdim, knots, k_off, deg, rat, size, max_iter, inside,
+                     on):  # pragma: no cover - compiled
+    """`LoopBoundary.contains` in one pass for a loop of NURBS curves (packed: control nets
+    cpw[cpw_off[c]:cpw_off[c+1]] of shape (n, cdim[c] + 1), knots[k_off[c]:k_off[c+1]]):
+    the parity of `_classify_kernel`; for points near an edge, the pairs of `_pairs_kernel`,
+    straight edges deciding ``on`` by their distance, curved ones flipping the parity where
+    the point lies between chord and arc (`_lens_pair`). Same tests, same results."""
+    pmax = 0
+    dmax = 2
+    for c in range(deg.shape[0]):
+        pmax = max(pmax, deg[c])
+        dmax = max(dmax, cdim[c])
+    ndu = np.empty((pmax + 1, pmax + 1))
+    left = np.empty(pmax + 1)
+    right = np.empty(pmax + 1)
+    sa = np.empty((2, pmax + 1))
+    nd = np.empty((3, pmax + 1))
+    aw = np.empty((3, dmax + 1))
+    cd = np.empty((3, dmax))
+    for i in range(pu.size):
+        x = pu[i]
+        y = pv[i]
+        ci = int(np.floor((x - x0) / h))
+        cj = int(np.floor((y - y0) / h))
+        if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
+            inside[i] = False
+            on[i] = False
+            continue
+        xr = x0 + (ci + 1) * h
+        lo = vstart[ci]
+        hi = vstart[ci + 1]
+        base = lo
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if vcross[mid] <= y:
+                lo = mid + 1
+            else:
+                hi = mid
+        cnt = lo - base
+        xa = min(x, xr)
+        xb = max(x, xr)
+        cell = cj * nx + ci
+        flips = 0
+        o = False
+        for q in range(cstart[cell], cstart[cell + 1]):
+            k = cedges[q]
+            y1 = ay[k]
+            y2 = by[k]
+            if (y1 > y) != (y2 > y):
+                uc = ax[k] + (y - y1) * (bx[k] - ax[k]) / (y2 - y1)
+                if uc > xa and uc <= xb:
+                    cnt += 1
+            d = _seg_dist(x, y, ax[k], ay[k], bx[k], by[k])
+            if d <= band[k] + tol:
+                if band[k] == 0.0:
+                    if d <= tol:
+                        o = True
+                else:
+                    c = ecurve[k]
+                    pw = cpw[cpw_off[c] : cpw_off[c + 1]].reshape((-1, cdim[c] + 1))
+                    ln, dd = _lens_pair(pw, knots[k_off[c] : k_off[c + 1]], deg[c], rat[c], eta[k], etb[k], ax[k],
+                                        ay[k], bx[k], by[k], x, y, size, max_iter, ndu, left, right, sa, nd, aw, cd)
+                    if ln:
+                        flips += 1
+                    if dd <= tol:
+                        o = True
+        inside[i] = ((cnt % 2) == 1) != ((flips % 2) == 1)
+        on[i] = o
 
 
 def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
