@@ -119,13 +119,16 @@ def test_a_point_whose_newton_fails_at_a_pole_is_restarted():
     """A flat-mesh sample 0.96 mm from the pole of the SolidWorks part's R10 sphere face
     (face 0): Newton from the pole's samples stalled there (FAILED), and the error
     measurement of `convert --element quad` stopped. Reference: the analytic sphere of that
-    face, centre (0, -115, 0), radius 10 (its control net's circle), distance |p - c| - 10."""
+    face, centre (0, -115, 0), radius 10 (its control net's circle), distance |p - c| - 10.
+    (The point mirrored to the face's other pole, y = -125: the face is the lower cap since it
+    is read from its generatrix arc's start, `cadbridge.iges.arc_convention`; the surface and
+    its parametrisation are the same.)"""
     from cadbridge.iges import read_iges
     from cadbridge.nurbs.project import CONVERGED, project_to_surface
     from cadbridge.search import project_points
 
     model = read_iges(REAL / "occt_bug22566_SolidWorks2010.igs")
-    p = np.array([[0.3354439, -105.13427562, -0.89789149]])
+    p = np.array([[0.3354439, -124.86572438, -0.89789149]])
     ref = np.linalg.norm(p[0] - [0.0, -115.0, 0.0]) - 10.0
     r = project_to_surface(model.faces[0].surface, p)
     assert r.status[0] == CONVERGED

@@ -15,8 +15,9 @@ face: `Face.trim_delta` where the reader computed it, else the largest OCC toler
 face's edges (`BRep_Tool.Tolerance`, which OCC's IGES transfer sets from that disagreement);
 at least 1e-9 x size. A point uses the larger delta of our face and OCC's (paired by order,
 as in tests/test_iges_real.py). Not a single file-wide maximum: OCC's edge tolerances reach
-1.3 % of the bearing's size on a few edges (median 1e-7), and `Face.trim_delta` reports
-14.1 (10 sqrt 2) on four of nine faces of the 108-mm SolidWorks part.
+1.3 % of the bearing's size on a few edges (median 1e-7), and `Face.trim_delta` reported
+14.1 (10 sqrt 2) on four of nine faces of the 108-mm SolidWorks part before those were read
+from their generatrix arc's start (now 1e-7).
 
 Faces the reader leaves untrimmed (entity 510 whose loops have no parameter-space curves,
 reported by a reader diagnostic; SolidEdge, Inventor) are a known reader limit: points whose
@@ -182,7 +183,12 @@ def test_project_points_exact_vs_occ(path: Path):
 
     model = read_iges(path)
     size = model.size()
-    shape = occ_read_shape(path)
+    from cadbridge.mesh_source import mesh_source
+
+    # faces the reader re-read (the SolidWorks sphere caps, `cadbridge.iges.arc_convention`):
+    # OCC reads them from the file's model-space curves, as the mesher does
+    with mesh_source(path, model) as src:
+        shape = occ_read_shape(src)
     faces, edges = _faces_edges(shape)
     face_set = _compound(faces)  # not the solid: a point inside a solid is at distance 0 from it
     edge_set = _compound(edges)

@@ -40,19 +40,23 @@ class ArcRepair:
     delta_standard  max |S(c2d(t)) - C3d| with the generatrix parameter read as the angle
     delta_repaired  the same with it read from the arc's start, or None when not tried
     mapped          the loops of the repaired reading (None: keep the standard reading)
+    poles_closed    loops of that reading closed by a degenerate edge at a pole (`close_at_poles`)
     """
 
     delta_standard: float
     delta_repaired: float | None = None
     mapped: MappedLoops | None = None
+    poles_closed: int = 0
 
     def note(self, size: float) -> str:
         """The reader's diagnostic for a repaired face (one line)."""
         return (f"parameter-space curves over the revolution surface measure the generatrix arc from its start "
                 f"point, not by its angle (IGES 5.3, entity 100): read by the angle they miss the model-space "
-                f"curves by {self.delta_standard:.3g} ({self.delta_standard / size:.3g} x size) and trim the "
+                f"curves by {self.delta_standard:.3g} ({self.delta_standard / size:.3g} x the surface size) and trim the "
                 f"other part of the arc; read from the start they agree within {self.delta_repaired:.3g}, "
-                f"so that reading trims the face")
+                f"so that reading trims the face"
+                + (f" (its loop closed by the degenerate edge at the pole that the file leaves out)"
+                   if self.poles_closed else ""))
 
 
 def arc_start_map(pm: ParamMap) -> ParamMap | None:
@@ -86,9 +90,11 @@ def repair_arc_start(pm: ParamMap, loops: list, has_outer: bool, res: MappedLoop
     mapped_pairs the reader's `Builder._mapped_pairs`
 
     The standard reading stays unless its delta exceeds ``disagree_rel`` x size and the
-    reading from the arc's start closes every loop and agrees within ``agree_rel`` x size."""
+    reading from the arc's start closes every loop and agrees within ``agree_rel`` x size.
+    Also None (nothing measured: the reader's deferred delta stays) when every loop's
+    vertices lie on its model-space curves (`_vertices_off`)."""
     alt = arc_start_map(pm)
-    if alt is None:
+    if alt is None or not _vertices_off(pm, res, loops, disagree_rel * size):
         return None
     d = float(loop_deltas([(res.surface, pairs)])[0])
     if np.isnan(d) or d <= disagree_rel * size:
@@ -97,6 +103,7 @@ def repair_arc_start(pm: ParamMap, loops: list, has_outer: bool, res: MappedLoop
         res2 = map_loops(alt, loops, has_outer, True)
     except ValueError:
         return ArcRepair(d)
+    n_open = sum(not c for c in res2.closed())
     res2 = close_at_poles(res2, agree_rel * size)
     pairs2 = mapped_pairs(res2, loops)
     if pairs2 is None or not all(res2.closed()):
@@ -104,7 +111,37 @@ def repair_arc_start(pm: ParamMap, loops: list, has_outer: bool, res: MappedLoop
     d2 = float(loop_deltas([(res2.surface, pairs2)])[0])
     if np.isnan(d2) or d2 > agree_rel * size:
         return ArcRepair(d, d2)
-    return ArcRepair(d, d2, res2)
+    return ArcRepair(d, d2, res2, n_open)
+
+
+def _end_points(c: NurbsCurve) -> np.ndarray:
+    """The points at both ends of ``c``'s domain, (2, dim): the end control points when the
+    knot vector is clamped there (no evaluation), else evaluated."""
+    p, k = c.degree, np.asarray(c.knots)
+    if c.domain[0] == k[0] == k[p] and c.domain[1] == k[-1] == k[-1 - p]:
+        return np.asarray(c.control_points)[[0, -1]]
+    return np.asarray(c.evaluate(np.array(c.domain, dtype=float)))
+
+
+def _vertices_off(pm: ParamMap, res: MappedLoops, loops: list, tol: float) -> bool:
+    """Whether some loop vertex of the standard reading (a parameter-space piece's end, through
+    ``pm``) lies farther than ``tol`` from every end of the loop's model-space pieces: the
+    cheap test before the trim delta (two vectorised evaluations per face). In a file that is
+    right the vertices are the model curves' ends; where they are not (pieces split
+    elsewhere), the full check only costs time."""
+    for raw in loops:
+        mcs = [c for _, m in raw if m is not None for c in m]
+        pcs = [c for pc, _ in raw if pc is not None for c in pc]
+        if not mcs or not pcs:
+            continue
+        st = np.vstack([_end_points(c)[:, :2] for c in pcs])
+        uv = pm.uv_fn(pm.pcurve_fn(st), None, None)
+        x = res.surface.evaluate(uv[:, 0], uv[:, 1])
+        ends = np.vstack([_end_points(m) for m in mcs])
+        d = np.linalg.norm(x[:, None, :] - ends[None, :, :], axis=2).min(axis=1)
+        if float(d.max()) > tol:
+            return True
+    return False
 
 
 def close_at_poles(res: MappedLoops, tol: float, samples: int = 9) -> MappedLoops:
