@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -94,6 +95,7 @@ class Row:
     node_gap: float = 0.0  # max distance of an element's corner nodes to its face's surface
     exit_code_first: int | None = None  # of the plain convert, when a retry with --allow-worse followed
     beyond_border: int = 0  # samples beyond their face's surface border measured to the trimmed faces
+    cpu: tuple = (float("nan"), float("nan"))  # (CPU s of the first convert, 1-min load average after it)
 
     def _ok(self, nag: float, flat: float) -> bool:
         if self.exit_code != 0 or self.refused or self.unassigned or self.no_projection or not self.rebuild_dev <= 1e-9:
@@ -132,11 +134,18 @@ def cadbridge_cmd() -> list[str]:
     return [sys.executable, "-c", "import sys; from cadbridge.cli import main; sys.exit(main())"]
 
 
+LAST_CPU = [float("nan"), float("nan")]  # CPU seconds of the last convert subprocess, 1-min load after it
+
+
 def run_convert(cad: Path, out: Path, element: str, timeout: float, extra: list[str]) -> tuple[int | None, float, str]:
     cmd = cadbridge_cmd() + ["convert", str(cad), "-o", str(out), "--element", element] + extra
     t0 = time.perf_counter()
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     try:
         p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        LAST_CPU[0] = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+        LAST_CPU[1] = os.getloadavg()[0]
     except subprocess.TimeoutExpired as exc:
         err = (exc.stderr or b"")
         err = err.decode(errors="replace") if isinstance(err, bytes) else err
@@ -507,13 +516,15 @@ def _r(x: float) -> str:
     return f"{x:.3f}" if np.isfinite(x) else "-"
 
 
-def table(rows: list[Row], div: int, max_samples: int) -> str:
+def table(rows: list[Row], div: int, max_samples: int, args_cpu: bool = False) -> str:
     head = ("| file | element | tools | elements (measured) | samples | Nagata max dist [mm] | flat max dist [mm] | "
             "ratio | pass | corner-node gap [mm] | rebuild dev / size | Nagata max normal part [mm] | flat max normal part [mm] | ratio (normal part) | "
             "convert [s] | measure [s] | note |")
     out = [head, "|" + "---|" * 17]
     for r in rows:
         notes = []
+        if args_cpu and np.isfinite(r.cpu[0]):
+            notes.append(f"convert CPU {r.cpu[0]:.1f} s (load {r.cpu[1]:.1f})")
         if r.refused:
             notes.append(f"convert exit {r.exit_code_first}: {r.message}; measured with --allow-worse")
         elif r.exit_code != 0:
@@ -594,6 +605,7 @@ def main(argv=None) -> int:
     ap.add_argument("--no-retry-allow-worse", action="store_true",
                     help="do not re-run a refused conversion with --allow-worse to measure it")
     ap.add_argument("--output", default=str(RESULTS / "tool_accuracy.md"))
+    ap.add_argument("--cpu", action="store_true", help="note each convert's CPU time and the load average in the row")
     ap.add_argument("--merge", action="store_true",
                     help="replace only the measured (file, element) rows of an existing --output table, keep the rest")
     args = ap.parse_args(argv)
@@ -612,6 +624,7 @@ def main(argv=None) -> int:
                 out = Path(tmp) / "out"
                 row.exit_code, row.convert_s, row.message = run_convert(cad, out, el, args.timeout, [])
                 row.exit_code_first = row.exit_code
+                row.cpu = tuple(LAST_CPU)
                 if row.exit_code == 1 and not args.no_retry_allow_worse:
                     row.refused = True
                     code, dt, msg = run_convert(cad, out, el, args.timeout, ["--allow-worse"])
@@ -629,7 +642,7 @@ def main(argv=None) -> int:
             print(f"{row.file:42s} {el:4s} exit {row.exit_code} {row.convert_s:7.1f} s  nagata {row.nagata:.3e} "
                   f"flat {row.flat:.3e} ratio {row.ratio:.4f} {'pass' if row.passed else 'FAIL'} {row.message[:150]}",
                   flush=True)
-    text = table(rows, args.div, args.max_samples)
+    text = table(rows, args.div, args.max_samples, args.cpu)
     print()
     print(text)
     if args.merge and Path(args.output).is_file():
