@@ -1,0 +1,232 @@
+"""Trim-loop excursions: stretches of a trim loop that run back beside themselves.
+
+A face whose trim edge follows a neighbour's folded edge (`cadbridge.folds`) inherits the fold
+in its own (u, v): in `occt_OCC131-2_ANSA9.igs`, FACE(401)'s loop runs down curve 5 (1-based)
+to v = 1.8286, turns back up to v = 1.8449 and down again (a Z of two hairpins), its strands
+0.03-0.25 mm apart in model space. The loop is simple (OCC's CheckSelfIntersection agrees),
+but the finger and the notch it encloses are far narrower than any element, so a mesher
+that follows the loop puts elements across them (gmsh: inside out).
+
+`find_excursions` finds such stretches on the exact trim curves: the loop is sampled at exact
+curve parameters (64 per knot span) and mapped through the surface, S(c(t)); an excursion is
+a pair of loop points X, Y whose model-space chord |XY| is at most ``width`` while the loop
+runs ``arc(X -> Y) > RATIO x |XY|`` between them (a neighbour pair has arc ~ |XY|). Among the
+candidate pairs (a KD-tree's pairs within ``width``) the one with the largest
+``arc - RATIO x |XY|`` is taken: it covers the whole retrace with the shortest chord.
+``width`` defaults to max(4 x the face's trim tolerance delta, 1e-3 x model size): below the
+file's own accuracy, or far below any element a forming mesh uses.
+
+`heal_excursions` cuts each excursion out of its loop: the curve holding X ends at X (its
+domain shortened, the exact curve kept), a straight (u, v) segment joins X to Y, the curve
+holding Y starts at Y. The loop cadbridge classifies with then has no sliver; the removed
+(u, v) area is reported (it is the sliver's signed area, finger minus notch).
+
+Limitations: a real slot narrower than ``width`` and longer than ``RATIO / 2 x`` its width
+would be cut as well (no such slot is in the samples or the corpus; the tests check that only
+FACE(401) of ANSA9 has an excursion).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cadbridge.model import Face, Model, TrimLoop
+from cadbridge.nurbs.curve import NurbsCurve
+
+__all__ = ["Excursion", "find_excursions", "heal_excursions", "RATIO", "SAMPLES_PER_SPAN"]
+
+RATIO = 20.0
+"""An excursion's loop length between X and Y exceeds RATIO x its chord |XY|."""
+SAMPLES_PER_SPAN = 64
+"""Exact curve samples per knot span (the candidates' resolution along the loop)."""
+
+
+@dataclass(frozen=True)
+class Excursion:
+    """One excursion of a trim loop.
+
+    face_de, face_name : the face (top-level DE, name); loop : 0 the outer loop, i >= 1 hole i-1.
+    cut : ((curve index, parameter) of X, (curve index, parameter) of Y), 0-based curve indices.
+    start, end : X and Y in model space, (3,); chord : |XY|; length : loop length X -> Y
+    (model units); uv_area : signed (u, v) area of the loop stretch X -> Y closed by the chord
+    (counter-clockwise positive; ~0 for a Z, finger and notch cancel)."""
+
+    face_de: int
+    face_name: str | None
+    loop: int
+    cut: tuple[tuple[int, float], tuple[int, float]]
+    start: np.ndarray
+    end: np.ndarray
+    chord: float
+    length: float
+    uv_area: float
+
+    def __str__(self) -> str:
+        x = self.start
+        return (f"{self.face_name or 'face'} (DE {self.face_de}) loop {self.loop}: trim loop runs back beside "
+                f"itself for {self.length:.3g} within {self.chord:.3g} at ({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g}); "
+                f"cut out (curve {self.cut[0][0] + 1} to curve {self.cut[1][0] + 1}, 1-based)")
+
+
+def _loops(face: Face) -> list[TrimLoop | None]:
+    t = face.trims
+    if t is None:
+        return []
+    return [t.outer] + list(t.inner)
+
+
+def _samples(face: Face, loop: TrimLoop) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Loop samples: curve index (M,), parameter (M,), uv (M, 2), xyz (M, 3); each curve's
+    last sample dropped (the next curve starts there), the loop not closed."""
+    ci, ts, uvs = [], [], []
+    for i, c in enumerate(loop.curves):
+        t = c.sample_parameters(SAMPLES_PER_SPAN)[:-1]
+        ci.append(np.full(len(t), i))
+        ts.append(t)
+        uvs.append(c.evaluate(t)[:, :2])
+    uv = np.concatenate(uvs)
+    xyz = face.surface.evaluate(uv[:, 0], uv[:, 1])
+    return np.concatenate(ci), np.concatenate(ts), uv, xyz
+
+
+def _best_pair(xyz: np.ndarray, uv: np.ndarray, width: float) -> tuple[int, int, float, float] | None:
+    """Indices (i, j) along the closed sample loop with the stretch i -> j (forward, wrapping)
+    an excursion: model-space chord <= width, arc > RATIO x chord both in model space and in
+    (u, v) (a loop that folds only in model space, along a folded surface's edge, is straight
+    in its own (u, v): that is `cadbridge.folds`' case, not a trim defect), arc - RATIO x chord
+    largest; with the chord and the arc. None if there is none."""
+    n = len(xyz)
+
+    def arcs(p):
+        seg = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+        return np.concatenate([[0.0], np.cumsum(seg)])  # s[k]: arc from sample 0 to k; s[n] the loop
+
+    s, q = arcs(xyz), arcs(uv)
+    pairs = cKDTree(xyz).query_pairs(width, output_type="ndarray")
+    if len(pairs) == 0:
+        return None
+    a, b = pairs[:, 0], pairs[:, 1]  # a < b
+    d = np.linalg.norm(xyz[a] - xyz[b], axis=1)
+    fwd = s[b] - s[a]
+    # the excursion is the shorter way round (the rest of the loop is the face itself)
+    use_fwd = fwd <= s[n] - fwd
+    arc = np.where(use_fwd, fwd, s[n] - fwd)
+    qf = q[b] - q[a]
+    uv_arc = np.where(use_fwd, qf, q[n] - qf)
+    uv_d = np.linalg.norm(uv[a] - uv[b], axis=1)
+    score = np.where(uv_arc > RATIO * uv_d, arc - RATIO * d, -np.inf)
+    k = int(np.argmax(score))
+    if not score[k] > 0:
+        return None
+    i, j = (int(a[k]), int(b[k])) if use_fwd[k] else (int(b[k]), int(a[k]))
+    return i, j, float(d[k]), float(arc[k])
+
+
+def default_width(face: Face, size: float) -> float:
+    """The excursion width of a face: max(4 x its trim tolerance delta, 1e-3 x model size)."""
+    delta = face.trim_delta
+    return max(4.0 * (delta or 0.0), 1e-3 * size)
+
+
+def find_excursions(model: Model, width: float | None = None, faces: list[int] | None = None) -> list[Excursion]:
+    """The excursions of the trim loops of ``model`` (one per loop at most; `heal_excursions`
+    cuts repeatedly), for the face indices ``faces`` (default all). ``width`` in model units
+    (default `default_width` per face). Plain data; the model is not changed."""
+    out = []
+    size = model.size()
+    for fi in range(len(model.faces)) if faces is None else faces:
+        f = model.faces[fi]
+        for li, lp in enumerate(_loops(f)):
+            if lp is None or not lp.curves:
+                continue
+            e = _loop_excursion(f, li, lp, default_width(f, size) if width is None else width)
+            if e is not None:
+                out.append(e)
+    return out
+
+
+def _loop_excursion(f: Face, li: int, lp: TrimLoop, width: float) -> Excursion | None:
+    ci, ts, uv, xyz = _samples(f, lp)
+    best = _best_pair(xyz, uv, width)
+    if best is None:
+        return None
+    i, j, d, arc = best
+    idx = np.arange(i, j + 1) if i <= j else np.concatenate([np.arange(i, len(uv)), np.arange(0, j + 1)])
+    p = uv[idx]
+    area = 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+    return Excursion(f.de, f.name, li, ((int(ci[i]), float(ts[i])), (int(ci[j]), float(ts[j]))),
+                     xyz[i].copy(), xyz[j].copy(), d, arc, area)
+
+
+def _restricted(c: NurbsCurve, t0: float, t1: float) -> NurbsCurve:
+    """``c`` on the domain [t0, t1] (the same exact curve, fewer of it)."""
+    return NurbsCurve(c.degree, c.knots, c.control_points, c.weights, domain=(t0, t1))
+
+
+def _segment(a: np.ndarray, b: np.ndarray) -> NurbsCurve:
+    """The straight (u, v) segment a -> b as a degree-1 curve on [0, 1]."""
+    return NurbsCurve(1, [0.0, 0.0, 1.0, 1.0], np.array([a, b], dtype=float))
+
+
+def cut_loop(lp: TrimLoop, e: Excursion) -> TrimLoop:
+    """``lp`` with the stretch X -> Y of ``e`` replaced by the (u, v) chord X -> Y.
+
+    The loop is rotated to start at the curve holding Y, so X's curve comes last: [Y's curve
+    from Y, ..., X's curve up to X, chord]. Model-space counterparts are dropped (the healed
+    loop has none for the chord); the face keeps the trim tolerance measured before."""
+    (cx, tx), (cy, ty) = e.cut
+    curves = lp.curves
+    n = len(curves)
+    x_uv = curves[cx].evaluate(np.array([tx]))[0, :2]
+    y_uv = curves[cy].evaluate(np.array([ty]))[0, :2]
+    out: list[NurbsCurve] = []
+    if cx == cy and tx < ty:  # X and Y on one curve, Y after X: the stretch inside it
+        c = curves[cx]
+        if ty < c.domain[1]:
+            out.append(_restricted(c, ty, c.domain[1]))
+        out += [curves[(cx + k) % n] for k in range(1, n)]
+        if tx > c.domain[0]:
+            out.append(_restricted(c, c.domain[0], tx))
+    else:
+        cy_c = curves[cy]
+        if ty < cy_c.domain[1]:
+            out.append(_restricted(cy_c, ty, cy_c.domain[1]))
+        k = (cy + 1) % n
+        while k != cx:
+            out.append(curves[k])
+            k = (k + 1) % n
+        cx_c = curves[cx]
+        if tx > cx_c.domain[0]:
+            out.append(_restricted(cx_c, cx_c.domain[0], tx))
+    out.append(_segment(x_uv, y_uv))
+    return TrimLoop(out, None)
+
+
+def heal_excursions(model: Model, width: float | None = None, max_cuts: int = 4) -> list[Excursion]:
+    """Cut every excursion (`find_excursions`) out of its loop, in place: each loop is cut
+    until it has none (at most ``max_cuts`` times). Each face's trim tolerance is read before
+    (it is measured on the file's curves). Returns the excursions cut, in order."""
+    done = []
+    size = model.size()
+    for f in model.faces:
+        if f.trims is None:
+            continue
+        w = default_width(f, size) if width is None else width  # reads trim_delta first
+        for li in range(1 + len(f.trims.inner)):
+            for _ in range(max_cuts):
+                lp = f.trims.outer if li == 0 else f.trims.inner[li - 1]
+                if lp is None or not lp.curves:
+                    break
+                e = _loop_excursion(f, li, lp, w)
+                if e is None:
+                    break
+                new = cut_loop(lp, e)
+                if li == 0:
+                    f.trims.outer = new
+                else:
+                    f.trims.inner[li - 1] = new
+                done.append(e)
+    return done
