@@ -201,18 +201,22 @@ def cmd_mesh(args: argparse.Namespace) -> int:
 
         with Progress("cadbridge mesh") as progress:
             return mesh_command(args, progress, _say)
-    creases = crease_lines(read_iges(args.cad))  # C0 knot lines inside faces become mesh edges
-    mesh = mesh_cad(
-        args.cad,
-        element=args.element,
-        size=args.size,
-        structured=args.structured,
-        radius_divisions=args.radius_divisions,
-        length_divisions=args.length_divisions,
-        curvature_elements=args.curvature_elements,
-        embed_curves=[c.curve for c in creases],
-        mesher=args.mesher,
-    )
+    from cadbridge.mesh_source import mesh_source
+
+    model = read_iges(args.cad)
+    creases = crease_lines(model)  # C0 knot lines inside faces become mesh edges
+    with mesh_source(args.cad, model) as source:  # faces the reader re-read: meshed as it read them
+        mesh = mesh_cad(
+            source,
+            element=args.element,
+            size=args.size,
+            structured=args.structured,
+            radius_divisions=args.radius_divisions,
+            length_divisions=args.length_divisions,
+            curvature_elements=args.curvature_elements,
+            embed_curves=[c.curve for c in creases],
+            mesher=args.mesher,
+        )
     write_mesh(mesh, args.output)
     n_el = sum(len(b.data) for b in mesh.cells)
     _say(f"wrote {args.output}: {len(mesh.nodes)} nodes, {n_el} elements")

@@ -22,7 +22,7 @@ from typing import Iterator
 
 from cadbridge.model import Model
 
-__all__ = ["reread_faces", "mesh_source", "prefer_model_space"]
+__all__ = ["reread_faces", "mesh_source", "prefer_model_space", "write_mesh_source"]
 
 
 def reread_faces(model: Model) -> list[int]:
@@ -103,23 +103,30 @@ def prefer_model_space(text: str, faces: list[int]) -> tuple[str, list[int]]:
     return "\n".join(lines), changed
 
 
+def write_mesh_source(cad: str | Path, model: Model, folder: str | Path) -> Path:
+    """The file the mesher should read for ``cad`` as ``model`` says: ``cad`` itself unless the
+    reader re-read faces, else the copy of `prefer_model_space` written into ``folder`` (same
+    file name; the caller owns the folder)."""
+    cad = Path(cad)
+    faces = reread_faces(model)
+    if not faces:
+        return cad
+    text, changed = prefer_model_space(cad.read_bytes().decode("latin-1"), faces)
+    if not changed:
+        return cad
+    copy = Path(folder) / cad.name
+    copy.write_bytes(text.encode("latin-1"))
+    return copy
+
+
 @contextmanager
 def mesh_source(cad: str | Path, model: Model) -> Iterator[Path]:
     """Path of the file the mesher should read for ``cad`` as ``model`` (its reading by
     `cadbridge.read_iges`) says: ``cad`` itself unless the reader re-read faces, else a
     temporary copy with those faces' 142s preferring their model-space curves
     (`prefer_model_space`), removed on exit."""
-    cad = Path(cad)
-    faces = reread_faces(model)
-    if not faces:
-        yield cad
-        return
-    raw = cad.read_bytes()
-    text, changed = prefer_model_space(raw.decode("latin-1"), faces)
-    if not changed:
-        yield cad
+    if not reread_faces(model):
+        yield Path(cad)
         return
     with tempfile.TemporaryDirectory(prefix="cadbridge-mesh-") as tmp:
-        copy = Path(tmp) / cad.name
-        copy.write_bytes(text.encode("latin-1"))
-        yield copy
+        yield write_mesh_source(cad, model, tmp)

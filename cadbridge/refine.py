@@ -387,8 +387,11 @@ def refine_mesh(
     check: dict = {}
     tmp = tempfile.TemporaryDirectory(prefix="cadbridge-refine-")
     progress.stage(f"reading and sewing {cad.name} once for all passes (OCC BREP)")
-    geometry = _sewn_brep(cad, Path(tmp.name) / (cad.stem + ".brep"))
-    mesh_kw["sew"] = geometry == cad  # the BREP is sewn already
+    from cadbridge.mesh_source import write_mesh_source  # faces the reader re-read: as it read them
+
+    source = write_mesh_source(cad, model, tmp.name)
+    geometry = _sewn_brep(source, Path(tmp.name) / (cad.stem + ".brep"))
+    mesh_kw["sew"] = geometry == source  # the BREP is sewn already
     prev_nodes = None
     for p in range(1, max_passes + 1):
         t0 = time.perf_counter()
