@@ -130,7 +130,11 @@ def _face_loops(g, s: int) -> list[tuple]:
             cur.k.append(j)
             cur.even.append(n % 2 == 0)
         prev_uv = uv[-1]
-        if tags[-1] == first_tag:  # the loop closed
+        # the loop closed: back at its first node, and in (u, v) too (a closed curve around a
+        # periodic face, e.g. a cylinder's circle before its seam, ends where it began in 3D
+        # but one period away in (u, v))
+        span = float(np.ptp(np.concatenate(cur.uv).reshape(-1, 2), axis=0).max()) if len(cur.uv) > 1 else 0.0
+        if tags[-1] == first_tag and np.linalg.norm(uv[-1] - cur.uv[0]) <= 1e-2 * max(span, 1e-300):
             loops.append(cur.arrays())
             cur, prev_uv = None, None
     if cur is not None:

@@ -534,10 +534,10 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         "Mesh.SubdivisionAlgorithm": 0,
         # gmsh retries a face whose 1D mesh crosses itself in (u, v) after splitting edges there:
         # with recombination each retry costs more (the Inventor spring: > 200 s at the default
-        # 10), and where it succeeds it fills zero-width cusp strips with sliver triangles
-        # (nodes 1e-13 apart, corner normals reversed). Faces still empty after one retry are
-        # meshed by cadbridge.mesh.empty_faces, which cuts such strips off.
-        "Mesh.MaxRetries": 1,
+        # 10), and where a retry succeeds it fills zero-width cusp strips with slivers (nodes
+        # 1e-13 apart, corner normals reversed, quads folded). No retry: such faces stay empty
+        # and cadbridge.mesh.empty_faces meshes them, cutting those strips off.
+        "Mesh.MaxRetries": 0,
     }
     _apply(sess, mopts)
     if kw["size_callback"] is not None:
