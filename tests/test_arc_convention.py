@@ -68,13 +68,15 @@ def _quarter(c, p0, p2) -> list[str]:
             + ["0.", "1."] + [_r(x) for x in n])
 
 
-def sphere_cap_file(convention: str, pole_edge: bool = True, pref: int = 1, upper: bool = False) -> str:
+def sphere_cap_file(convention: str, pole_edge: bool = True, pref: int = 1, upper: bool = False,
+                    pcurves: bool = True) -> str:
     """The quarter sphere y < 0, z < 0 as a 144 over a 120 (see the module docstring).
 
     convention "start": parameter-space s measured from the arc's start (SolidWorks 2010);
     "angle": s is the arc's angle (IGES 5.3). pole_edge False leaves out the degenerate
     parameter-space edge at the pole (as DE 351 of the SolidWorks file does). upper: the
-    model-space curves bound the quarter y > 0, z < 0 instead."""
+    model-space curves bound the quarter y > 0, z < 0 instead. pcurves False: the 142 has
+    only its model-space curves (BPTR 0)."""
     s0 = HALF_PI if convention == "start" else math.pi  # s at the equator
     s1 = s0 + HALF_PI  # s at the pole (0, -R, 0)
     dep = "00010000"  # physically dependent: only the 144 is a top-level face
@@ -105,7 +107,7 @@ def sphere_cap_file(convention: str, pole_edge: bool = True, pref: int = 1, uppe
     b_de = mfirst + 2 * len(m)
     e.append((102, [str(len(pdes))] + [str(d) for d in pdes], dep))
     e.append((102, [str(len(mdes))] + [str(d) for d in mdes], dep))
-    e.append((142, ["1", "5", str(b_de), str(b_de + 2), str(pref)], dep))
+    e.append((142, ["1", "5", str(b_de) if pcurves else "0", str(b_de + 2), str(pref)], dep))
     e.append((144, ["5", "1", "0", str(b_de + 4)], "00000000"))
     return _iges(e)
 
@@ -261,3 +263,29 @@ def test_solidworks_converts(tmp_path, element):
     for t in r.tools:
         assert t.stats["max_abs_surface_error"] <= 0.25 * t.stats["max_abs_flat_surface_error"]
         assert not t.diagnosis
+
+
+def test_model_space_only_cap_inverted_exactly(tmp_path):
+    # the cap with its model-space curves alone: the reader inverts them onto the surface
+    # (InvertedCurve); reference: the analytic quarter sphere, and central differences for the
+    # pieces' derivatives (the coverage DE 351 of the SolidWorks file gave before it was read
+    # from its parameter-space curves)
+    from cadbridge.iges.analytic import InvertedCurve
+
+    p = tmp_path / "cap.igs"
+    p.write_text(sphere_cap_file("start", pcurves=False))
+    m = cadbridge.read_iges(p)
+    f = m.faces[0]
+    assert reread_faces(m) == []
+    x = _inside_points(f)
+    assert len(x) > 500 and x[:, 1].max() <= 1e-9 * R and x[:, 2].max() <= 1e-9 * R
+    inv = [c for c in f.trims.outer.curves if isinstance(c, InvertedCurve)]
+    assert len(inv) >= 3
+    for c in inv:
+        t0, t1 = c.domain
+        t = np.linspace(t0, t1, 23)[2:-2]
+        uv = c.evaluate(t)
+        assert np.allclose(np.linalg.norm(f.surface.evaluate(uv[:, 0], uv[:, 1]), axis=1), R, rtol=1e-9)
+        h = 1e-6 * (t1 - t0)
+        d = c.derivatives(t, 1)
+        assert np.allclose(d[:, 1], (c.evaluate(t + h) - c.evaluate(t - h)) / (2 * h), rtol=1e-5, atol=1e-6)

@@ -159,7 +159,9 @@ def test_solidworks_trims_exact_and_delta():
 
 @needs_real
 def test_inverted_curve_derivatives_finite_differences():
-    """InvertedCurve derivatives (chain rule through the surface Jacobian) vs differences."""
+    """DE 351's trim piece derivatives vs differences (a MappedCurve since the cap is read from
+    its parameter-space curves, `cadbridge.iges.arc_convention`; InvertedCurve derivatives:
+    tests/test_arc_convention.py::test_model_space_only_cap_inverted_exactly)."""
     f = {f.de: f for f in read_iges(SW).faces}[351]
     c = f.trims.outer.curves[1]
     t0, t1 = c.domain
