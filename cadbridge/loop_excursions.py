@@ -36,10 +36,14 @@ from scipy.spatial import cKDTree
 from cadbridge.model import Face, Model, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 
-__all__ = ["Excursion", "find_excursions", "heal_excursions", "RATIO", "SAMPLES_PER_SPAN"]
+__all__ = ["Excursion", "find_excursions", "heal_excursions", "RATIO", "COS_SAME_WAY", "MIN_LENGTH", "SAMPLES_PER_SPAN"]
 
 RATIO = 20.0
 """An excursion's loop length between X and Y exceeds RATIO x its chord |XY|."""
+COS_SAME_WAY = 0.5
+"""... and the loop leaves Y within 60 degrees of the direction it came into X (a Z, not a U)."""
+MIN_LENGTH = 1e-4
+"""Excursions shorter than this x model size are left alone (no mesher resolves them)."""
 SAMPLES_PER_SPAN = 64
 """Exact curve samples per knot span (the candidates' resolution along the loop)."""
 
@@ -117,7 +121,12 @@ def _best_pair(xyz: np.ndarray, uv: np.ndarray, width: float) -> tuple[int, int,
     qf = q[b] - q[a]
     uv_arc = np.where(use_fwd, qf, q[n] - qf)
     uv_d = np.linalg.norm(uv[a] - uv[b], axis=1)
-    score = np.where(uv_arc > RATIO * uv_d, arc - RATIO * d, -np.inf)
+    # a Z, not a U: the loop leaves Y in the direction it came into X (a U-turn -- a slit, or two
+    # boundary curves meeting tangentially at a cusp corner -- leaves the opposite way)
+    tan = np.roll(xyz, -1, axis=0) - np.roll(xyz, 1, axis=0)
+    tan /= np.maximum(np.linalg.norm(tan, axis=1), 1e-300)[:, None]
+    same_way = np.einsum("ij,ij->i", tan[a], tan[b]) > COS_SAME_WAY
+    score = np.where(same_way & (uv_arc > RATIO * uv_d), arc - RATIO * d, -np.inf)
     k = int(np.argmax(score))
     if not score[k] > 0:
         return None
@@ -142,18 +151,38 @@ def find_excursions(model: Model, width: float | None = None, faces: list[int] |
         for li, lp in enumerate(_loops(f)):
             if lp is None or not lp.curves:
                 continue
-            e = _loop_excursion(f, li, lp, default_width(f, size) if width is None else width)
+            e = _loop_excursion(f, li, lp, default_width(f, size) if width is None else width, MIN_LENGTH * size)
             if e is not None:
                 out.append(e)
     return out
 
 
-def _loop_excursion(f: Face, li: int, lp: TrimLoop, width: float) -> Excursion | None:
+def _polygon(f: Face, lp: TrimLoop) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The loop's `cadbridge.trims.LoopBoundary` vertices (exact curve points, cached on the
+    loop) as curve index, parameter, uv, xyz like `_samples`; None when the curves do not join
+    end to start (1e-6 x the loop's (u, v) span): some files list a loop's curves in another
+    order, which the parity test of the trims does not mind but which has no arc along the loop."""
+    bd = lp.boundary
+    real = bd.curve >= 0
+    gaps = ~real
+    if np.any(np.linalg.norm(bd.b[gaps] - bd.a[gaps], axis=1) > 1e-6 * bd.size):
+        return None
+    uv = bd.a[real]
+    return bd.curve[real], bd.ta[real], uv, f.surface.evaluate(uv[:, 0], uv[:, 1])
+
+
+def _loop_excursion(f: Face, li: int, lp: TrimLoop, width: float, min_length: float) -> Excursion | None:
+    poly = _polygon(f, lp)
+    # the polygon narrows the candidates; the cut is chosen on dense exact curve samples
+    if poly is None or _best_pair(poly[3], poly[2], width) is None:
+        return None
     ci, ts, uv, xyz = _samples(f, lp)
     best = _best_pair(xyz, uv, width)
     if best is None:
         return None
     i, j, d, arc = best
+    if arc < min_length:
+        return None
     idx = np.arange(i, j + 1) if i <= j else np.concatenate([np.arange(i, len(uv)), np.arange(0, j + 1)])
     p = uv[idx]
     area = 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
@@ -220,7 +249,7 @@ def heal_excursions(model: Model, width: float | None = None, max_cuts: int = 4)
                 lp = f.trims.outer if li == 0 else f.trims.inner[li - 1]
                 if lp is None or not lp.curves:
                     break
-                e = _loop_excursion(f, li, lp, w)
+                e = _loop_excursion(f, li, lp, w, MIN_LENGTH * size)
                 if e is None:
                     break
                 new = cut_loop(lp, e)
