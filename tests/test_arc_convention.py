@@ -69,14 +69,15 @@ def _quarter(c, p0, p2) -> list[str]:
 
 
 def sphere_cap_file(convention: str, pole_edge: bool = True, pref: int = 1, upper: bool = False,
-                    pcurves: bool = True) -> str:
+                    pcurves: bool = True, equator_z: float = -R) -> str:
     """The quarter sphere y < 0, z < 0 as a 144 over a 120 (see the module docstring).
 
     convention "start": parameter-space s measured from the arc's start (SolidWorks 2010);
     "angle": s is the arc's angle (IGES 5.3). pole_edge False leaves out the degenerate
     parameter-space edge at the pole (as DE 351 of the SolidWorks file does). upper: the
     model-space curves bound the quarter y > 0, z < 0 instead. pcurves False: the 142 has
-    only its model-space curves (BPTR 0)."""
+    only its model-space curves (BPTR 0). equator_z R: the model-space equator runs through
+    (0, 0, R), the other half of the circle between the same vertices."""
     s0 = HALF_PI if convention == "start" else math.pi  # s at the equator
     s1 = s0 + HALF_PI  # s at the pole (0, -R, 0)
     dep = "00010000"  # physically dependent: only the 144 is a top-level face
@@ -97,7 +98,7 @@ def sphere_cap_file(convention: str, pole_edge: bool = True, pref: int = 1, uppe
     # (R cos th cos t, R sin th, R cos th sin t)
     o = (0.0, 0.0, 0.0)
     pole = (0.0, R if upper else -R, 0.0)
-    m = [(o, (-R, 0, 0), (0, 0, -R)), (o, (0, 0, -R), (R, 0, 0)),  # equator, t 0 -> pi
+    m = [(o, (-R, 0, 0), (0, 0, equator_z)), (o, (0, 0, equator_z), (R, 0, 0)),  # equator, t 0 -> pi
          (o, (R, 0, 0), pole),  # meridian t = pi, equator -> pole
          (o, pole, (-R, 0, 0))]  # meridian t = 0, pole -> equator
     mfirst = first + 2 * len(pcs)
@@ -131,7 +132,7 @@ def test_start_convention_read_as_the_model_curves_say(tmp_path, pole_edge):
     f = m.faces[0]
     assert reread_faces(m) == [f.de]
     note = [d for d in m.diagnostics if d.kind == "reread"][0].message
-    assert "from its start" in note and "agree" in note
+    assert "from its start" in note and "lie on them" in note
     assert f.trim_delta < 1e-9 * R  # the parameter-space loops now lie on the model-space curves
     x = _inside_points(f)
     assert len(x) > 500
@@ -289,3 +290,16 @@ def test_model_space_only_cap_inverted_exactly(tmp_path):
         h = 1e-6 * (t1 - t0)
         d = c.derivatives(t, 1)
         assert np.allclose(d[:, 1], (c.evaluate(t + h) - c.evaluate(t - h)) / (2 * h), rtol=1e-5, atol=1e-6)
+
+
+def test_reread_face_whose_edges_miss_between_vertices_is_noted(tmp_path):
+    # the model-space equator through (0, 0, R), the parameter-space one (read from the start)
+    # through (0, 0, -R): same vertices, so the face is re-read, and the deferred trim delta
+    # (measured on the whole curves) says how far they miss: from (0, 0, -R) every point of the
+    # model loop's meridians and nearest equator points is R sqrt 2 away (analytic)
+    p = tmp_path / "cap.igs"
+    p.write_text(sphere_cap_file("start", equator_z=R))
+    m = cadbridge.read_iges(p)
+    assert reread_faces(m) == [m.faces[0].de]
+    assert m.faces[0].trim_delta == pytest.approx(R * math.sqrt(2), rel=1e-6)
+    assert any("still miss" in d.message and d.kind == "reread" for d in m.diagnostics)

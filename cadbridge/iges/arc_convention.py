@@ -27,7 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from cadbridge.iges.analytic import ArcMap, MappedLoops, ParamMap, map_loops
-from cadbridge.iges.trimcheck import loop_deltas
 from cadbridge.nurbs.curve import NurbsCurve
 
 __all__ = ["ArcRepair", "arc_start_map", "close_at_poles", "repair_arc_start"]
@@ -35,28 +34,42 @@ __all__ = ["ArcRepair", "arc_start_map", "close_at_poles", "repair_arc_start"]
 
 @dataclass(frozen=True)
 class ArcRepair:
-    """What `repair_arc_start` found for one face.
+    """A face `repair_arc_start` re-read.
 
-    delta_standard  max |S(c2d(t)) - C3d| with the generatrix parameter read as the angle
-    delta_repaired  the same with it read from the arc's start, or None when not tried
-    mapped          the loops of the repaired reading (None: keep the standard reading)
+    miss_standard   largest distance of a loop vertex, read with the generatrix parameter as
+                    the angle, to the nearest end of the loop's model-space pieces
+    miss_repaired   the same read from the arc's start
+    mapped          the loops of the repaired reading
     poles_closed    loops of that reading closed by a degenerate edge at a pole (`close_at_poles`)
     """
 
-    delta_standard: float
-    delta_repaired: float | None = None
-    mapped: MappedLoops | None = None
+    miss_standard: float
+    miss_repaired: float
+    mapped: MappedLoops
     poles_closed: int = 0
 
     def note(self, size: float) -> str:
-        """The reader's diagnostic for a repaired face (one line)."""
+        """The reader's diagnostic for the face (one line)."""
         return (f"parameter-space curves over the revolution surface measure the generatrix arc from its start "
                 f"point, not by its angle (IGES 5.3, entity 100): read by the angle they miss the model-space "
-                f"curves by {self.delta_standard:.3g} ({self.delta_standard / size:.3g} x the surface size) and trim the "
-                f"other part of the arc; read from the start they agree within {self.delta_repaired:.3g}, "
-                f"so that reading trims the face"
-                + (f" (its loop closed by the degenerate edge at the pole that the file leaves out)"
+                f"curves by {self.miss_standard:.3g} at a loop vertex ({self.miss_standard / size:.3g} x the "
+                f"surface size) and trim the other part of the arc; read from the start their vertices lie on "
+                f"them within {self.miss_repaired:.3g}, so that reading trims the face"
+                + (" (its loop closed by the degenerate edge at the pole that the file leaves out)"
                    if self.poles_closed else ""))
+
+    @staticmethod
+    def delta_note(size: float, agree_rel: float, diagnostic):
+        """For the reader's deferred delta of the face: ``note(delta)`` that adds
+        ``diagnostic(message)`` when the whole loops (not only their vertices) miss the
+        model-space curves by more than ``agree_rel`` x size."""
+
+        def note(d: float) -> None:
+            if d > agree_rel * size:
+                diagnostic(f"the parameter-space loops read from the arc's start still miss the model-space "
+                           f"curves by {d:.3g} ({d / size:.3g} x the surface size) between their vertices")
+
+        return note
 
 
 def arc_start_map(pm: ParamMap) -> ParamMap | None:
@@ -79,39 +92,38 @@ def arc_start_map(pm: ParamMap) -> ParamMap | None:
     return dataclasses.replace(pm, pcurve_fn=pc, pcurve_pre=(alt, pm.pcurve_pre[1]))
 
 
-def repair_arc_start(pm: ParamMap, loops: list, has_outer: bool, res: MappedLoops, pairs: list,
-                     size: float, mapped_pairs, disagree_rel: float, agree_rel: float) -> ArcRepair | None:
-    """Decide the reading of the parameter-space loops ``res`` (mapped by the standard through
-    ``pm``) of a face over a 120 with an arc generatrix; None when ``pm`` has no such arc.
+def repair_arc_start(pm: ParamMap, loops: list, has_outer: bool, res: MappedLoops, size: float,
+                     disagree_rel: float, agree_rel: float) -> ArcRepair | None:
+    """The repaired reading of the parameter-space loops of a face over a 120 whose generatrix
+    is an arc, or None: keep the standard reading ``res`` (mapped through ``pm``).
 
-    loops        the raw loops (per edge (parameter-space pieces, model-space pieces))
-    pairs        ``mapped_pairs(res, loops)``: what the trim delta compares (not None)
-    size         the surface's box diagonal (model units)
-    mapped_pairs the reader's `Builder._mapped_pairs`
+    loops  the raw loops (per edge (parameter-space pieces, model-space pieces))
+    size   the surface's box diagonal (model units)
 
-    The standard reading stays unless its delta exceeds ``disagree_rel`` x size and the
-    reading from the arc's start closes every loop and agrees within ``agree_rel`` x size.
-    Also None (nothing measured: the reader's deferred delta stays) when every loop's
-    vertices lie on its model-space curves (`_vertices_off`)."""
+    Decided on the loop vertices, exactly evaluated (two vectorised evaluations per reading,
+    `_vertex_miss`; the whole trim delta is left to the reader's deferred measure, as for
+    every face whose parameter-space curves are preferred): re-read when a vertex of the
+    standard reading lies farther than ``disagree_rel`` x size from every end of the loop's
+    model-space pieces while, read from the arc's start, every vertex lies within
+    ``agree_rel`` x size of one and every loop closes (`close_at_poles` closing gaps at a pole)."""
     alt = arc_start_map(pm)
-    if alt is None or not _vertices_off(pm, res, loops, disagree_rel * size):
+    if alt is None:
         return None
-    d = float(loop_deltas([(res.surface, pairs)])[0])
-    if np.isnan(d) or d <= disagree_rel * size:
-        return ArcRepair(d)
+    miss = _vertex_miss(pm, res.surface, loops)
+    if not miss > disagree_rel * size:
+        return None
+    miss2 = _vertex_miss(alt, res.surface, loops)
+    if not miss2 <= agree_rel * size:
+        return None
     try:
         res2 = map_loops(alt, loops, has_outer, True)
     except ValueError:
-        return ArcRepair(d)
+        return None
     n_open = sum(not c for c in res2.closed())
     res2 = close_at_poles(res2, agree_rel * size)
-    pairs2 = mapped_pairs(res2, loops)
-    if pairs2 is None or not all(res2.closed()):
-        return ArcRepair(d)
-    d2 = float(loop_deltas([(res2.surface, pairs2)])[0])
-    if np.isnan(d2) or d2 > agree_rel * size:
-        return ArcRepair(d, d2)
-    return ArcRepair(d, d2, res2, n_open)
+    if not all(res2.closed()):
+        return None
+    return ArcRepair(miss, miss2, res2, n_open)
 
 
 def _end_points(c: NurbsCurve) -> np.ndarray:
@@ -123,12 +135,12 @@ def _end_points(c: NurbsCurve) -> np.ndarray:
     return np.asarray(c.evaluate(np.array(c.domain, dtype=float)))
 
 
-def _vertices_off(pm: ParamMap, res: MappedLoops, loops: list, tol: float) -> bool:
-    """Whether some loop vertex of the standard reading (a parameter-space piece's end, through
-    ``pm``) lies farther than ``tol`` from every end of the loop's model-space pieces: the
-    cheap test before the trim delta (two vectorised evaluations per face). In a file that is
-    right the vertices are the model curves' ends; where they are not (pieces split
-    elsewhere), the full check only costs time."""
+def _vertex_miss(pm: ParamMap, surface, loops: list) -> float:
+    """Largest distance of a loop vertex (a parameter-space piece's end, through ``pm``) to the
+    nearest end of its loop's model-space pieces, over all loops with both; NaN without any.
+    In a file that is right the vertices are the model pieces' ends (a loop split elsewhere
+    in one representation than in the other reads as a miss: then nothing is re-read)."""
+    worst = np.nan
     for raw in loops:
         mcs = [c for _, m in raw if m is not None for c in m]
         pcs = [c for pc, _ in raw if pc is not None for c in pc]
@@ -136,12 +148,11 @@ def _vertices_off(pm: ParamMap, res: MappedLoops, loops: list, tol: float) -> bo
             continue
         st = np.vstack([_end_points(c)[:, :2] for c in pcs])
         uv = pm.uv_fn(pm.pcurve_fn(st), None, None)
-        x = res.surface.evaluate(uv[:, 0], uv[:, 1])
+        x = surface.evaluate(uv[:, 0], uv[:, 1])
         ends = np.vstack([_end_points(m) for m in mcs])
-        d = np.linalg.norm(x[:, None, :] - ends[None, :, :], axis=2).min(axis=1)
-        if float(d.max()) > tol:
-            return True
-    return False
+        d = float(np.linalg.norm(x[:, None, :] - ends[None, :, :], axis=2).min(axis=1).max())
+        worst = d if np.isnan(worst) else max(worst, d)
+    return worst
 
 
 def close_at_poles(res: MappedLoops, tol: float, samples: int = 9) -> MappedLoops:

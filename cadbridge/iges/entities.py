@@ -1122,14 +1122,16 @@ class Builder:
         if pairs is not None and pm.kind == "revolution":  # the generatrix arc measured from its start?
             from cadbridge.iges.arc_convention import repair_arc_start
 
-            arc = repair_arc_start(pm, loops, outer is not None, res, pairs, size, self._mapped_pairs,
-                                   DISAGREE_REL, AGREE_REL)
-        if arc is not None:  # delta measured now (arcs only: a few faces)
-            delta = None if np.isnan(arc.delta_standard) else arc.delta_standard
-            if arc.mapped is not None:
-                res, delta, closed = arc.mapped, arc.delta_repaired, True
-                e = self.entries[de]
-                self.diagnostics.append(Diagnostic(arc.note(size), e.line, de, e.entity_type, kind="reread"))
+            arc = repair_arc_start(pm, loops, outer is not None, res, size, DISAGREE_REL, AGREE_REL)
+        if arc is not None:  # re-read (decided on the loop vertices); its delta deferred as below
+            res, closed = arc.mapped, True
+            pairs = self._mapped_pairs(res, loops)
+            e, diags = self.entries[de], self.diagnostics
+            diags.append(Diagnostic(arc.note(size), e.line, de, e.entity_type, kind="reread"))
+            if pairs is not None:
+                self._delta_lazy[de] = (res.surface, pairs, arc.delta_note(
+                    size, AGREE_REL, lambda msg, e=e, diags=diags: diags.append(
+                        Diagnostic(msg, e.line, e.de, e.entity_type, kind="reread"))))
         elif pairs is not None and pref != "pcurve" and not fixed_route:  # the route depends on delta: measured now
             d = float(loop_deltas([(res.surface, pairs)])[0])
             delta = None if np.isnan(d) else d
