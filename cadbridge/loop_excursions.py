@@ -28,7 +28,7 @@ FACE(401) of ANSA9 has an excursion).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -67,6 +67,15 @@ class Excursion:
     chord: float
     length: float
     uv_area: float
+    stretch_uv: np.ndarray = field(repr=False, default=None)  # (K, 2) exact loop samples X -> Y
+    stretch_xyz: np.ndarray = field(repr=False, default=None)  # (K, 3) S(stretch_uv)
+    rest_xyz: np.ndarray = field(repr=False, default=None)  # (R, 3) the rest of the loop, Y -> X
+
+    def in_stretch(self, xyz: np.ndarray) -> np.ndarray:
+        """Whether points (N, 3) on the loop's edge (mesh nodes) lie on the cut stretch, strictly
+        between X and Y: nearer its polyline than the rest of the loop's polyline. (N,) bool."""
+        xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+        return _polyline_distance(xyz, self.stretch_xyz) < _polyline_distance(xyz, self.rest_xyz)
 
     def __str__(self) -> str:
         x = self.start
@@ -171,10 +180,33 @@ def _polygon(f: Face, lp: TrimLoop) -> tuple[np.ndarray, np.ndarray, np.ndarray,
     return bd.curve[real], bd.ta[real], uv, f.surface.evaluate(uv[:, 0], uv[:, 1])
 
 
+def _hairpins_both_ways(uv: np.ndarray, xyz: np.ndarray, width: float) -> bool:
+    """Whether the closed polygon (uv (M, 2), xyz (M, 3)) turns back by more than 150 degrees
+    within 2 x ``width`` of model-space arc both to the left and to the right somewhere: a Z
+    has two such hairpins of opposite sense (a necessary condition, on the polygon, that
+    narrows the loops the dense check looks at)."""
+    m = len(uv)
+    if m < 4:
+        return False
+    d = np.roll(uv, -1, axis=0) - uv  # edge k: vertex k -> k + 1
+    turn = np.arctan2(np.roll(d, 1, axis=0)[:, 0] * d[:, 1] - np.roll(d, 1, axis=0)[:, 1] * d[:, 0],
+                      np.einsum("ij,ij->i", np.roll(d, 1, axis=0), d))  # at vertex k, (M,)
+    turn = np.where(np.linalg.norm(d, axis=1) > 0, turn, 0.0)
+    seg = np.linalg.norm(np.roll(xyz, -1, axis=0) - xyz, axis=1)
+    s = np.concatenate([[0.0], np.cumsum(np.tile(seg, 2))])  # twice round: windows may wrap
+    th = np.concatenate([[0.0], np.cumsum(np.tile(turn, 2))])
+    k = np.arange(m)
+    j = np.searchsorted(s, s[k] + 2.0 * width, side="right") - 1
+    j = np.maximum(j, k + 1)
+    w = th[j + 1] - th[k]  # turning at vertices k..j
+    lim = np.radians(150.0)
+    return bool(np.any(w > lim) and np.any(w < -lim))
+
+
 def _loop_excursion(f: Face, li: int, lp: TrimLoop, width: float, min_length: float) -> Excursion | None:
     poly = _polygon(f, lp)
     # the polygon narrows the candidates; the cut is chosen on dense exact curve samples
-    if poly is None or _best_pair(poly[3], poly[2], width) is None:
+    if poly is None or not _hairpins_both_ways(poly[2], poly[3], width):
         return None
     ci, ts, uv, xyz = _samples(f, lp)
     best = _best_pair(xyz, uv, width)
@@ -186,8 +218,20 @@ def _loop_excursion(f: Face, li: int, lp: TrimLoop, width: float, min_length: fl
     idx = np.arange(i, j + 1) if i <= j else np.concatenate([np.arange(i, len(uv)), np.arange(0, j + 1)])
     p = uv[idx]
     area = 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+    n = len(uv)
+    rest = np.arange(j, j + n - len(idx) + 2) % n  # Y -> X the other way round
     return Excursion(f.de, f.name, li, ((int(ci[i]), float(ts[i])), (int(ci[j]), float(ts[j]))),
-                     xyz[i].copy(), xyz[j].copy(), d, arc, area)
+                     xyz[i].copy(), xyz[j].copy(), d, arc, area, uv[idx].copy(), xyz[idx].copy(), xyz[rest].copy())
+
+
+def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance of points (N, 3) to the open polyline (M, 3), (N,); all pairs (a few hundred
+    mesh nodes of one face against one loop)."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    t = np.einsum("nmk,mk->nm", p[:, None, :] - a[None], ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-300)
+    q = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
+    return np.linalg.norm(p[:, None, :] - q, axis=2).min(axis=1)
 
 
 def _restricted(c: NurbsCurve, t0: float, t1: float) -> NurbsCurve:

@@ -806,6 +806,9 @@ def convert(
     progress = progress or NoProgress()
     progress.stage(f"reading {cad}")
     model = read_iges(cad)  # fails early, before anything is meshed or written, on a bad file
+    from cadbridge.loop_excursions import heal_excursions
+
+    excursions = heal_excursions(model)  # trim loops that run back beside themselves: cut out
     from cadbridge.creases import crease_lines
     from cadbridge.folds import folds_for
 
@@ -830,12 +833,12 @@ def convert(
                             radius_divisions=radius_divisions, length_divisions=length_divisions,
                             curvature_elements=curvature_elements,
                             embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
-                            mesher=mesher)
+                            mesher=mesher, loop_cuts=excursions)
     mesh.name = Path(cad).stem
     tools = _tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
                              orient=True, meshed_per_face=True)
     check_tools(tools, allow_worse)
-    result = RunResult(Path(output), tools, notes=list(mesh.notes))
+    result = RunResult(Path(output), tools, notes=[f"trim defect healed: {e}" for e in excursions] + list(mesh.notes))
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
         result.files.append(f"{mesh.name}_mesh.msh")

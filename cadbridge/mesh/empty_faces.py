@@ -53,17 +53,19 @@ spring, with nodes 0.01 mm off the surface, one took the plane's normals: 90 deg
 
 
 def fill_empty_faces(g, surfaces: list[int], *, size: float, curvature_elements: int, element: str,
-                     subdivided: bool, label: str) -> list[str]:
+                     subdivided: bool, label: str, cuts: dict | None = None) -> list[str]:
     """Mesh every surface of ``surfaces`` that has no 2D elements in the current gmsh model
     (see module docs); ``size`` the largest element size (model units), ``element`` "tri" or
-    "quad", ``subdivided`` when the model's mesh went through gmsh's all-quad subdivision.
+    "quad", ``subdivided`` when the model's mesh went through gmsh's all-quad subdivision;
+    ``cuts`` {surface: trim-loop excursions} whose boundary nodes are left out of the loop
+    (`cadbridge.mesh.loop_cuts`).
     Returns one note per face filled. Raises `MeshError` naming a face it cannot mesh."""
     notes = []
     for s in surfaces:
         if any(len(t) for t in g.model.mesh.getElements(2, s)[1]):
             continue
         notes.append(_fill_face(g, s, size=size, curvature_elements=curvature_elements, element=element,
-                                subdivided=subdivided, label=label))
+                                subdivided=subdivided, label=label, cut=(cuts or {}).get(s)))
     return notes
 
 
@@ -254,7 +256,7 @@ def _face_size(g, s: int, uv_box: np.ndarray, size: float, curvature_elements: i
 
 
 def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,
-               label: str) -> str:
+               label: str, cut: list | None = None) -> str:
     from cadbridge.mesh.qit_fallback import mesh_planar_loops
 
     name = label_of(g, s)
@@ -271,7 +273,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     if coarse:
         h *= 2.0  # split in two below
     # the nodes meshed on: all loop nodes, or (after subdivision) every other node per curve
-    kept_loops, notes_strip = [], []
+    kept_loops, notes_strip, n_cut = [], [], 0
     for tags, xyz, uv, k, even in loops:
         use = np.ones(len(tags), dtype=bool)
         if coarse:
@@ -285,6 +287,12 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
         for p, length in strips:
             x = xyz[np.flatnonzero(use)[p]]
             notes_strip.append(f"{length:.3g} long at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})")
+        if cut:  # trim-loop excursions: their nodes stay on the neighbour only
+            from cadbridge.mesh.loop_cuts import drop_mask
+
+            drop = drop_mask(cut, xyz[sel])
+            n_cut += int(drop.sum())
+            sel = sel[~drop]
         if len(sel) < 3:
             continue  # the whole loop is a zero-width strip
         kept_loops.append((tags, xyz, uv, sel))
@@ -330,6 +338,9 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     what = f"{len(tri_t)} triangles" if len(tri_t) else ""
     what += (", " if what and len(quad_t) else "") + (f"{len(quad_t)} quads" if len(quad_t) else "")
     note = f"mesh: gmsh left {name} without elements; meshed in its (u, v) on gmsh's boundary nodes ({what})"
+    if cut:
+        note = (f"mesh: {name} meshed in its (u, v) on gmsh's boundary nodes ({what}) without its trim-loop "
+                f"excursion ({n_cut} boundary nodes left to the neighbour, a crack <= {max(e.chord for e in cut):.3g})")
     if notes_strip:
         note += (f"; {len(notes_strip)} cusp strip(s) narrower than {eps:.2g} (where two boundary curves run "
                  f"together within the CAD's accuracy) left open: " + "; ".join(notes_strip))

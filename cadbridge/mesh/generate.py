@@ -379,6 +379,7 @@ def mesh_cad(
     curve_size=None,
     mesher: str = "gmsh",
     background_sizes=None,
+    loop_cuts: Sequence = (),
 ) -> Mesh:
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
@@ -426,6 +427,8 @@ def mesh_cad(
     orientation as gmsh gives it (following each OCC face's orientation), unused nodes
     dropped, ``cell_data["element_entity"]`` and (if ``parametric``) the node data above.
     Raises `MeshError` naming the file on import / meshing failure.
+    loop_cuts : trim-loop excursions (`cadbridge.loop_excursions.heal_excursions`): the faces
+        holding them are meshed without them (`cadbridge.mesh.loop_cuts`).
     mesher : "gmsh" (default) or "qit": the quasi-isotropic triangulation of
         `cadbridge.mesh.qit` (IGES only; ``size`` is its target edge length R; the gmsh
         options do not apply).
@@ -453,7 +456,7 @@ def mesh_cad(
               fillet_max_radius=fillet_max_radius, sew=sew, sew_tolerance=sew_tolerance,
               curvature_elements=curvature_elements, target_unit=target_unit, parametric=parametric,
               embed_curves=list(embed_curves), size_callback=size_callback, curve_size=curve_size,
-              background_sizes=background_sizes)
+              background_sizes=background_sizes, loop_cuts=list(loop_cuts))
     try:
         return _mesh_once(path, verbose, heal=False, **kw)
     except MeshError as first:
@@ -636,11 +639,18 @@ def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
 
 def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdivided: bool) -> list[str]:
     """Mesh the surfaces gmsh left without elements ourselves (`cadbridge.mesh.empty_faces`:
-    in their (u, v) on gmsh's boundary nodes); one note per face."""
+    in their (u, v) on gmsh's boundary nodes), and those holding a trim-loop excursion, less
+    its nodes (`cadbridge.mesh.loop_cuts`); one note per face."""
+    from cadbridge.mesh import loop_cuts
     from cadbridge.mesh.empty_faces import fill_empty_faces
 
+    cuts = {}
+    if kw.get("loop_cuts"):
+        bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
+        cuts = loop_cuts.surfaces_with_excursions(g, kw["loop_cuts"], surfaces, 1e-6 * float(np.linalg.norm(bb[3:] - bb[:3])))
+        loop_cuts.clear(g, cuts)
     return fill_empty_faces(g, surfaces, size=size, curvature_elements=kw["curvature_elements"],
-                            element=kw["element"], subdivided=subdivided, label=str(path))
+                            element=kw["element"], subdivided=subdivided, label=str(path), cuts=cuts)
 
 
 def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:

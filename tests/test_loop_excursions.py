@@ -1,0 +1,182 @@
+"""Trim-loop excursions (`cadbridge.loop_excursions`, `cadbridge.mesh.loop_cuts`).
+
+References: OpenCASCADE's area of planar faces built from the loops (BRepGProp), OCC's
+point classification on the original face (BRepClass_FaceClassifier), OCC's distance of the
+excursion to the face's boundary (BRepExtrema), and analytic polygons.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cadbridge.loop_excursions import find_excursions, heal_excursions
+from cadbridge.model import Face, Model, Trim, TrimLoop
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.surface import NurbsSurface
+
+ANSA = Path(__file__).resolve().parents[2] / "shared" / "iges_real" / "occt_OCC131-2_ANSA9.igs"
+needs_ansa = pytest.mark.skipif(not ANSA.is_file(), reason="corpus file occt_OCC131-2_ANSA9.igs absent")
+
+# a unit square's left edge, run down with a Z (down to v = 0.40, back up to 0.60, down
+# again), its strands 2e-4 apart: FACE(401)'s defect in miniature (model size 1.41, so the
+# default width is 1.41e-3)
+Z_LEFT = [(0.0, 1.0), (2e-4, 0.40), (4e-4, 0.60), (6e-4, 0.45), (6e-4, 0.0)]
+SLIT_LEFT = [(0.0, 1.0), (0.0, 0.60), (0.5, 0.60), (0.5, 0.5998), (0.0, 0.5998), (0.0, 0.0)]  # a U, not a Z
+
+
+def _plane() -> NurbsSurface:
+    """S(u, v) = (u, v, 0): (u, v) area is model-space area."""
+    cp = np.array([[[0.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0]]])
+    return NurbsSurface(1, 1, [0, 0, 1, 1], [0, 0, 1, 1], cp)
+
+
+def _line(a, b) -> NurbsCurve:
+    return NurbsCurve(1, [0, 0, 1, 1], np.array([a, b], dtype=float))
+
+
+def _square_with(left: list) -> list:
+    """Polygon (counter-clockwise): bottom, right, top edges, then ``left`` from (0, 1) down."""
+    return [(left[-1][0], 0.0), (1.0, 0.0), (1.0, 1.0)] + left
+
+
+def _model(poly: list) -> Model:
+    curves = [_line(poly[k], poly[(k + 1) % len(poly)]) for k in range(len(poly))]
+    face = Face(surface=_plane(), de=1, name="Z", trims=Trim(TrimLoop(curves)))
+    return Model(faces=[face])
+
+
+def _occ_face(poly: np.ndarray):
+    """OCC planar face from a (u, v) polygon at z = 0."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace, BRepBuilderAPI_MakePolygon
+    from OCP.gp import gp_Pnt
+
+    mk = BRepBuilderAPI_MakePolygon()
+    for u, v in poly:
+        mk.Add(gp_Pnt(float(u), float(v), 0.0))
+    mk.Close()
+    return BRepBuilderAPI_MakeFace(mk.Wire(), True).Face()
+
+
+def _occ_area(face) -> float:
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    props = GProp_GProps()
+    BRepGProp.SurfaceProperties_s(face, props)
+    return props.Mass()
+
+
+def _loop_vertices(lp: TrimLoop) -> np.ndarray:
+    """The healed loop's vertices (all its curves are straight): each curve's start."""
+    return np.array([c.evaluate(np.array([c.domain[0]]))[0, :2] for c in lp.curves])
+
+
+def test_z_excursion_found_and_cut_against_occ_area():
+    poly = _square_with(Z_LEFT)
+    model = _model(poly)
+    ex = find_excursions(model)
+    assert len(ex) == 1
+    e = ex[0]
+    # the Z: ~0.6 down, 0.2 up, 0.45 down; X before the first hairpin, Y after the second
+    assert e.chord <= 1e-3 * model.size() + 1e-12
+    assert 0.3 < e.length < 1.2
+    assert e.start[1] > 0.40 and e.end[1] < 0.60
+
+    healed = heal_excursions(model)
+    assert len(healed) == 1 and find_excursions(model) == []
+    new = _loop_vertices(model.faces[0].trims.outer)
+    # reference: OCC's areas of the original face and of the healed one differ by the cut's
+    # signed (u, v) area (the plane's Jacobian is 1)
+    a0 = _occ_area(_occ_face(np.array(poly)))
+    a1 = _occ_area(_occ_face(new))
+    assert abs(a0 - a1 - e.uv_area) < 1e-12
+    assert abs(a0 - a1) < 2e-4 * e.length  # a sliver: no wider than its strands
+
+
+def test_classification_after_the_cut_against_occ():
+    """cadbridge's healed trims agree with OCC's classification of the original face except
+    inside the cut sliver (within the chord of the cut stretch)."""
+    from OCP.BRepClass import BRepClass_FaceClassifier
+    from OCP.gp import gp_Pnt
+    from OCP.TopAbs import TopAbs_IN, TopAbs_ON
+
+    from cadbridge.loop_excursions import _polyline_distance
+
+    poly = _square_with(Z_LEFT)
+    model = _model(poly)
+    occ = _occ_face(np.array(poly))
+    (e,) = heal_excursions(model)
+    rng = np.random.default_rng(3)
+    pts = np.vstack([rng.uniform(0, 1, (300, 2)),
+                     np.column_stack([rng.uniform(0, 1e-3, 300), rng.uniform(0.3, 0.7, 300)])])
+    inside = model.faces[0].contains(pts[:, 0], pts[:, 1])
+    occ_in = np.array([BRepClass_FaceClassifier(occ, gp_Pnt(float(u), float(v), 0.0), 1e-12).State()
+                       in (TopAbs_IN, TopAbs_ON) for u, v in pts])
+    differ = inside != occ_in
+    near = _polyline_distance(np.column_stack([pts, np.zeros(len(pts))]), e.stretch_xyz) <= e.chord
+    assert differ.any()  # the sliver holds some of the points
+    assert not np.any(differ & ~near)
+
+
+def test_slit_and_straight_loops_are_not_excursions():
+    """A U (a real slit 2e-4 wide) and a plain square have none."""
+    assert find_excursions(_model(_square_with(SLIT_LEFT))) == []
+    assert find_excursions(_model(_square_with([(0.0, 1.0), (0.0, 0.0)]))) == []
+
+
+@needs_ansa
+def test_ansa_face_401_excursion_on_occ_edge():
+    """ANSA9: only FACE(401) has one; its stretch lies on the face's boundary as OCC reads it
+    (BRepExtrema distance to the face's edges <= the file's trim tolerance)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
+    from OCP.BRepTools import BRepTools
+    from OCP.IGESControl import IGESControl_Reader
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+    from OCP.gp import gp_Pnt
+
+    from cadbridge.iges import read_iges
+
+    model = read_iges(ANSA)
+    ex = find_excursions(model)
+    assert [e.face_name for e in ex] == ["FACE(401)"]
+    e = ex[0]
+    face = model.faces[[f.de for f in model.faces].index(e.face_de)]
+    assert e.chord < 0.13 and 8.0 < e.length < 8.6
+    r = IGESControl_Reader()
+    r.ReadFile(str(ANSA))
+    r.TransferRoots()
+    shape = r.OneShape()
+    faces = []
+    exp = TopExp_Explorer(shape, TopAbs_FACE)
+    while exp.More():
+        faces.append(TopoDS.Face_s(exp.Current()))
+        exp.Next()
+    # OCC's face of FACE(401): the stretch lies on its outer wire (1e-5 mm; FACE(274)'s edge,
+    # the folded one, is within the trim tolerance 0.0066 of it, the third face far)
+    on_wire = []
+    for f in faces:
+        w = BRepTools.OuterWire_s(f)
+        dist = [BRepExtrema_DistShapeShape(w, BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex()).Value()
+                for p in e.stretch_xyz[::4]]
+        on_wire.append(max(dist))
+    assert sorted(on_wire)[0] < 1e-5 < sorted(on_wire)[1]
+    assert sorted(on_wire)[1] <= face.trim_delta
+    assert heal_excursions(model) and find_excursions(model) == []
+
+
+@needs_ansa
+@pytest.mark.slow
+def test_ansa_quad_mesh_leaves_the_excursion_out(tmp_path):
+    """convert in quad (23 s): exit 0, the healed trim reported, and no node of FACE(401)'s
+    elements strictly on the cut stretch (they belong to FACE(274) only)."""
+    from cadbridge.pipeline import convert
+
+    res = convert(str(ANSA), str(tmp_path / "q"), element="quad")
+    assert any("trim defect healed: FACE(401)" in n for n in res.notes)
+    assert any("without its trim-loop excursion" in n for n in res.notes)
