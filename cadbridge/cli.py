@@ -151,6 +151,10 @@ def format_inspect(model) -> str:
             w = max(have, key=lambda i: deltas[i])
             lines.append(f"{'trim delta':<14}max {deltas[w]:.3g} {model.units.name} ({deltas[w] / model.size():.3g} x size) "
                          f"on face {w} (DE {model.faces[w].de}); {len(have)} of {len(deltas)} faces have 2D and 3D trims")
+        from cadbridge.loop_excursions import find_excursions
+
+        for e in find_excursions(model):  # trim loops that run back beside themselves (convert cuts them out)
+            lines.append(f"{'trim defect':<14}{e} by convert")
         lines.append(f"  {'#':>4} {'DE':>6} {'type':>5} {'surf':>5} {'degree':>7} {'ctrl':>9} {'trim':>5} {'delta':>9}  name")
         for i, f in enumerate(model.faces):
             s = f.surface

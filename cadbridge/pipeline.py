@@ -823,7 +823,7 @@ def convert(
         from cadbridge.refine import refine_mesh
 
         adaptive = refine_mesh(cad, shape_tolerance, element=element, max_size=size, min_size=min_size,
-                               model=model, projector=projector, progress=progress)
+                               model=model, projector=projector, progress=progress, loop_cuts=excursions)
         mesh = adaptive.mesh
     else:
         from cadbridge.mesh_source import mesh_source

@@ -304,6 +304,7 @@ def refine_mesh(
     model=None,
     projector=None,
     progress=None,
+    loop_cuts=(),
 ) -> AdaptiveResult:
     """Mesh ``cad`` (IGES) so that its Nagata surface with exact normals is within
     ``tolerance`` [model units] of the CAD (module docs).
@@ -319,6 +320,8 @@ def refine_mesh(
               and as few as possible along its straight direction (thesis §6.2.1), where an
               isotropic size would make skewed quads (whose twist the quadratic patch cannot
               follow) or elements too many
+
+    loop_cuts    trim-loop excursions cut out of the meshes (`cadbridge.mesh.generate.mesh_cad`)
 
     Returns an `AdaptiveResult` (``met`` False when some elements stay above the tolerance
     at the size floor or after ``max_passes``; the best mesh is still in it)."""
@@ -371,7 +374,7 @@ def refine_mesh(
         return (np.maximum(h, h_min), marks(x))
 
     mesh_kw = dict(element=element, size=h_max, curvature_elements=0, structured=structured,
-                   curve_size=curve_size if structured else None)
+                   curve_size=curve_size if structured else None, loop_cuts=list(loop_cuts))
     embed = [c.curve for c in crease_lines(model)]
     actions: list[str] = []
     if inflections:

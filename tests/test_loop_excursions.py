@@ -180,3 +180,18 @@ def test_ansa_quad_mesh_leaves_the_excursion_out(tmp_path):
     res = convert(str(ANSA), str(tmp_path / "q"), element="quad")
     assert any("trim defect healed: FACE(401)" in n for n in res.notes)
     assert any("without its trim-loop excursion" in n for n in res.notes)
+
+
+@needs_ansa
+def test_inspect_names_the_trim_defect(capsys):
+    """`cadbridge inspect` lists FACE(401)'s excursion with its location; a sample without one
+    lists none (reference: find_excursions above, OCC-checked)."""
+    from cadbridge.cli import main
+
+    assert main(["inspect", str(ANSA)]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("trim defect"))
+    assert "FACE(401) (DE 53)" in line and "(3545.44, -732.185, 145.195)" in line
+    sample = Path(__file__).resolve().parents[1] / "iges_samples" / "trimmed_hole.igs"
+    assert main(["inspect", str(sample)]) == 0
+    assert "trim defect" not in capsys.readouterr().out
