@@ -106,11 +106,11 @@ def _face_loops(g, s: int) -> list[tuple]:
         o = np.argsort(npar)
         tags, xyz, t = list(nt[o]), list(nx[o]), list(npar[o])
         if p0 is None:
-            raise MeshError(f"{label_of(g, s)}: curve {c} has no end points")
+            raise MeshError(f"{_label(g, s)}: curve {c} has no end points")
         for p, at in ((p0, 0), (p1, len(tags) + 1)):
             vt, vx, _ = g.model.mesh.getNodes(0, p)
             if len(vt) == 0:
-                raise MeshError(f"{label_of(g, s)}: curve {c} end point {p} has no mesh node")
+                raise MeshError(f"{_label(g, s)}: curve {c} end point {p} has no mesh node")
             tags.insert(at, int(vt[0]))
             xyz.insert(at, np.asarray(vx, dtype=float)[:3])
         t = [lo] + t + [hi]
@@ -140,7 +140,7 @@ def _face_loops(g, s: int) -> list[tuple]:
             loops.append(cur.arrays())
             cur, prev_uv = None, None
     if cur is not None:
-        raise MeshError(f"{label_of(g, s)}: its boundary curves do not close into loops")
+        raise MeshError(f"{_label(g, s)}: its boundary curves do not close into loops")
     return loops
 
 
@@ -151,7 +151,7 @@ def _pcurve(g, c: int, t: list[float], s: int, which: int, backwards: bool) -> n
     return uv[::-1] if backwards else uv
 
 
-def label_of(g, s: int) -> str:
+def _label(g, s: int) -> str:
     return f"gmsh surface {s} ({g.model.getType(2, s)})"
 
 
@@ -245,7 +245,7 @@ def _face_size(g, s: int, uv_box: np.ndarray, size: float, curvature_elements: i
     d = np.asarray(g.model.getDerivative(2, s, uv.ravel().tolist()), dtype=float).reshape(-1, 2, 3)
     scale = np.linalg.norm(d, axis=2).mean(axis=0)
     if not np.all(scale > 0):
-        raise MeshError(f"{label_of(g, s)}: zero parametric derivative over the face")
+        raise MeshError(f"{_label(g, s)}: zero parametric derivative over the face")
     h = size
     if curvature_elements:
         k1, k2, *_ = g.model.getPrincipalCurvatures(s, uv.ravel().tolist())
@@ -259,7 +259,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
                label: str, cut: list | None = None) -> str:
     from cadbridge.mesh.qit_fallback import mesh_planar_loops
 
-    name = label_of(g, s)
+    name = _label(g, s)
     loops = _face_loops(g, s)
     all_uv = np.concatenate([lp[2] for lp in loops])
     all_xyz = np.concatenate([lp[1] for lp in loops])
