@@ -127,19 +127,42 @@ def test_slit_and_straight_loops_are_not_excursions():
     assert find_excursions(_model(_square_with([(0.0, 1.0), (0.0, 0.0)]))) == []
 
 
-@needs_ansa
-def test_ansa_face_401_excursion_on_occ_edge():
-    """ANSA9: only FACE(401) has one; its stretch lies on the face's boundary as OCC reads it
-    (BRepExtrema distance to the face's edges <= the file's trim tolerance)."""
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-    from OCP.BRepTools import BRepTools
+def _occ_faces():
     from OCP.IGESControl import IGESControl_Reader
     from OCP.TopAbs import TopAbs_FACE
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
+
+    r = IGESControl_Reader()
+    r.ReadFile(str(ANSA))
+    r.TransferRoots()
+    faces = []
+    exp = TopExp_Explorer(r.OneShape(), TopAbs_FACE)
+    while exp.More():
+        faces.append(TopoDS.Face_s(exp.Current()))
+        exp.Next()
+    return faces
+
+
+def _occ_distance(shape, p) -> float:
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
     from OCP.gp import gp_Pnt
 
+    return BRepExtrema_DistShapeShape(shape, BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex()).Value()
+
+
+def _wire_distances(e) -> list[float]:
+    """Per OCC face of ANSA9, the largest distance of the excursion's stretch to its outer wire."""
+    from OCP.BRepTools import BRepTools
+
+    return [max(_occ_distance(BRepTools.OuterWire_s(f), p) for p in e.stretch_xyz[::4]) for f in _occ_faces()]
+
+
+@needs_ansa
+def test_ansa_face_401_excursion_on_occ_edge():
+    """ANSA9: only FACE(401) has one; its stretch lies on the face's boundary as OCC reads it
+    (BRepExtrema distance to the outer wire), FACE(274)'s folded edge within the trim tolerance."""
     from cadbridge.iges import read_iges
 
     model = read_iges(ANSA)
@@ -148,38 +171,39 @@ def test_ansa_face_401_excursion_on_occ_edge():
     e = ex[0]
     face = model.faces[[f.de for f in model.faces].index(e.face_de)]
     assert e.chord < 0.13 and 8.0 < e.length < 8.6
-    r = IGESControl_Reader()
-    r.ReadFile(str(ANSA))
-    r.TransferRoots()
-    shape = r.OneShape()
-    faces = []
-    exp = TopExp_Explorer(shape, TopAbs_FACE)
-    while exp.More():
-        faces.append(TopoDS.Face_s(exp.Current()))
-        exp.Next()
-    # OCC's face of FACE(401): the stretch lies on its outer wire (1e-5 mm; FACE(274)'s edge,
-    # the folded one, is within the trim tolerance 0.0066 of it, the third face far)
-    on_wire = []
-    for f in faces:
-        w = BRepTools.OuterWire_s(f)
-        dist = [BRepExtrema_DistShapeShape(w, BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex()).Value()
-                for p in e.stretch_xyz[::4]]
-        on_wire.append(max(dist))
-    assert sorted(on_wire)[0] < 1e-5 < sorted(on_wire)[1]
-    assert sorted(on_wire)[1] <= face.trim_delta
+    on_wire = sorted(_wire_distances(e))
+    assert on_wire[0] < 1e-5 < on_wire[1] <= face.trim_delta
     assert heal_excursions(model) and find_excursions(model) == []
 
 
 @needs_ansa
 @pytest.mark.slow
 def test_ansa_quad_mesh_leaves_the_excursion_out(tmp_path):
-    """convert in quad (23 s): exit 0, the healed trim reported, and no node of FACE(401)'s
-    elements strictly on the cut stretch (they belong to FACE(274) only)."""
+    """convert in quad (25 s): exit 0 and the healing reported; every element with a node on
+    the cut stretch (away from X and Y) lies on OCC's FACE(274) (BRepExtrema <= its trim
+    tolerance): FACE(401)'s mesh does not reach into the sliver."""
+    from cadbridge.iges import read_iges
+    from cadbridge.loop_excursions import _polyline_distance
     from cadbridge.pipeline import convert
 
     res = convert(str(ANSA), str(tmp_path / "q"), element="quad")
     assert any("trim defect healed: FACE(401)" in n for n in res.notes)
     assert any("without its trim-loop excursion" in n for n in res.notes)
+    model = read_iges(ANSA)
+    (e,) = find_excursions(model)
+    d274 = model.faces[0].trim_delta
+    dist = _wire_distances(e)
+    f274 = _occ_faces()[int(np.argsort(dist)[1])]  # the folded neighbour (see the test above)
+    checked = 0
+    for t in res.tools:
+        x = t.mesh.nodes
+        on = (_polyline_distance(x, e.stretch_xyz) < 1e-3) \
+            & (np.linalg.norm(x - e.start, axis=1) > 2 * e.chord) & (np.linalg.norm(x - e.end, axis=1) > 2 * e.chord)
+        for el in [*t.mesh.triangles.tolist(), *t.mesh.quads.tolist()]:
+            if on[el].any():
+                checked += 1
+                assert max(_occ_distance(f274, x[n]) for n in el) <= d274
+    assert checked > 0
 
 
 @needs_ansa
