@@ -462,6 +462,13 @@ def refine_mesh(
             k_per = len(corners) // max(len(elems), 1)
             marks_p.extend([cen, corners])
             marks_h.extend([h_new, np.repeat(h_new, k_per)])
+            # an element inside a mapped face: its sides' divisions come from the face's
+            # boundary curves, which a mark at the element does not reach (passes 2-4 of the
+            # production die kept the same 7.3 mm elements): marks on the face's border too
+            bp, bh = _mapped_border_marks(t, elems, np.maximum(f, h_min / np.maximum(hs, 1e-300)))
+            if len(bp):
+                marks_p.append(bp)
+                marks_h.append(np.maximum(bh, h_min))
 
         n_turned = 0
         worst: list[str] = []
@@ -547,6 +554,49 @@ def refine_mesh(
     met = not above_all
     return AdaptiveResult(mesh, tools, passes, tolerance, met, check_best, floor, actions, above_all, h_min,
                           time.perf_counter() - t_start)
+
+
+def _mapped_border_marks(t, elems: np.ndarray, factor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Marks on the border of the mapped (structured) faces that hold the marked quads
+    ``elems`` (K,) of tool ``t``, scaled by ``factor`` (K,): at the midpoint of every border
+    edge of such a face, the factor times the length of the marked element's edge most
+    parallel to it (so a fillet quad refined for its radius direction refines the face's
+    radius sides, not its straight ones). A face's elements are a structured a x b grid
+    when they are all quads, 2 (a + b) edges are on its border and a b = their number.
+    Returns points (M, 3) and sizes (M,)."""
+    ef = t.element_face
+    quads = [b for b in t.mesh.cells if b.type == "quad"]
+    if ef is None or len(elems) == 0 or len(quads) != len(t.mesh.cells):
+        return np.zeros((0, 3)), np.zeros(0)
+    conn = np.concatenate([np.asarray(b.data) for b in quads])
+    x = t.mesh.nodes
+    pts, hs = [], []
+    for f in np.unique(ef[elems]):  # loop over the (few) faces with marks
+        own = np.flatnonzero(ef == f)
+        q = conn[own]
+        e = np.sort(np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+        uniq, count = np.unique(e, axis=0, return_counts=True)
+        border = uniq[count == 1]
+        half = len(border) / 2.0  # a + b
+        disc = half * half - 4.0 * len(own)
+        if disc < 0 or abs(math.sqrt(disc) - round(math.sqrt(disc))) > 1e-9 or (half + math.sqrt(disc)) % 2:
+            continue  # not a structured grid: the background field takes the marks
+        mid = 0.5 * (x[border[:, 0]] + x[border[:, 1]])
+        bdir = x[border[:, 1]] - x[border[:, 0]]
+        bdir /= np.maximum(np.linalg.norm(bdir, axis=1, keepdims=True), 1e-300)
+        sel = np.flatnonzero(ef[elems] == f)
+        h = np.full(len(border), np.inf)
+        for k in sel:  # loop over the marked elements of this face
+            c = x[conn[elems[k]]]
+            ed = np.roll(c, -1, axis=0) - c  # (4, 3) the quad's edges
+            length = np.linalg.norm(ed, axis=1)
+            cos = np.abs(bdir @ (ed / np.maximum(length, 1e-300)[:, None]).T)  # (B, 4)
+            h = np.minimum(h, factor[k] * length[np.argmax(cos, axis=1)])
+        pts.append(mid)
+        hs.append(h)
+    if not pts:
+        return np.zeros((0, 3)), np.zeros(0)
+    return np.concatenate(pts), np.concatenate(hs)
 
 
 def _normal_turn(nm) -> np.ndarray:

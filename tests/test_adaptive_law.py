@@ -166,3 +166,30 @@ def test_normal_turn_of_elements():
     n = np.stack([np.sin(ang), np.zeros(4), np.cos(ang)], -1)
     nm = NagataMesh(x, np.array([[0, 1, 2, 3]]), n)
     assert _normal_turn(nm)[0] == pytest.approx(np.radians(70.0))
+
+
+def test_marks_reach_the_border_of_a_mapped_face():
+    """A mark inside a mapped face must reach its boundary curves (their divisions set the
+    face's grid): `refine._mapped_border_marks` puts the marked quad's edge lengths times the
+    factor on the border edges parallel to them. Reference: the U-shape die's mapped R 5
+    shoulder (2 x n quads), its border found independently as the edges of one element."""
+    from pathlib import Path
+
+    from cadbridge.refine import _mapped_border_marks, refine_mesh
+
+    r = refine_mesh(Path(__file__).parents[1] / "iges_samples" / "ushape_die_nurbs.igs", 0.05)
+    t = r.tools[0]
+    conn = np.concatenate([np.asarray(b.data) for b in t.mesh.cells])
+    x = t.mesh.nodes
+    for f in np.unique(t.element_face):
+        own = np.flatnonzero(t.element_face == f)
+        el = own[len(own) // 2]
+        pts, hs = _mapped_border_marks(t, np.array([el]), np.array([0.5]))
+        assert len(pts) > 0  # every face of this die is mapped
+        c = x[conn[el]]
+        lengths = np.linalg.norm(np.roll(c, -1, axis=0) - c, axis=1)
+        assert np.all(np.isin(np.round(hs, 9), np.round(0.5 * lengths, 9)))
+        e = np.sort(np.stack([conn[own], np.roll(conn[own], -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+        u, cnt = np.unique(e, axis=0, return_counts=True)
+        mids = 0.5 * (x[u[cnt == 1, 0]] + x[u[cnt == 1, 1]])
+        assert len(mids) == len(pts) and np.allclose(np.sort(mids, axis=0), np.sort(pts, axis=0))
