@@ -191,10 +191,7 @@ def _bezier_bounds(c: NurbsCurve, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray
     p = c.degree
     if p == 1:  # a (rational) linear piece is its chord
         return np.zeros(len(ta)), np.ones(len(ta), dtype=bool)
-    hom = c.__dict__.get("_trim_hom")  # the (x w, y w, w) curve, built once per curve
-    if hom is None:
-        pw = np.ascontiguousarray(c._pw[:, [0, 1, -1]])
-        hom = c.__dict__["_trim_hom"] = NurbsCurve._trusted(p, c.knots, pw, np.ones(len(pw)), c.domain, False)
+    hom = _homogeneous_xyw(c)
     j, fact, tm = _taylor_to_bernstein(p)
     m = len(ta)
     band, graph = np.empty(m), np.empty(m, dtype=np.bool_)
@@ -267,6 +264,92 @@ def _sampled_bounds(c, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.nd
     chord = pb - pa
     graph = np.all(np.einsum("msj,mj->ms", d[:, :, 1], chord) >= 0, axis=1)
     return _GENERIC_SAFETY * np.maximum(dev, curv), graph
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _refine_kernel(cpw, knots, deg, rat, hpw, fact, tm, t, p, target, lmax, max_rounds):  # pragma: no cover - compiled
+    """`LoopBoundary`'s refinement of one NURBS curve's polygon in one compiled call: the
+    chord bounds of `_bezier_bounds_kernel` (degree 1: 0, graph), then up to ``max_rounds``
+    halvings of the edges whose bound exceeds ``target``, that are not a graph over their chord
+    or longer than ``lmax``; only the new points (`_curve_ders_kernel`) and edges are computed,
+    the same values as `_halve_edges` round by round. t (M+1,), p (M+1, 2) the start polygon.
+    Returns t, p, band, graph of the final polygon."""
+    m = t.shape[0] - 1
+    bd = np.zeros(m)
+    gr = np.ones(m, dtype=np.bool_)
+    if deg > 1 and m > 0:
+        _bezier_bounds_kernel(hpw, knots, deg, t[:-1].copy(), t[1:].copy(), p[:-1].copy(), p[1:].copy(), fact, tm,
+                              bd, gr)
+    dim = cpw.shape[1] - 1
+    for r in range(max_rounds + 1):
+        bad = np.zeros(m, dtype=np.bool_)
+        nb = 0
+        for i in range(m):
+            dx = p[i + 1, 0] - p[i, 0]
+            dy = p[i + 1, 1] - p[i, 1]
+            bad[i] = bd[i] > target or not gr[i] or np.sqrt(dx * dx + dy * dy) > lmax
+            if bad[i]:
+                nb += 1
+        if r == max_rounds or nb == 0:
+            break
+        bi = np.empty(nb, dtype=np.int64)
+        k = 0
+        for i in range(m):
+            if bad[i]:
+                bi[k] = i
+                k += 1
+        tmid = np.empty(nb)
+        for k in range(nb):
+            tmid[k] = 0.5 * (t[bi[k]] + t[bi[k] + 1])
+        out = np.empty((nb, 1, dim))
+        _curve_ders_kernel(cpw, knots, deg, rat, tmid, 0, out)
+        pm = np.empty((nb, 2))
+        ta_l = np.empty(nb)
+        tb_r = np.empty(nb)
+        pa_l = np.empty((nb, 2))
+        pb_r = np.empty((nb, 2))
+        for k in range(nb):
+            pm[k, 0], pm[k, 1] = out[k, 0, 0], out[k, 0, 1]
+            ta_l[k], tb_r[k] = t[bi[k]], t[bi[k] + 1]
+            pa_l[k, 0], pa_l[k, 1] = p[bi[k], 0], p[bi[k], 1]
+            pb_r[k, 0], pb_r[k, 1] = p[bi[k] + 1, 0], p[bi[k] + 1, 1]
+        bl = np.zeros(nb)
+        gl = np.ones(nb, dtype=np.bool_)
+        br = np.zeros(nb)
+        grr = np.ones(nb, dtype=np.bool_)
+        if deg > 1:
+            _bezier_bounds_kernel(hpw, knots, deg, ta_l, tmid, pa_l, pm, fact, tm, bl, gl)
+            _bezier_bounds_kernel(hpw, knots, deg, tmid, tb_r, pm, pb_r, fact, tm, br, grr)
+        m2 = m + nb
+        t2 = np.empty(m2 + 1)
+        p2 = np.empty((m2 + 1, 2))
+        bd2 = np.empty(m2)
+        g2 = np.empty(m2, dtype=np.bool_)
+        j = 0  # next new vertex / edge
+        k = 0  # next halved edge
+        for i in range(m):
+            t2[j], p2[j, 0], p2[j, 1] = t[i], p[i, 0], p[i, 1]
+            if bad[i]:
+                bd2[j], g2[j] = bl[k], gl[k]
+                j += 1
+                t2[j], p2[j, 0], p2[j, 1] = tmid[k], pm[k, 0], pm[k, 1]
+                bd2[j], g2[j] = br[k], grr[k]
+                k += 1
+            else:
+                bd2[j], g2[j] = bd[i], gr[i]
+            j += 1
+        t2[j], p2[j, 0], p2[j, 1] = t[m], p[m, 0], p[m, 1]
+        t, p, bd, gr, m = t2, p2, bd2, g2, m2
+    return t, p, bd, gr
+
+
+def _homogeneous_xyw(c: NurbsCurve) -> NurbsCurve:
+    """The (x w, y w, w) curve of ``c`` as a non-rational curve (built once per curve)."""
+    hom = c.__dict__.get("_trim_hom")
+    if hom is None:
+        pw = np.ascontiguousarray(c._pw[:, [0, 1, -1]])
+        hom = c.__dict__["_trim_hom"] = NurbsCurve._trusted(c.degree, c.knots, pw, np.ones(len(pw)), c.domain, False)
+    return hom
 
 
 def _halve_edges(c, bounds, t: np.ndarray, p: np.ndarray, bd: np.ndarray, graph: np.ndarray, bad: np.ndarray):
@@ -498,8 +581,15 @@ class LoopBoundary:
         for k, c in enumerate(self.curves):
             bounds = _bezier_bounds if isinstance(c, NurbsCurve) else _sampled_bounds
             t, p = ts[k], ps[k]
-            bd, graph = bounds(c, t[:-1], t[1:], p[:-1], p[1:])
-            for r in range(_MAX_ROUNDS + 1):
+            if isinstance(c, NurbsCurve):  # the whole refinement compiled (same steps)
+                fact, tmat = _taylor_to_bernstein(c.degree)[1:]
+                t, p, bd, graph = _refine_kernel(c._pw, c.knots, c.degree, c.rational, _homogeneous_xyw(c)._pw,
+                                                 fact, tmat, np.ascontiguousarray(t), np.ascontiguousarray(p),
+                                                 float(target), float(lmax), _MAX_ROUNDS)
+                e0, e1 = t[:-1], t[1:]
+            else:
+                bd, graph = bounds(c, t[:-1], t[1:], p[:-1], p[1:])
+            for r in range(_MAX_ROUNDS + 1 if not isinstance(c, NurbsCurve) else 0):
                 e0, e1 = t[:-1], t[1:]
                 long = np.linalg.norm(p[1:] - p[:-1], axis=1) > lmax
                 bad = (bd > target) | ~graph | long
