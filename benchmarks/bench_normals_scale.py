@@ -21,7 +21,11 @@
    apart). Timed with the index built first (a row of its own) and end to end from a freshly
    read model. Linear in points: `project_points` on 1/10 of the nodes and on all of them.
 
-Prints the table and writes it to ``benchmarks/results/normals_scale.md``.
+Every timing is given as wall time and as CPU time (``time.process_time``: all threads of the
+process; ``os.times`` user / system for the die normals), since the machine is shared; the
+bearing's index build is timed first in the process and again on freshly read models. The
+last lines (``TARGET ...``) say, one per issue-8 target, the number and whether it holds, with
+the load average. Prints the table and writes it to ``benchmarks/results/normals_scale.md``.
 """
 
 from __future__ import annotations
