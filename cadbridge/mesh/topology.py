@@ -85,59 +85,110 @@ class EdgeTable:
 
 
 @numba.njit(cache=True)
-def _stable_pair_order(lo, hi, n):  # pragma: no cover - compiled
-    """Indices sorting the pairs (lo, hi) (H,) of node numbers < n lexicographically, equal
-    pairs in their given order (= np.argsort(lo * n + hi, kind="stable")): LSD counting sort."""
-    h = lo.shape[0]
-    cnt = np.zeros(n + 1, dtype=np.int64)
-    tmp = np.empty(h, dtype=np.int64)
-    order = np.empty(h, dtype=np.int64)
-    for key, src, dst in ((hi, np.arange(h), tmp), (lo, tmp, order)):
-        cnt[:] = 0
-        for i in range(h):
-            cnt[key[i] + 1] += 1
-        for j in range(n):
-            cnt[j + 1] += cnt[j]
-        for t in range(h):
-            i = src[t]
-            dst[cnt[key[i]]] = i
-            cnt[key[i]] += 1
-    return order
+def _count_lo(cells, cnt):  # pragma: no cover - compiled
+    """cnt[lo + 1] += 1 for every side of the (E, k) elements ``cells`` (lo = smaller node)."""
+    k = cells.shape[1]
+    for e in range(cells.shape[0]):
+        for j in range(k):
+            a, b = cells[e, j], cells[e, (j + 1) % k]
+            cnt[min(a, b) + 1] += 1
+
+
+@numba.njit(cache=True)
+def _scatter_by_lo(cells, e0, h0, pos, hi, elems, forward, side, hidx):  # pragma: no cover - compiled
+    """Place every side of ``cells`` (global elements from e0, sides from h0, element-major)
+    at pos[lo] (then pos[lo] += 1): sides bucketed by lo, in side order within a bucket."""
+    k = cells.shape[1]
+    h = h0
+    for e in range(cells.shape[0]):
+        for j in range(k):
+            a, b = cells[e, j], cells[e, (j + 1) % k]
+            lo = min(a, b)
+            t = pos[lo]
+            pos[lo] = t + 1
+            hi[t] = max(a, b)
+            elems[t] = e0 + e
+            forward[t] = a < b
+            side[t] = j
+            hidx[t] = h
+            h += 1
+
+
+@numba.njit(cache=True)
+def _group_edges(start, hi, elems, forward, side, hidx, side_edge):  # pragma: no cover - compiled
+    """Sort each lo bucket start[i]:start[i + 1] by hi, stably (insertion sort: a node has a
+    few sides), so the sides are in lexicographic (lo, hi) order with ties in side order;
+    number the edges; return edges (M, 2), counts (M,), ptr (M + 1,) (side_edge filled)."""
+    n = start.shape[0] - 1
+    m = 0
+    for i in range(n):
+        a, b = start[i], start[i + 1]
+        for t in range(a + 1, b):
+            x = hi[t]
+            if x >= hi[t - 1]:
+                continue
+            ve, vf, vs, vh = elems[t], forward[t], side[t], hidx[t]
+            s = t
+            while s > a and hi[s - 1] > x:
+                hi[s], elems[s], forward[s], side[s], hidx[s] = hi[s - 1], elems[s - 1], forward[s - 1], side[s - 1], hidx[s - 1]
+                s -= 1
+            hi[s], elems[s], forward[s], side[s], hidx[s] = x, ve, vf, vs, vh
+        for t in range(a, b):
+            if t == a or hi[t] != hi[t - 1]:
+                m += 1
+    edges = np.empty((m, 2), dtype=np.int64)
+    counts = np.zeros(m, dtype=np.int64)
+    ptr = np.empty(m + 1, dtype=np.int64)
+    ptr[0] = 0
+    g = -1
+    for i in range(n):
+        a, b = start[i], start[i + 1]
+        for t in range(a, b):
+            if t == a or hi[t] != hi[t - 1]:
+                g += 1
+                edges[g, 0] = i
+                edges[g, 1] = hi[t]
+                ptr[g] = t
+            counts[g] += 1
+            side_edge[hidx[t]] = g
+    ptr[m] = start[n]
+    return edges, counts, ptr
 
 
 def edge_table(mesh: Mesh) -> EdgeTable:
-    """Build the `EdgeTable` of a mesh in O(H log H)."""
-    src, dst, elem, side = halfedges(mesh)
-    lo = np.minimum(src, dst)
-    hi = np.maximum(src, dst)
-    if src.size == 0:
+    """Build the `EdgeTable` of a mesh in O(H + N), H element sides, N nodes.
+
+    Compiled passes over the cell blocks (no (H,) side arrays of `halfedges`): a counting
+    sort of the sides by their smaller node, then each node's few sides sorted by the other
+    node, stably: the order of a stable argsort of the key lo * N + hi (sides grouped by
+    edge, lexicographic; within an edge in side order, i.e. ascending element).
+    """
+    blocks = [(off, np.ascontiguousarray(blk.data, dtype=np.int64)) for off, blk in mesh.elements()]
+    h = sum(c.size for _, c in blocks)
+    if h == 0:
         z = np.empty(0, dtype=np.int64)
         return EdgeTable(np.empty((0, 2), np.int64), z, np.zeros(1, np.int64), z, z.astype(bool), z, z)
     n = max(int(mesh.n_nodes), 1)
-    key = lo * n + hi  # unique int key per sorted pair (N^2 < 2^63 for N < 3e9)
-    # one stable sort: sides grouped by edge, and within an edge in side order, which is
-    # ascending element (sides are element-major); two counting passes (hi, then lo) give
-    # exactly the stable argsort of key in O(H + N)
-    order = _stable_pair_order(lo, hi, n)
-    ks = key[order]
-    new = np.empty(len(ks), dtype=bool)
-    new[0] = True
-    new[1:] = ks[1:] != ks[:-1]
-    uniq = ks[new]
-    inv = np.empty(len(key), dtype=np.int64)
-    inv[order] = np.cumsum(new) - 1
-    edges = np.column_stack([uniq // n, uniq % n]).astype(np.int64)
-    counts = np.bincount(inv, minlength=len(uniq)).astype(np.int64)
-    ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return EdgeTable(
-        edges=edges,
-        counts=counts,
-        ptr=ptr,
-        elems=elem[order],
-        forward=(src < dst)[order],
-        side=side[order],
-        side_edge=inv.astype(np.int64),
-    )
+    start = np.zeros(n + 1, dtype=np.int64)
+    for _, c in blocks:
+        if len(c):
+            _count_lo(c, start)
+    np.cumsum(start, out=start)
+    pos = start[:-1].copy()
+    hi = np.empty(h, dtype=np.int64)
+    elems = np.empty(h, dtype=np.int64)
+    forward = np.empty(h, dtype=bool)
+    side = np.empty(h, dtype=np.int64)
+    hidx = np.empty(h, dtype=np.int64)
+    h0 = 0
+    for off, c in blocks:
+        if len(c):
+            _scatter_by_lo(c, off, h0, pos, hi, elems, forward, side, hidx)
+        h0 += c.size
+    side_edge = np.empty(h, dtype=np.int64)
+    edges, counts, ptr = _group_edges(start, hi, elems, forward, side, hidx, side_edge)
+    return EdgeTable(edges=edges, counts=counts, ptr=ptr, elems=elems, forward=forward, side=side,
+                     side_edge=side_edge)
 
 
 def unique_edges(mesh: Mesh) -> np.ndarray:
