@@ -96,6 +96,21 @@ def test_z_excursion_found_and_cut_against_occ_area():
     assert abs(a0 - a1) < 2e-4 * e.length  # a sliver: no wider than its strands
 
 
+def test_cut_across_the_loop_start_against_occ_area():
+    """The same Z with the loop starting inside it (at the up strand's top): the cut wraps
+    over the loop's first curve; OCC's areas differ by the cut's signed area as before."""
+    poly = _square_with(Z_LEFT)
+    k = poly.index((4e-4, 0.60))
+    poly = poly[k:] + poly[:k]
+    model = _model(poly)
+    (e,) = heal_excursions(model)
+    assert find_excursions(model) == []
+    a0 = _occ_area(_occ_face(np.array(poly)))
+    a1 = _occ_area(_occ_face(_loop_vertices(model.faces[0].trims.outer)))
+    assert abs(a0 - a1 - e.uv_area) < 1e-12
+    assert abs(a0 - a1) < 2e-4 * e.length
+
+
 def test_classification_after_the_cut_against_occ():
     """cadbridge's healed trims agree with OCC's classification of the original face except
     inside the cut sliver (within the chord of the cut stretch)."""
