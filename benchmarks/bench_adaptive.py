@@ -236,9 +236,9 @@ def _write(out: str, rows: list, speed: list, production: bool = False) -> int:
         lines = ["# Adaptive Nagata meshing vs uniform gmsh meshes: production die", "",
                  f"`nice -n 10 python benchmarks/bench_adaptive.py --production-only ...` (one run, 2 cores shared with "
                  f"other work, load at the end {os.getloadavg()[0]:.1f}). Adaptive: `refine_mesh(die, t, max_size=50)`; "
-                 "uniform: `mesh_cad(die, element='quad', size=h)`; both measured on the adaptive check's grid (2 g - 1 divisions per patch for the loop's g: 3 on the die; "
-                 "the same points for both kinds). Ratio = nodes of the coarsest uniform mesh reaching the adaptive max "
-                 "error / adaptive nodes.", ""]
+                 "uniform: `mesh_cad(die, element='quad', size=h)`; both measured on the adaptive check's grid "
+                 "(2 g - 1 divisions per patch for the loop's g: 3 on the die; the same points for both kinds). "
+                 "Ratio = nodes of the coarsest uniform mesh reaching the adaptive max error / adaptive nodes.", ""]
     else:
         lines = ["# Adaptive Nagata meshing vs uniform gmsh meshes", "",
              "`python benchmarks/bench_adaptive.py` (one run, 2 cores shared with other work). Max shape error of the "
