@@ -416,8 +416,9 @@ def index_for(model: Model) -> SearchIndex:
 def _pair_keys(pi, bj, pts, box_lo, box_hi, box_slab, box_face, bound, exclude, n):  # pragma: no cover - compiled
     """Keys face * n + point of the raw (point pi, box bj) pairs whose exact distance lower
     bound (to the box, and to the slab holding the sub-patch) is within the point's bound and
-    whose face is not the point's excluded one (-1: none)."""
+    whose face is not the point's excluded one (-1: none); and those lower bounds."""
     out = np.empty(pi.shape[0], dtype=np.int64)
+    low = np.empty(pi.shape[0])
     m = 0
     for t in range(pi.shape[0]):
         p = pi[t]
@@ -435,15 +436,18 @@ def _pair_keys(pi, bj, pts, box_lo, box_hi, box_slab, box_face, bound, exclude, 
         lb = max(np.sqrt(g2), box_slab[b, 3] - s, s - box_slab[b, 4])
         if lb <= bound[p] or not np.isfinite(bound[p]):
             out[m] = f * n + p
+            low[m] = lb
             m += 1
-    return out[:m]
+    return out[:m], low[:m]
 
 
-def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exclude: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exclude: np.ndarray | None = None,
+                     *, lower: bool = False) -> tuple[np.ndarray, ...]:
     """(point, face) pairs whose boxes lie within ``bound`` (N,) of the point, without the
     pairs (i, exclude[i]) (faces already projected); unique, sorted by face. Returns (point
-    indices, face indices)."""
+    indices, face indices) and with ``lower`` (M,) a lower bound of each pair's distance from
+    the point to the face's trimmed region: the least box / slab bound of its sub-patches
+    (those not returned lie beyond ``bound``; -inf for a point without a bound)."""
     n = len(pts)
     finite = np.isfinite(bound)
     excl = np.full(n, -1, dtype=np.int64) if exclude is None else np.asarray(exclude, dtype=np.int64)
@@ -452,13 +456,14 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
     if slab is None:  # an index made without slabs: boxes only
         slab = np.zeros((len(face_of_box), 5))
         slab[:, 3], slab[:, 4] = -np.inf, np.inf
-    keys = []
+    keys, lows = [], []
     if np.any(~finite):  # no bound at all (no valid samples): every face is a candidate
         pi = np.nonzero(~finite)[0]
         f = np.unique(face_of_box)
         ff, pp = np.tile(f, len(pi)), np.repeat(pi, len(f))
         keep = ff != excl[pp]
         keys.append(ff[keep] * n + pp[keep])
+        lows.append(np.full(int(keep.sum()), -np.inf))
     if np.any(finite):
         fb = bound[finite]
         # octaves of the bound; bounds below 1e-3 x size in one group (the box radii dominate there)
@@ -472,12 +477,25 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
                 m = ptree.sparse_distance_matrix(btree, bmax + rmax, output_type="ndarray")
                 if len(m) == 0:
                     continue
-                keys.append(_pair_keys(sel[m["i"]], boxes[m["j"]], pts, index.box_lo, index.box_hi, slab,
-                                       face_of_box, bound, excl, n))
+                k_, l_ = _pair_keys(sel[m["i"]], boxes[m["j"]], pts, index.box_lo, index.box_hi, slab,
+                                    face_of_box, bound, excl, n)
+                keys.append(k_)
+                lows.append(l_)
     if not keys:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    key = np.unique(np.concatenate(keys))  # sorted by face, then point
-    return key % n, key // n
+        z = np.zeros(0, dtype=np.int64)
+        return (z, z, np.zeros(0)) if lower else (z, z)
+    if not lower:
+        key = np.unique(np.concatenate(keys))  # sorted by face, then point
+        return key % n, key // n
+    key = np.concatenate(keys)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    if not len(ks):
+        return ks, ks, np.zeros(0)
+    cut = np.flatnonzero(np.concatenate([[True], ks[1:] != ks[:-1]]))
+    low = np.minimum.reduceat(np.concatenate(lows)[order], cut)
+    key = ks[cut]  # = np.unique(key): sorted by face, then point
+    return key % n, key // n, low
 
 
 def _trim_flags(model: Model, cf: np.ndarray, u: np.ndarray, v: np.ndarray, status: np.ndarray
@@ -572,6 +590,16 @@ class _Pairs:
                 self.normal[rows], self.status[rows], self.inside[rows], self.out[rows])
 
 
+def _known_distance(n: int, pairs: tuple) -> np.ndarray:
+    """(n,) the nearest foot of each point that lies inside its face and CONVERGED, over the
+    given `_Pairs` (inf where none): the search's answer is no farther."""
+    d = np.full(n, np.inf)
+    for pp in pairs:
+        ok = pp.inside & (pp.status == CONVERGED)
+        np.minimum.at(d, pp.cp[ok], pp.dist[ok])
+    return d
+
+
 _ON_MODEL = 1e-10  # a foot inside its face this near its point (x model size) ends the search
 _BLOCK = 262144  # points projected together at most (larger inputs go block by block)
 
@@ -656,14 +684,24 @@ def project_points(
     open_[cpa[ona]] = False
     # 2b. the rest: every face with a box within the bound (the pairs of 2a not again)
     sub = np.flatnonzero(open_)
-    cp2, cf2 = _candidate_pairs(index, pts[sub], bound[sub], exclude=excl[sub] if excl is not None else None)
+    cp2, cf2, lb2 = _candidate_pairs(index, pts[sub], bound[sub], exclude=excl[sub] if excl is not None else None,
+                                     lower=True)
     cp2 = sub[cp2]
     if len(cpa) and len(cp2):
         fresh = ~np.isin(cf2 * n + cp2, cfa * n + cpa)
-        cp2, cf2 = cp2[fresh], cf2[fresh]
+        cp2, cf2, lb2 = cp2[fresh], cf2[fresh], lb2[fresh]
     p2 = _Pairs(model, index, pts, cp2, cf2, tol)
-    for pp in (p1, pa, p2):
-        pp.finish(open_[pp.cp])
+    # checks (restarts) only where they can change the answer: a pair of 2b whose face lies
+    # farther (its box / slab bound) than a known foot inside a face, CONVERGED, cannot win,
+    # whatever its restarts find (every foot on its trimmed region, or on its trim loops in
+    # step 3, is at least that far; a restart never makes a foot FAILED); the known foot is
+    # taken again after the other pairs' checks (a restart may move it off its face)
+    hopeless = (p2.status != FAILED) & (lb2 > _known_distance(n, (p1, pa, p2))[cp2] * (1.0 + 1e-9) + 1e-9 * size)
+    for pp, skip in ((p1, None), (pa, None), (p2, hopeless)):
+        pp.finish(open_[pp.cp] if skip is None else open_[pp.cp] & ~skip)
+    if np.any(hopeless):
+        again = hopeless & ~(lb2 > _known_distance(n, (p1, pa, p2))[cp2] * (1.0 + 1e-9) + 1e-9 * size)
+        p2.finish(open_[cp2] & again)
     parts = [p1.take(np.flatnonzero(open_[cp1] | on1)), pa.take(np.flatnonzero(open_[cpa] | ona)),
              p2.take(np.flatnonzero(open_[cp2]))]
     cp, cf, pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate(x) for x in zip(*parts))
