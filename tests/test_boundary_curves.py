@@ -129,7 +129,8 @@ def test_bad_boundary_curves(tmp_path, capsys):
     for bad in (three, tmp_path / "missing.igs"):
         rc = main(["fit", str(pf), "-o", str(tmp_path / "o.igs"), "--base-curves", str(bad)])
         err = capsys.readouterr().err.strip()
-        assert rc == 2 and len(err.splitlines()) == 1, err
+        lines = [ln for ln in err.splitlines() if 'compiling numerical kernels' not in ln]  # fresh checkout's notice
+        assert rc == 2 and len(lines) == 1, err
 
 
 def test_loop_orientation_and_corners():

@@ -74,23 +74,9 @@ def test_surfaces_gmsh_leaves_empty_are_named():
     assert "cusp strip" in named
 
 
-@pytest.mark.skipif(not (REAL / "occt_OCC131-2_ANSA9.igs").is_file(), reason="corpus not present")
-def test_a_face_that_folds_back_stops_convert_naming_it(tmp_path):
-    from cadbridge.iges import read_iges
-    from cadbridge.pipeline import ToolQualityError, convert
-
-    path = REAL / "occt_OCC131-2_ANSA9.igs"
-    s = read_iges(path).faces[0].surface
-    # the reference: S_v at u = 0.5 points one way before v = 0.8167 and the other way after
-    d = s.derivatives(np.array([0.5, 0.5]), np.array([0.75, 0.9]), order=1)
-    assert np.dot(d[0, 0, 1], d[1, 0, 1]) < 0
-    # the elements across the fold lines are stopped: as a reversal of the CAD normal, or,
-    # where a corner normal was turned to its element's side (cad_normals: a minority corner
-    # against its element's winding), as elements straddling the fold, a 180-degree crease
-    with pytest.raises(ToolQualityError, match=r"(the CAD normal reverses inside elements .* on face 0 \(FACE\(274\)\))"
-                                               r"|(mesh straddles a crease: elements \d)"):
-        convert(path, tmp_path / "out", element="tri")
-    assert not (tmp_path / "out").exists()
+# ANSA9's FACE(274), which folds back over itself, used to stop convert here; its fold lines are
+# now mesh edges (cadbridge.folds): tests/test_folds.py checks the fold lines against OCC, the
+# conversion in tri and quad, and that a mesh across a fold still stops ("straddles a crease").
 
 
 def test_merge_drops_a_quad_whose_diagonal_collapsed():
