@@ -543,7 +543,6 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
         write_nagata_iges(tri_c, quad_c, folder / f"{name}_nagata.igs", units=units)
         files += [f"{name}_grid.csv", f"{name}_coefficients.txt", f"{name}_nagata.igs"]
 
-
     verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(min(4, sample_divisions(nm, 4)), return_params=True)
     _, vnorm = nm.evaluate(pe, peta, pzeta)
     surface_data = {"normal": vnorm, "element": pe.astype(np.int32)}
