@@ -574,12 +574,6 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         # into quads, halving the size) on a mesh made at twice the target size.
         g.model.mesh.clear()
         _apply(sess, {"Mesh.MeshSizeMax": 2 * size, "Mesh.SubdivisionAlgorithm": 1})
-        if kw["curvature_elements"]:
-            # curvature sizing at twice its sizes too (half the elements per turn, twice the
-            # floor): with the curvature's own sizes the subdivision gave the production die's
-            # curved faces 4x the elements (303 017 nodes in quad against 67 319 in tri)
-            _apply(sess, {"Mesh.MeshSizeFromCurvature": max(1, round(kw["curvature_elements"] / 2)),
-                          "Mesh.MeshSizeMin": size / 10.0})
         # the size field at twice its sizes too (else the subdivision halves them: 4x the elements)
         if kw["size_callback"] is not None:
             cb = kw["size_callback"]
