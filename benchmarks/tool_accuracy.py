@@ -288,10 +288,40 @@ class OccReference:
         target = self.faces_compound if near is None else self._neighbour_compound(near)
         out = np.full(len(x), np.inf)
         for i, xx in enumerate(x):
-            d = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, xx))).Vertex(), target)
+            v = BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, xx))).Vertex()
+            d = BRepExtrema_DistShapeShape(v, target)
             if d.IsDone() and d.NbSolution() > 0:
                 out[i] = d.Value()
+            if near is None:
+                continue
+            # a face beyond the neighbours can still be nearer (narrow faces: a neighbour's
+            # neighbour): every face whose bounding box lies within the distance found is
+            # measured too, so the result is the distance to all trimmed faces
+            lo, hi = self._boxes()
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo - xx, xx - hi)), axis=1)
+            for f in np.flatnonzero(gap < out[i]):
+                if int(f) in self._neighbour_ids[near]:
+                    continue
+                d = BRepExtrema_DistShapeShape(v, self._face_index.FindKey(int(f) + 1))
+                if d.IsDone() and d.NbSolution() > 0:
+                    out[i] = min(out[i], d.Value())
         return out
+
+    def _boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding boxes (``BRepBndLib``) of the faces: lo, hi (F, 3)."""
+        if not hasattr(self, "_box_lo"):
+            from OCP.BRepBndLib import BRepBndLib
+            from OCP.Bnd import Bnd_Box
+
+            lo, hi = [], []
+            for i in range(1, self._face_index.Extent() + 1):
+                b = Bnd_Box()
+                BRepBndLib.Add_s(self._face_index.FindKey(i), b, False)
+                x0, y0, z0, x1, y1, z1 = b.Get()
+                lo.append((x0, y0, z0))
+                hi.append((x1, y1, z1))
+            self._box_lo, self._box_hi = np.array(lo), np.array(hi)
+        return self._box_lo, self._box_hi
 
     def _neighbour_compound(self, k: int):
         """Compound of face k (0-based) and the faces sharing an edge or a vertex with it."""
@@ -318,6 +348,7 @@ class OccReference:
             for i in sorted(i for i in ids if i >= 0):
                 builder.Add(comp, self._face_index.FindKey(i + 1))
             cache[k] = comp
+            self.__dict__.setdefault("_neighbour_ids", {})[k] = ids
         return cache[k]
 
     def faces_holding(self, corners: np.ndarray, nn: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -325,18 +356,7 @@ class OccReference:
         the OCC face whose untrimmed surface holds all corners best and that largest corner
         distance: (face (E,) 0-based, -1 if none; gap (E,)). Candidates are the faces whose
         bounding box (``BRepBndLib``) holds the corners within ``tol``; no BRepExtrema."""
-        if not hasattr(self, "_box_lo"):
-            from OCP.BRepBndLib import BRepBndLib
-            from OCP.Bnd import Bnd_Box
-
-            lo, hi = [], []
-            for i in range(1, self._face_index.Extent() + 1):
-                b = Bnd_Box()
-                BRepBndLib.Add_s(self._face_index.FindKey(i), b, False)
-                x0, y0, z0, x1, y1, z1 = b.Get()
-                lo.append((x0, y0, z0))
-                hi.append((x1, y1, z1))
-            self._box_lo, self._box_hi = np.array(lo), np.array(hi)
+        self._boxes()
         valid = np.arange(corners.shape[1])[None, :] < nn[:, None]  # (E, 4)
         clo = np.where(valid[..., None], corners, np.inf).min(axis=1)
         chi = np.where(valid[..., None], corners, -np.inf).max(axis=1)
