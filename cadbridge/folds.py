@@ -369,16 +369,8 @@ def apply_fold_normals(cn, mesh, model: Model, folds: Folds, flip: bool = False)
     sign = -1.0 if flip else 1.0
     changed = 0
     changed += _mesher_feet(cn, mesh, model, folds, blocks, sign)
-    ids, which, tpar = fold_nodes(nodes, folds, model)
+    ids, which, nrm = _fold_node_normals(nodes, folds, model)
     if len(ids):
-        nrm = np.empty((len(ids), 3))
-        for j in np.unique(which):  # loop over fold lines
-            m = which == j
-            line = folds.lines[j]
-            surf = model.faces[line.face].surface
-            s = _fold_points(surf, line.across, tpar[m], np.interp(tpar[m], line.t, line.lo),
-                             np.interp(tpar[m], line.t, line.hi))
-            nrm[m] = cusp_normal(surf, line.across, tpar[m], s)
         line_face = np.array([folds.lines[j].face for j in which])
         at = np.full(len(nodes), -1)
         at[ids] = np.arange(len(ids))
@@ -526,6 +518,21 @@ def fold_straddling(blocks: list[np.ndarray], model: Model, folds: Folds, nodes:
     return np.flatnonzero(np.concatenate(straddle)) if straddle else np.zeros(0, dtype=np.int64)
 
 
+def _fold_node_normals(points: np.ndarray, folds: Folds, model: Model) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The points (N, 3) on a fold line (`fold_nodes`) and their cusp normals (unoriented):
+    ids (K,) into ``points``, which (K,) fold line, normals (K, 3)."""
+    ids, which, tpar = fold_nodes(points, folds, model)
+    nrm = np.empty((len(ids), 3))
+    for j in np.unique(which):  # loop over fold lines
+        m = which == j
+        line = folds.lines[j]
+        surf = model.faces[line.face].surface
+        s = _fold_points(surf, line.across, tpar[m], np.interp(tpar[m], line.t, line.lo),
+                         np.interp(tpar[m], line.t, line.hi))
+        nrm[m] = cusp_normal(surf, line.across, tpar[m], s)
+    return ids, which, nrm
+
+
 def fold_reference_normals(model: Model, feet: np.ndarray, normals: np.ndarray, orient: np.ndarray) -> np.ndarray:
     """The CAD normals an error measure should compare with, (M, 3): ``normals`` (M, 3) at
     the ``feet`` (M, 3), except at feet on a fold line (`fold_nodes`, within 1e-6 x size:
@@ -537,14 +544,7 @@ def fold_reference_normals(model: Model, feet: np.ndarray, normals: np.ndarray, 
         return out
     feet = np.asarray(feet, dtype=float)
     good = np.flatnonzero(np.isfinite(feet).all(axis=1))
-    ids, which, tpar = fold_nodes(feet[good], folds, model)
+    ids, _, n = _fold_node_normals(feet[good], folds, model)
     ids = good[ids]
-    for j in np.unique(which):  # loop over fold lines
-        m = which == j
-        line = folds.lines[j]
-        surf = model.faces[line.face].surface
-        s = _fold_points(surf, line.across, tpar[m], np.interp(tpar[m], line.t, line.lo),
-                         np.interp(tpar[m], line.t, line.hi))
-        n = cusp_normal(surf, line.across, tpar[m], s)
-        out[ids[m]] = n * np.where(np.einsum("ij,ij->i", n, orient[ids[m]]) < 0, -1.0, 1.0)[:, None]
+    out[ids] = n * np.where(np.einsum("ij,ij->i", n, orient[ids]) < 0, -1.0, 1.0)[:, None]
     return out
