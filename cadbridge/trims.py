@@ -401,6 +401,27 @@ def _seg_dist(x, y, ax, ay, bx, by):
 
 
 @numba.njit(cache=True, error_model="numpy")
+def _grid_start(x, y, x0, y0, h, nx, ny, vstart, vcross):
+    """Cell (ci, cj) of point (x, y) on the crossing grid, and the number of crossings of grid
+    line X (the cell's right side) at or below y (binary search in the sorted vcross); ci = -1
+    outside the grid."""
+    ci = int(np.floor((x - x0) / h))
+    cj = int(np.floor((y - y0) / h))
+    if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
+        return -1, -1, 0
+    lo = vstart[ci]
+    hi = vstart[ci + 1]
+    base = lo
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if vcross[mid] <= y:
+            lo = mid + 1
+        else:
+            hi = mid
+    return ci, cj, lo - base
+
+
+@numba.njit(cache=True, error_model="numpy")
 def _classify_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, ax, ay, bx, by, band, tol,
                      parity, near):
     """Even-odd parity of each point against the polygon along the path p -> (X, v) -> (X, -inf)
@@ -409,23 +430,12 @@ def _classify_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, 
     for i in range(pu.size):
         x = pu[i]
         y = pv[i]
-        ci = int(np.floor((x - x0) / h))
-        cj = int(np.floor((y - y0) / h))
-        if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
+        ci, cj, cnt = _grid_start(x, y, x0, y0, h, nx, ny, vstart, vcross)
+        if ci < 0:
             parity[i] = False
             near[i] = False
             continue
         xr = x0 + (ci + 1) * h
-        lo = vstart[ci]
-        hi = vstart[ci + 1]
-        base = lo
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if vcross[mid] <= y:
-                lo = mid + 1
-            else:
-                hi = mid
-        cnt = lo - base
         xa = min(x, xr)
         xb = max(x, xr)
         nr = False
@@ -777,23 +787,12 @@ def _contains_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, 
     for i in range(pu.size):
         x = pu[i]
         y = pv[i]
-        ci = int(np.floor((x - x0) / h))
-        cj = int(np.floor((y - y0) / h))
-        if ci < 0 or ci >= nx or cj < 0 or cj >= ny:
+        ci, cj, cnt = _grid_start(x, y, x0, y0, h, nx, ny, vstart, vcross)
+        if ci < 0:
             inside[i] = False
             on[i] = False
             continue
         xr = x0 + (ci + 1) * h
-        lo = vstart[ci]
-        hi = vstart[ci + 1]
-        base = lo
-        while lo < hi:
-            mid = (lo + hi) // 2
-            if vcross[mid] <= y:
-                lo = mid + 1
-            else:
-                hi = mid
-        cnt = lo - base
         xa = min(x, xr)
         xb = max(x, xr)
         cell = cj * nx + ci
