@@ -1,0 +1,85 @@
+"""Refinement marks are delivered by gmsh (issue 12, the production die's stalled elements).
+
+On the production die two elements kept their 7.3 mm edges in every pass although each pass
+marked them for 5.5 mm: a mark at an element's corners and centroid, in a field graded at
+g = 0.5, is 5.5 + 0.5 x 3.6 = 7.3 mm at the nodes gmsh makes half an element away, and gmsh
+reads the field only at its nodes. The reproduction here: one plane face (the trimmed plate
+of ``iges_samples/trimmed_hole.igs``, unstructured because of its hole), a uniform size, and
+the loop's marking of the element over a fixed point, pass after pass.
+
+Reference: gmsh's own ratio of the longest quad edge to the size asked, measured on the
+uniform mesh of the same face in the same test. A marked element must come out within that
+ratio of the size the loop asked for.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cadbridge.mesh.generate import mesh_cad
+from cadbridge.mesh.sizing import SizeField, ball_marks
+from cadbridge.refine import element_marks
+
+PLATE = Path(__file__).resolve().parents[1] / "iges_samples" / "trimmed_hole.igs"
+H = 10.0  # uniform size on the 100 x 60 plate
+
+
+def _longest_edges(mesh):
+    out = []
+    for b in mesh.cells:
+        x = mesh.nodes[np.asarray(b.data)]
+        out.append(np.linalg.norm(np.roll(x, -1, axis=1) - x, axis=2).max(axis=1))
+    return np.concatenate(out)
+
+
+def _element_at(mesh, p):
+    """The element whose (planar, z = 0) quad holds the point p (by its bounding box and the
+    nearest centroid among those)."""
+    x = np.concatenate([mesh.nodes[np.asarray(b.data)] for b in mesh.cells])
+    lo, hi = x.min(axis=1), x.max(axis=1)
+    ok = np.flatnonzero(np.all((lo[:, :2] <= p[:2] + 1e-9) & (p[:2] <= hi[:, :2] + 1e-9), axis=1))
+    return int(ok[np.argmin(np.linalg.norm(x[ok].mean(axis=1) - p, axis=1))])
+
+
+def test_ball_marks_cover_the_ball():
+    """Every point of the ball is within the lattice's covering radius r sqrt(3) / (2 n) of
+    a mark (closed form for a cubic lattice of spacing r / n)."""
+    c = np.array([[1.0, 2.0, 3.0], [-5.0, 0.0, 0.0]])
+    r = np.array([2.0, 0.5])
+    pts, h = ball_marks(c, r, np.array([0.3, 0.1]), n=3)
+    assert len(pts) == 2 * 251 and np.allclose(np.unique(h), [0.1, 0.3])
+    rng = np.random.default_rng(3)
+    for ci, ri in zip(c, r):
+        d = rng.normal(size=(500, 3))
+        q = ci + ri * d / np.linalg.norm(d, axis=1, keepdims=True) * rng.uniform(0, 1, (500, 1)) ** (1 / 3)
+        dist = np.min(np.linalg.norm(q[:, None, :] - pts[None], axis=2), axis=1)
+        assert dist.max() <= ri * np.sqrt(3) / 6 + 1e-12
+
+
+@pytest.mark.skipif(not PLATE.is_file(), reason="iges_samples/trimmed_hole.igs missing")
+@pytest.mark.parametrize("point", [(70.0, 45.0), (30.0, 10.0), (85.0, 12.0)])
+def test_marked_element_gets_the_size_asked(point):
+    p = np.array([point[0], point[1], 0.0])
+    field = SizeField(np.zeros((0, 3)), np.zeros(0), 0.1, H, 0.5)  # the loop's field: graded 0.5
+    marks = SizeField(np.zeros((0, 3)), np.zeros(0), 0.1, H, 0.5)  # the loop's requests only
+    mesh = mesh_cad(PLATE, element="quad", size=H, background_sizes=field.background(None))
+    ratio = float(np.max(_longest_edges(mesh))) / H  # gmsh's longest quad edge / size asked
+    sizes, asked = [], []
+    for _ in range(3):  # loop over passes, as refine_mesh marks an element above the tolerance
+        i = _element_at(mesh, p)
+        h = float(_longest_edges(mesh)[i])
+        cen = mesh.nodes[np.concatenate([np.asarray(b.data) for b in mesh.cells])[i]].mean(axis=0)
+        h_new = 0.75 * min(h, float(marks(cen[None])[0]))  # refine_mesh's rule at factor 0.75
+        mp, mh = element_marks(mesh, np.array([i]), np.array([h_new]))
+        field.add(mp, mh)
+        marks.add(mp, mh)
+        sizes.append(h)
+        asked.append(h_new)
+        mesh = mesh_cad(PLATE, element="quad", size=H, background_sizes=field.background(mesh.nodes))
+    sizes.append(float(_longest_edges(mesh)[_element_at(mesh, p)]))
+    # each pass's element is within gmsh's ratio of what the pass before asked for; with marks
+    # at the corners and centroid only (the old rule) the element at (70, 45) went
+    # 11.1 -> 10.0 -> 11.9 -> 8.8 for 8.3, 7.5, 9.0 asked
+    assert all(s <= ratio * a * 1.05 for s, a in zip(sizes[1:], asked)), (sizes, asked, ratio)
+    assert sizes[-1] < 0.75 * sizes[0], (sizes, asked)
