@@ -104,6 +104,46 @@ def _crease_pieces(surface) -> list:
     return hit[1]
 
 
+COINCIDENT = 1e-12
+"""Sample points closer than about this x the model size are one point for the error
+measure (a grid cell of that width): neighbouring patches share their corner and edge
+samples (on a 2-division grid 2 of a triangle's 6 samples are its own), so each such point
+is projected once (`_unique_points`)."""
+
+
+def _unique_points(points: np.ndarray, quantum: float, key: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Representatives of the points (M, 3) that fall into one cell of width ``quantum``
+    (and share ``key`` (M,) if given): (rep (K,) indices into points, inverse (M,) with
+    points[rep][inverse] ~ points). A projection is a function of the point alone, so the
+    representative's result stands for its cell (within ``quantum`` of the exact one)."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    cell = np.round(np.asarray(points, dtype=float) / quantum)
+    if key is not None:
+        cell = np.column_stack([cell, np.asarray(key, dtype=float)])
+    cell = np.ascontiguousarray(cell)
+    rows = cell.view(np.dtype((np.void, cell.dtype.itemsize * cell.shape[1]))).ravel()
+    _, rep, inv = np.unique(rows, return_index=True, return_inverse=True)
+    return rep, inv.ravel()
+
+
+def _expand(result, inverse: np.ndarray):
+    """A projection result (dataclass of (K, ...) arrays) taken at ``inverse`` (M,)."""
+    import dataclasses
+
+    return dataclasses.replace(result, **{f.name: np.asarray(getattr(result, f.name))[inverse]
+                                          for f in dataclasses.fields(result)})
+
+
+def _project_unique(project, points: np.ndarray, quantum: float, **kw):
+    """``project(points, **kw)`` with coincident points (`_unique_points`) projected once."""
+    rep, inv = _unique_points(points, quantum)
+    if len(rep) == len(points):
+        return project(points, **kw)
+    return _expand(project(points[rep], **kw), inv)
+
+
 def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarray,
               ref_normals: np.ndarray, piece_uv: np.ndarray | None = None):
     """Project each point onto the untrimmed surface of its face; on a face with crease knot
@@ -119,12 +159,14 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
     from cadbridge.folds import folds_for
 
     folded = {line.face for line in folds_for(model).lines}
+    quantum = COINCIDENT * model.size()
     for f in np.unique(face[face >= 0]):  # loop over faces, vectorised over points
         sel = np.flatnonzero(face == f)
         s = model.faces[f].surface
         # on a folded face the sheets lie close: Newton from the nearest grid sample alone can
         # end on another sheet than the nearest one
-        pr = project_to_surface(s, points[sel], n_starts=4 if f in folded else 1)
+        pr = _project_unique(lambda x, **kw: project_to_surface(s, x, **kw), points[sel], quantum,
+                             n_starts=4 if f in folded else 1)
         pieces = _crease_pieces(s)
         if len(pieces) > 1:
             if piece_uv is None:
@@ -140,7 +182,7 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
             for k in np.unique(which):  # loop over the (few) pieces
                 m = which == k
                 pc = pieces[k]
-                q = project_to_surface(pc, points[sel[m]])
+                q = _project_unique(lambda x: project_to_surface(pc, x), points[sel[m]], quantum)
                 a, b, c, d = pc.domain
                 fail = np.flatnonzero(q.status == FAILED)
                 if len(fail):
@@ -214,7 +256,7 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
     at = np.full(len(pts), -1, dtype=np.int64)
     at[rest] = np.arange(len(rest))
     if len(rest):
-        trimmed = project_trimmed(pts[rest])
+        trimmed = _project_unique(project_trimmed, pts[rest], COINCIDENT * model.size())
         boundary[rest] = np.linalg.norm(pts[rest] - trimmed.foot, axis=1)
     if len(miss):
         n_t = np.asarray(trimmed.normal, dtype=float)[at[miss]]
@@ -253,6 +295,10 @@ def own_face_nearest(model: Model, pts: np.ndarray, face: np.ndarray, uv: np.nda
     Returns (ok (M,) bool, d (M,) = |x - S(u, v)|, NaN where not computed)."""
     from cadbridge.search import _candidate_pairs, index_for
 
+    rep, inv = _unique_points(pts, COINCIDENT * model.size(), key=face)  # shared samples once
+    if len(rep) < len(pts):
+        ok, dist = own_face_nearest(model, pts[rep], face[rep], uv[rep])
+        return ok[inv], dist[inv]
     ok = (face >= 0) & np.all(np.isfinite(uv), axis=1)
     dist = np.full(len(pts), np.nan)
     for f in np.unique(face[ok]):  # loop over faces, vectorised over points
