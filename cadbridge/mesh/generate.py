@@ -692,7 +692,16 @@ def _embed_curves(g, curves: list, path: Path) -> None:
         pts = [g.model.occ.addPoint(*map(float, x)) for x in c.control_points]
         tools.append((1, g.model.occ.addBSpline(pts, degree=int(c.degree), weights=[float(w) for w in c.weights],
                                                 knots=knots.tolist(), multiplicities=mult.tolist())))
-    g.model.occ.fragment([(2, s) for s in sorted(hosts)], tools)
+    # the hosts' neighbours go into the fuse too: where a curve ends on a host's boundary
+    # (within tolerance of a corner or an edge), OCC's fuse rebuilds that vertex and the host's
+    # edges there, and a neighbour left out keeps the old ones, so the two no longer share
+    # them (the production die: 28 doubled corners, 112 edges meshed twice and merged node by
+    # node afterwards, which in quad left 25 non-manifold edges; tests/test_crease_fragment_sewing.py)
+    near = set(hosts)
+    for s in hosts:
+        for _, c in g.model.getBoundary([(2, s)], combined=False, oriented=False):
+            near.update(int(t) for t in g.model.getAdjacencies(1, abs(c))[0])
+    g.model.occ.fragment([(2, s) for s in sorted(near)], tools)
     g.model.occ.synchronize()
     # curve pieces outside every face (beyond trims) would be meshed as free edges: drop them
     free = [(1, t) for _, t in g.model.getEntities(1) if len(g.model.getAdjacencies(1, t)[0]) == 0]
