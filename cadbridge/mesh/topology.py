@@ -84,7 +84,7 @@ class EdgeTable:
         return self.elems[self.ptr[m] : self.ptr[m + 1]]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _count_lo(cells, cnt):  # pragma: no cover - compiled
     """cnt[lo + 1] += 1 for every side of the (E, k) elements ``cells`` (lo = smaller node)."""
     k = cells.shape[1]
@@ -94,7 +94,7 @@ def _count_lo(cells, cnt):  # pragma: no cover - compiled
             cnt[min(a, b) + 1] += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _scatter_by_lo(cells, e0, h0, pos, hi, elems, forward, side, hidx):  # pragma: no cover - compiled
     """Place every side of ``cells`` (global elements from e0, sides from h0, element-major)
     at pos[lo] (then pos[lo] += 1): sides bucketed by lo, in side order within a bucket."""
@@ -114,7 +114,7 @@ def _scatter_by_lo(cells, e0, h0, pos, hi, elems, forward, side, hidx):  # pragm
             h += 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _group_edges(start, hi, elems, forward, side, hidx, side_edge):  # pragma: no cover - compiled
     """Sort each lo bucket start[i]:start[i + 1] by hi, stably (insertion sort: a node has a
     few sides), so the sides are in lexicographic (lo, hi) order with ties in side order;

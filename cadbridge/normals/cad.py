@@ -20,6 +20,7 @@ there, and the node normal is oriented by the summed element normals as elsewher
 
 from __future__ import annotations
 
+import threading
 import warnings
 from dataclasses import dataclass
 
@@ -95,7 +96,7 @@ def _element_normals(nodes: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _element_normals_kernel(x, cells, out):  # pragma: no cover - compiled
     """Triangles (x1 - x0) x (x2 - x0), quads (x2 - x0) x (x3 - x1), divided by their length
     (left as they are where it is 0); the arithmetic of np.cross and np.linalg.norm."""
@@ -193,8 +194,11 @@ def _faces_holding_the_corners(nodes, blocks, starts, todo, cent, pf, model, fac
     size = model.size()
 
     def holds(f: int, x: np.ndarray) -> bool:
+        d = project_to_surface(model.faces[f].surface, x).distance
+        if np.all(d <= 1e-7 * size):  # within the floor of tol: no need for the trim delta
+            return True  # (its first read computes the deltas of all faces of the file)
         tol = max(2.0 * float(getattr(model.faces[f], "trim_delta", 0.0) or 0.0), 1e-7 * size)
-        return bool(np.all(project_to_surface(model.faces[f].surface, x).distance <= tol))
+        return bool(np.all(d <= tol))
 
     for i in np.flatnonzero(~(cf == face[todo][:, None]).any(axis=1)):  # rare: faces in contact
         x = nodes[corners[i][corners[i] >= 0]]
@@ -220,7 +224,7 @@ def _summed_normals(n: int, blocks: list[np.ndarray], elem_normals: list[np.ndar
     return acc
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _add_corners_kernel(cells, en, acc):  # pragma: no cover - compiled
     for k in range(cells.shape[1]):
         for e in range(cells.shape[0]):
@@ -258,6 +262,49 @@ def _on_c0_knot_lines(model: Model, proj: Projection) -> tuple[np.ndarray, np.nd
     return on_u, on_v, uu, vv
 
 
+class _MeshTopology(threading.Thread):
+    """The mesh-only part of `cad_normals` on its own thread: edge table, orientation check
+    (`MeshError` unless ``orient``; then `orient_consistently`), non-manifold edges, element
+    normals (E, 3) per block of ``nodes`` (N, 3) and their sums (N, 3) around the nodes.
+    `result` gives (mesh, flipped, non-manifold report, cell blocks, element normals, sums)
+    and re-raises what the thread raised."""
+
+    def __init__(self, mesh: Mesh, nodes: np.ndarray, orient: bool) -> None:
+        super().__init__(name="cadbridge-mesh-topology", daemon=True)
+        self.mesh, self.nodes, self.orient = mesh, nodes, orient
+        self._out: tuple | None = None
+        self._exc: BaseException | None = None
+
+    def run(self) -> None:
+        try:
+            mesh = self.mesh
+            table = edge_table(mesh)
+            flipped = np.zeros(mesh.n_elements, dtype=bool)
+            bad = orientation_conflicts(mesh, table)
+            if len(bad):
+                if not self.orient:
+                    raise MeshError(
+                        f"inconsistent element orientation: elements {int(bad[0, 0])} and {int(bad[0, 1])} "
+                        f"traverse their shared edge in the same direction ({len(bad)} such pairs); pass "
+                        f"orient=True to re-orient the mesh"
+                    )
+                mesh, flipped = orient_consistently(mesh)
+                table = edge_table(mesh)
+            nm = non_manifold_edges(mesh, table)
+            nodes = self.nodes  # (N, 3) float: orientation flips cells only
+            blocks = [np.asarray(b.data) for b in mesh.cells]
+            elem_normals = [_element_normals(nodes, c) for c in blocks]
+            acc = _summed_normals(len(nodes), blocks, elem_normals)
+            self._out = (mesh, flipped, nm, blocks, elem_normals, acc)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller's thread
+            self._exc = exc
+
+    def result(self) -> tuple:
+        if self._exc is not None:
+            raise self._exc
+        return self._out
+
+
 def cad_normals(
     mesh: Mesh,
     model: Model,
@@ -289,19 +336,23 @@ def cad_normals(
     nodes = np.asarray(mesh.nodes, dtype=float)
     if len(nodes) == 0:
         raise ValueError("the mesh has no nodes")
-    table = edge_table(mesh)
-    flipped = np.zeros(mesh.n_elements, dtype=bool)
-    bad = orientation_conflicts(mesh, table)
-    if len(bad):
-        if not orient:
-            raise MeshError(
-                f"inconsistent element orientation: elements {int(bad[0, 0])} and {int(bad[0, 1])} traverse "
-                f"their shared edge in the same direction ({len(bad)} such pairs); pass orient=True to "
-                f"re-orient the mesh"
-            )
-        mesh, flipped = orient_consistently(mesh)
-        table = edge_table(mesh)
-    nm = non_manifold_edges(mesh, table)
+    size = model.size()
+    tol = 1e-4 * size if tolerance is None else float(tolerance)
+
+    # the mesh-only work (edge table, orientation, element normals and their sums around the
+    # nodes: compiled kernels that release the GIL) runs on a second thread while this one
+    # projects the nodes, which need only the node coordinates. Its errors come first, as
+    # when it ran before the projection.
+    topo = _MeshTopology(mesh, nodes, orient)
+    topo.start()
+    try:
+        proj = project_points(nodes, model, max_distance=tol)
+    except BaseException:
+        topo.join()
+        topo.result()  # the mesh's error first, as before
+        raise
+    topo.join()
+    mesh, flipped, nm, blocks, elem_normals, acc = topo.result()
     if nm:
         (a, b), el = nm.edges[0].tolist(), nm.elements[0].tolist()
         more = f" (and {len(nm) - 1} more)" if len(nm) > 1 else ""
@@ -311,10 +362,6 @@ def cad_normals(
             MeshWarning,
             stacklevel=2,
         )
-    size = model.size()
-    tol = 1e-4 * size if tolerance is None else float(tolerance)
-
-    proj = project_points(nodes, model, max_distance=tol)
     status = np.asarray(proj.status).copy()
     far = np.flatnonzero((status == BEYOND_TOLERANCE) | (status == FAILED))
     if len(far) and not allow_far:
@@ -338,12 +385,9 @@ def cad_normals(
     # element faces and the (u, v) of their centroids: from the nodes where all corners lie
     # inside one face (CONVERGED on it); elsewhere (elements at face borders) by projecting
     # the element centroid
-    blocks = [np.asarray(b.data) for b in mesh.cells]
     elem_face_all, elem_u, elem_v = _element_faces(nodes, blocks, model, proj)
 
-    # orient node normals with the winding: sum of element normals around each node
-    elem_normals = [_element_normals(nodes, c) for c in blocks]
-    acc = _summed_normals(len(nodes), blocks, elem_normals)
+    # orient node normals with the winding: sum of element normals around each node (acc)
     dots = np.einsum("ij,ij->i", node_n, acc)
     node_n = node_n * np.where(dots < 0, -1.0, 1.0)[:, None] * sign
 
@@ -361,7 +405,7 @@ def cad_normals(
         uc, vc = elem_u[offset : offset + len(c)], elem_v[offset : offset + len(c)]
         offset += len(c)
         element_face.append(ef)
-        cn = node_n[c].copy()  # (E, k, 3)
+        cn = node_n[c]  # (E, k, 3): fancy indexing gives a fresh array (no second copy)
         # corners whose element lies on another face than the node's foot point
         other = (ef[:, None] != proj.face[c]) & (ef[:, None] >= 0)
         if np.any(other):
