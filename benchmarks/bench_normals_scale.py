@@ -196,6 +196,14 @@ def normals_case(path: Path, nodes: int, mesh_file: Path | None) -> list[tuple[s
     st = np.bincount(cn.status, minlength=4).tolist()
     ok = bool(np.all(np.isfinite(cn.normals))) and bool(np.allclose(np.linalg.norm(cn.normals, axis=1), 1.0))
     rows.append(("search index build (fresh model)", f"{t_idx:.2f} s (CPU {c_idx:.2f} s)"))
+    import numba
+
+    from cadbridge.search import _concurrent_kernels
+
+    rows.append(("threads", f"{numba.config.NUMBA_NUM_THREADS} numba threads ({numba.threading_layer()} layer); "
+                            f"cad_normals runs the mesh topology on a second thread during the node projection"
+                            + ("; node blocks after the first two at a time" if _concurrent_kernels() else "")
+                            + " (CPU time counts all threads: the OCC peer is single-threaded)"))
     rows.append((f"cad_normals, {n:,} nodes (index built)",
                  f"**{t_cn:.2f} s** ({n / t_cn:,.0f} nodes/s; CPU {c_cn:.2f} s: user {u_cn:.2f} s, system "
                  f"{s_cn:.2f} s); statuses {st} [C,B,T,F], creases {int(cn.crease.sum()):,}, "

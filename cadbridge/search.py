@@ -31,6 +31,7 @@ Projection:
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -412,7 +413,7 @@ def index_for(model: Model) -> SearchIndex:
     return idx
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _pair_keys(pi, bj, pts, box_lo, box_hi, box_slab, box_face, bound, exclude, n):  # pragma: no cover - compiled
     """Keys face * n + point of the raw (point pi, box bj) pairs whose exact distance lower
     bound (to the box, and to the slab holding the sub-patch) is within the point's bound and
@@ -600,6 +601,15 @@ def _known_distance(n: int, pairs: tuple) -> np.ndarray:
     return d
 
 
+def _concurrent_kernels() -> bool:
+    """Whether numba's threading layer (known once a parallel kernel has run) lets two
+    threads call parallel kernels at the same time: omp and tbb do, workqueue does not."""
+    try:
+        return numba.threading_layer() in ("omp", "tbb")
+    except ValueError:  # no parallel kernel has run in this process yet
+        return False
+
+
 _ON_MODEL = 1e-10  # a foot inside its face this near its point (x model size) ends the search
 _BLOCK = 262144  # points projected together at most (larger inputs go block by block)
 
@@ -637,9 +647,24 @@ def project_points(
     n = len(pts)
     if n > _BLOCK:
         # blocks of points keep the per-face work arrays (derivatives: 216 bytes per point
-        # and iteration) cache- and memory-friendly: time stays linear in N
-        parts = [project_points(pts[a : a + _BLOCK], model, max_distance=max_distance, tol=tol,
-                                tie_tol=tie_tol, index=index) for a in range(0, n, _BLOCK)]
+        # and iteration) cache- and memory-friendly: time stays linear in N. Blocks are
+        # independent (each point's answer depends on the point alone): after the first,
+        # two at a time on two threads where numba's threading layer allows concurrent
+        # parallel kernels (the per-face Python steps of one overlap the other's compiled
+        # ones); the parts are joined in block order, so the result is the same either way
+        index.surface_pack(model)  # built once, before any thread
+
+        def block(a: int) -> Projection:
+            return project_points(pts[a : a + _BLOCK], model, max_distance=max_distance, tol=tol,
+                                  tie_tol=tie_tol, index=index)
+
+        starts = list(range(0, n, _BLOCK))
+        parts = [block(starts[0])]
+        if len(starts) > 2 and _concurrent_kernels():
+            with ThreadPoolExecutor(max_workers=2, thread_name_prefix="cadbridge-project") as pool:
+                parts += list(pool.map(block, starts[1:]))
+        else:
+            parts += [block(a) for a in starts[1:]]
         return Projection(*(np.concatenate([getattr(r, f) for r in parts]) for f in
                             ("face", "u", "v", "foot", "distance", "normal", "status", "candidates")))
     size = index.size

@@ -47,7 +47,7 @@ _GENERIC_SAFETY = 2.0  # factor on the sampled chord estimate of curves without 
 # curve derivatives (compiled for NURBS curves: the trim loops' Newton steps call them often)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _curve_ders_one(pw, knots, p, rational, x, d, ndu, left, right, a, nd, aw, out):  # pragma: no cover - compiled
     """`NurbsCurve.derivatives` at one parameter x into out (d+1, dim): A2.1 / A2.3
     (`find_span_one`, `ders_basis_one`), the homogeneous sums, then the quotient rule of P&T
@@ -79,7 +79,7 @@ def _curve_ders_one(pw, knots, p, rational, x, d, ndu, left, right, a, nd, aw, o
             out[k, c] = val / w0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _curve_ders_kernel(pw, knots, p, rational, t, d, out):  # pragma: no cover - compiled
     """`_curve_ders_one` for every t (N,) into out (N, d+1, dim)."""
     dim = pw.shape[1] - 1
@@ -93,7 +93,7 @@ def _curve_ders_kernel(pw, knots, p, rational, t, d, out):  # pragma: no cover -
         _curve_ders_one(pw, knots, p, rational, t[i], d, ndu, left, right, a, nd, aw, out[i])
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, t0, t1, closed, pts,
                         t, eps1, max_iter):  # pragma: no cover - compiled
     """The Newton iterations of `project_to_trims` on one NURBS trim curve, point by point
@@ -202,7 +202,7 @@ def _bezier_bounds(c: NurbsCurve, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray
     return band, graph
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _bezier_bounds_kernel(hpw, knots, p, ta, tb, pa, pb, fact, tm, band, graph):  # pragma: no cover - compiled
     """`_bezier_bounds` piece by piece (its docstring): the homogeneous derivatives at ta (hpw
     (n, 4): the (x w, y w, w) net as a non-rational curve), the Bezier net, band and graph."""
@@ -266,7 +266,7 @@ def _sampled_bounds(c, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.nd
     return _GENERIC_SAFETY * np.maximum(dev, curv), graph
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _refine_kernel(cpw, knots, deg, rat, hpw, fact, tm, t, p, target, lmax, max_rounds):  # pragma: no cover - compiled
     """`LoopBoundary`'s refinement of one NURBS curve's polygon in one compiled call: the
     chord bounds of `_bezier_bounds_kernel` (degree 1: 0, graph), then up to ``max_rounds``
@@ -386,7 +386,7 @@ def _halve_edges(c, bounds, t: np.ndarray, p: np.ndarray, bd: np.ndarray, graph:
 # grid index of polygon edges (numba kernels)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _seg_dist(x, y, ax, ay, bx, by):
     dx = bx - ax
     dy = by - ay
@@ -400,7 +400,7 @@ def _seg_dist(x, y, ax, ay, bx, by):
     return np.sqrt(ex * ex + ey * ey)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _grid_start(x, y, x0, y0, h, nx, ny, vstart, vcross):
     """Cell (ci, cj) of point (x, y) on the crossing grid, and the number of crossings of grid
     line X (the cell's right side) at or below y (binary search in the sorted vcross); ci = -1
@@ -421,7 +421,7 @@ def _grid_start(x, y, x0, y0, h, nx, ny, vstart, vcross):
     return ci, cj, lo - base
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _classify_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, ax, ay, bx, by, band, tol,
                      parity, near):
     """Even-odd parity of each point against the polygon along the path p -> (X, v) -> (X, -inf)
@@ -455,7 +455,7 @@ def _classify_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, 
         near[i] = nr
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _pairs_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, ax, ay, bx, by, band, tol, fill, out_p, out_k, out_d):
     """(point, edge) pairs with distance <= band + tol, counted (fill False, returns the
     count) or written into out_p, out_k, out_d (fill True)."""
@@ -689,7 +689,7 @@ class LoopBoundary:
         return inside, on
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_iter, ndu, left, right, sa, nd, aw,
                cd):  # pragma: no cover - compiled
     """`_lens` for one pair (point (px, py), edge a -> b of a NURBS curve over [ta, tb]), with
@@ -747,7 +747,7 @@ def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_i
     return lens, min(dd, min(da, db))
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _lens_kernel(cpw, knots, deg, rat, ta, tb, a, b, p, size, max_iter, lens, dist):  # pragma: no cover - compiled
     """`_lens` for a NURBS curve, pair by pair (`_lens_pair`); writes lens (K,) and dist (K,)."""
     dim = cpw.shape[1] - 1
@@ -763,7 +763,7 @@ def _lens_kernel(cpw, knots, deg, rat, ta, tb, a, b, p, size, max_iter, lens, di
                                       p[i, 0], p[i, 1], size, max_iter, ndu, left, right, sa, nd, aw, cd)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _contains_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, ax, ay, bx, by, band, tol,
                      ecurve, eta, etb, cpw, cpw_off, cdim, knots, k_off, deg, rat, size, max_iter, inside,
                      on):  # pragma: no cover - compiled

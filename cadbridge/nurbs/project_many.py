@@ -184,7 +184,7 @@ def _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, dom
             normal[t, 0], normal[t, 1], normal[t, 2] = nx / ln, ny / ln, nz / ln
 
 
-@numba.njit(cache=True, parallel=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, error_model="numpy", nogil=True)
 def _run_tasks(kind, pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
                pts, noise, u, v, iters, max_iter, foot, dist, normal, status, degen, tstart, tstop, tu, tv,
                reach, same):  # pragma: no cover - compiled
