@@ -42,7 +42,7 @@ import numpy as np
 
 from cadbridge.mesh.mesh import MeshError
 
-__all__ = ["fill_empty_faces", "EPS_FACTOR"]
+__all__ = ["fill_empty_faces", "generate_surfaces", "EPS_FACTOR"]
 
 EPS_FACTOR = 4.0
 """Cusp strips narrower than this x the face's curve-to-surface disagreement are cut off..."""
@@ -52,20 +52,86 @@ slivers whose centroid lies as near the neighbouring face as their own (at 0.04 
 spring, with nodes 0.01 mm off the surface, one took the plane's normals: 90 degrees off)."""
 
 
+def _has_elements(g, s: int) -> bool:
+    return any(len(t) for t in g.model.mesh.getElements(2, s)[1])
+
+
+def generate_surfaces(g, surfaces: list[int]) -> dict[int, str]:
+    """``gmsh.model.mesh.generate(2)`` that does not stop at the first surface gmsh cannot mesh.
+
+    By default (``General.AbortOnError`` 2) gmsh throws on the first error, e.g. "Impossible
+    to mesh periodic surface 963" (its periodic mesher, used for every surface periodic in u or
+    v, could not recover the face's boundary edges in (u, v); `Mesh.MaxRetries` is 0), and every
+    surface after it stays unmeshed. Here gmsh logs the error and goes on; the surfaces it failed
+    on are left without elements (gmsh's generators return before creating any; a surface an
+    error names is cleared in case) and `fill_empty_faces` meshes them on gmsh's boundary nodes.
+    Returns {surface: gmsh's error messages} for the failed surfaces: those an error names, and,
+    when an error names no surface (e.g. "The 1D mesh seems not to be forming a closed loop"),
+    those left without elements. Raises gmsh's ``Exception`` (as a throwing ``generate`` would)
+    for an error naming no surface when every surface has elements: an error this fallback
+    cannot locate."""
+    import re
+
+    prev = g.option.getNumber("General.AbortOnError")
+    g.option.setNumber("General.AbortOnError", 0)
+    g.logger.start()
+    try:
+        g.model.mesh.generate(2)
+        log = g.logger.get()
+    finally:
+        g.logger.stop()
+        g.option.setNumber("General.AbortOnError", prev)
+    errors = [m for m in log if m.startswith("Error")]
+    if not errors:
+        return {}
+    known = set(surfaces)
+    named: dict[int, list[str]] = {}
+    for m in errors:
+        for t in re.findall(r"surface (\d+)", m):
+            if int(t) in known:
+                named.setdefault(int(t), []).append(m)
+    unnamed = [m for m in errors if not re.search(r"surface \d+", m)]
+    empty = [s for s in surfaces if s not in named and not _has_elements(g, s)] if unnamed else []
+    if unnamed and not empty:
+        raise Exception(unnamed[-1].removeprefix("Error").lstrip(": "))
+    failed = {s: "; ".join(named[s]) for s in named}
+    failed.update({s: "; ".join(unnamed) for s in empty})
+    for s in named:
+        if _has_elements(g, s):
+            g.model.mesh.clear([(2, s)])  # a surface an error names starts again from its boundary
+    return {s: m.replace("Error: ", "") for s, m in failed.items()}
+
+
 def fill_empty_faces(g, surfaces: list[int], *, size: float, curvature_elements: int, element: str,
-                     subdivided: bool, label: str, cuts: dict | None = None) -> list[str]:
+                     subdivided: bool, label: str, cuts: dict | None = None,
+                     failed: dict[int, str] | None = None) -> list[str]:
     """Mesh every surface of ``surfaces`` that has no 2D elements in the current gmsh model
     (see module docs); ``size`` the largest element size (model units), ``element`` "tri" or
     "quad", ``subdivided`` when the model's mesh went through gmsh's all-quad subdivision;
     ``cuts`` {surface: trim-loop excursions} whose boundary nodes are left out of the loop
-    (`cadbridge.mesh.loop_cuts`).
-    Returns one note per face filled. Raises `MeshError` naming a face it cannot mesh."""
+    (`cadbridge.mesh.loop_cuts`); ``failed`` {surface: gmsh's error} from `generate_surfaces`.
+    Returns one note per face filled. Raises `MeshError` naming a face it cannot mesh; for a
+    face gmsh failed on, the message says "gmsh failed" (so `mesh_cad` retries with OCC's
+    shape healing)."""
     notes = []
+    failed = failed or {}
     for s in surfaces:
-        if any(len(t) for t in g.model.mesh.getElements(2, s)[1]):
+        if _has_elements(g, s):
             continue
-        notes.append(_fill_face(g, s, size=size, curvature_elements=curvature_elements, element=element,
-                                subdivided=subdivided, label=label, cut=(cuts or {}).get(s)))
+        try:
+            # a face gmsh failed on is not a cusp face: only strips within the file's own
+            # curve-to-surface disagreement are cut (not h / 8: its acute corners are geometry)
+            note = _fill_face(g, s, size=size, curvature_elements=curvature_elements, element=element,
+                              subdivided=subdivided, label=label, cut=(cuts or {}).get(s),
+                              strip_fraction=0.0 if s in failed else STRIP_FRACTION)
+        except MeshError as exc:
+            if s in failed:
+                raise MeshError(f"{label}: gmsh failed: {failed[s]}; meshing {_label(g, s)} in its (u, v) "
+                                f"did not work either: {exc}") from exc
+            raise
+        if s in failed:
+            note = note.replace("gmsh left", f"gmsh failed ({failed[s]}) and left", 1)
+        notes.append(note)
     return notes
 
 
@@ -256,7 +322,7 @@ def _face_size(g, s: int, uv_box: np.ndarray, size: float, curvature_elements: i
 
 
 def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,
-               label: str, cut: list | None = None) -> str:
+               label: str, cut: list | None = None, strip_fraction: float = STRIP_FRACTION) -> str:
     from cadbridge.mesh.qit_fallback import mesh_planar_loops
 
     name = _label(g, s)
@@ -268,7 +334,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     box = np.array([all_uv.min(axis=0), all_uv.max(axis=0)])
     diag = float(np.linalg.norm(all_xyz.max(axis=0) - all_xyz.min(axis=0)))
     h, scale = _face_size(g, s, box, size, curvature_elements)
-    eps = max(EPS_FACTOR * dev, STRIP_FRACTION * h, 1e-9 * diag)
+    eps = max(EPS_FACTOR * dev, strip_fraction * h, 1e-9 * diag)
     coarse = element == "quad" and subdivided
     if coarse:
         h *= 2.0  # split in two below
