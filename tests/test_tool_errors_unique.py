@@ -62,3 +62,21 @@ def test_unique_points_cells_and_keys():
     rep, inv = TE._unique_points(x, 1e-12, key=np.array([0, 0, 1, 0, 0]))
     assert len(rep) == 4 and inv[0] == inv[1] != inv[2]
     assert np.abs(x[rep][inv] - x).max() <= 1e-12
+
+
+def test_toolfile_rows_are_str_and_repr_joined():
+    """The tool file's row writer (`cadbridge.io.toolfile._rows`): reference is the plain
+    join of ``str`` of the integers and ``repr`` of the floats (docs/toolfile.md: round-trip
+    precision), on random values and the awkward ones (-0.0, subnormal, 1e300, integral)."""
+    from cadbridge.io.toolfile import _rows
+
+    rng = np.random.default_rng(7)
+    ids = np.arange(1, 201)
+    k = rng.integers(1, 9, 200)
+    f = rng.normal(size=(200, 3)) * 10.0 ** rng.integers(-8, 8, (200, 3))
+    f[0] = (-0.0, 5e-324, 1e300)
+    f[1] = (3.0, -2.0, 0.1)
+    ref = [" ".join([str(int(a)), str(int(b))] + [repr(float(x)) for x in row]) for a, b, row in zip(ids, k, f)]
+    assert _rows(ids, [k], f) == ref
+    assert _rows(ids, [], None) == [str(int(a)) for a in ids]
+    assert [float(t) for t in _rows(ids, [k], f)[5].split()[2:]] == f[5].tolist()
