@@ -16,9 +16,10 @@ One pass of `refine_mesh`:
    face) and its boundary error (distance to the trimmed CAD: a patch whose straight
    boundary leaves a curved trim edge sideways is that far off) on a ``grid`` per patch, the
    normal error, and the admissibility of every edge (`cadbridge.nagata.admissibility`).
-5. **Refine** only the elements above the tolerance: refinement marks at their corners and
-   centroid lower the size field there by the law's factor (t / e)^(1/4) (clipped to
-   [0.3, 0.75]), and the next pass remeshes. An element already at the size floor is not
+5. **Refine** only the elements above the tolerance: refinement marks over a ball about
+   each (`element_marks`) lower the size field there to the law's factor (t / e)^(1/4)
+   (clipped to [0.3, 0.75]) times the smallest of the element's size, what earlier marks
+   asked and the field there (`next_sizes`), and the next pass remeshes. An element already at the size floor is not
    refined further and is reported with the reason.
 
 When the loop grid is within tolerance, an independent check on a denser grid
