@@ -481,11 +481,14 @@ def _flip_needed(g, s: int, tri_t: np.ndarray, quad_t: np.ndarray, uv: np.ndarra
     ours = directed([tri_t, quad_t])
     mx = int(max(ours.max(), 1)) + 1
     key = ours[:, 0] * mx + ours[:, 1]
-    bnd = np.unique(ours.ravel())
+    # only the face's boundary nodes can be shared, and only with the surfaces on its curves
+    # (not every node against every surface: the die's binder, 10^5 elements, took minutes)
+    curves = {abs(t) for d, t in g.model.getBoundary([(2, s)], combined=False, oriented=False) if d == 1}
+    bnd = np.unique(np.concatenate([np.asarray(g.model.mesh.getNodes(1, c, includeBoundary=True)[0], dtype=np.int64)
+                                    for c in curves])) if curves else np.zeros(0, dtype=np.int64)
+    near = sorted({int(t) for c in curves for t in g.model.getAdjacencies(1, c)[0]} - {s})
     same = opposite = 0
-    for _, t in g.model.getEntities(2):
-        if t == s:
-            continue
+    for t in near:
         et, _, en = g.model.mesh.getElements(2, t)
         conns = [np.asarray(n, dtype=np.int64).reshape(-1, 3 if typ == 2 else 4) for typ, n in zip(et, en)
                  if typ in (2, 3)]
