@@ -21,34 +21,52 @@ import numpy as np
 EXIT_OK, EXIT_CHECK_FAILED, EXIT_BAD_INPUT = 0, 1, 2
 
 
+PROGRESS_LINE = r"^cadbridge \w+( \[\s*\d+\] |: done in )"  # how `Progress` lines begin (for filters)
+
+
 class Progress:
-    """Stage-level progress on stderr, one line rewritten in place::
+    """Stage-level progress on stderr. On a terminal, one line rewritten in place::
 
         cadbridge convert [ 4] die: errors vs CAD (8484 patch points)  [######........]  43%  3.1 s
 
-    `stage(text)` starts a new stage, `update(done, total)` moves the bar within it (chunked
-    projection), `close()` ends the line. Silent unless stderr is a terminal (or ``enabled``
-    is forced), so logs in CI stay clean. The pipeline calls it duck-typed (see
+    Elsewhere (a log file, a pipe, CI), plain lines: one per stage, one every
+    ``log_every`` seconds within a long stage, and the closing ``done in`` line, so a log
+    says where long work is as a terminal does. ``cadbridge --quiet`` (``Progress.quiet``)
+    silences both. `stage(text)` starts a new stage, `update(done, total)` moves the bar
+    within it (chunked projection), `close()` ends the output. ``enabled`` forces the
+    terminal form (True) or silence (False). The pipeline calls it duck-typed (see
     `cadbridge.pipeline.NoProgress`).
     """
 
     width = 20
+    log_every = 10.0  # seconds between the lines of one stage off a terminal
+    quiet = False  # set by `cadbridge --quiet`
 
     def __init__(self, label: str, enabled: bool | None = None, stream=None) -> None:
         self.label = label
         self.stream = stream or sys.stderr
-        self.enabled = (hasattr(self.stream, "isatty") and self.stream.isatty()) if enabled is None else enabled
+        tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.mode = ("off" if self.quiet else "tty" if tty else "lines") if enabled is None else \
+            ("tty" if enabled else "off")
+        self.enabled = self.mode != "off"
         self.t0 = time.perf_counter()
         self.stages = 0
         self.text = ""
         self._last = 0.0
+        self._logged = 0.0
+
+    def _line(self, frac: float | None) -> str:
+        bar = "" if frac is None else f"  [{'#' * int(self.width * frac):.<{self.width}}] {100 * frac:3.0f}%"
+        return f"{self.label} [{self.stages:>2}] {self.text[:60]}{bar}  {time.perf_counter() - self.t0:.1f} s"
 
     def _draw(self, frac: float | None) -> None:
-        if not self.enabled:
+        if self.mode == "tty":
+            self.stream.write("\r" + self._line(frac).ljust(110)[:110])
+        elif self.mode == "lines":
+            self._logged = time.perf_counter()
+            self.stream.write(self._line(frac) + "\n")
+        else:
             return
-        bar = "" if frac is None else f"  [{'#' * int(self.width * frac):.<{self.width}}] {100 * frac:3.0f}%"
-        line = f"{self.label} [{self.stages:>2}] {self.text[:60]}{bar}  {time.perf_counter() - self.t0:.1f} s"
-        self.stream.write("\r" + line.ljust(110)[:110])
         self.stream.flush()
 
     def stage(self, text: str) -> None:
@@ -58,20 +76,24 @@ class Progress:
 
     def update(self, done: int, total: int) -> None:
         now = time.perf_counter()
-        if now - self._last > 0.1 or done >= total:  # at most ten redraws a second
+        if self.mode == "lines":
+            if now - self._logged >= self.log_every:
+                self._draw(min(done / max(total, 1), 1.0))
+        elif now - self._last > 0.1 or done >= total:  # at most ten redraws a second
             self._last = now
             self._draw(min(done / max(total, 1), 1.0))
 
     def close(self) -> None:
         if self.enabled:
-            self.stream.write("\r" + f"{self.label}: done in {time.perf_counter() - self.t0:.1f} s".ljust(110) + "\n")
+            done = f"{self.label}: done in {time.perf_counter() - self.t0:.1f} s"
+            self.stream.write(("\r" + done.ljust(110) if self.mode == "tty" else done) + "\n")
             self.stream.flush()
 
     def __enter__(self) -> "Progress":
         return self
 
     def __exit__(self, *exc) -> None:
-        if self.enabled and exc[0] is not None:
+        if self.mode == "tty" and exc[0] is not None:
             self.stream.write("\n")  # keep the error message on its own line
             self.stream.flush()
         elif exc[0] is None:
@@ -376,6 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
         "  cadbridge convert die.igs -o die/   # mesh + normals + Nagata + report",
     )
     parser.add_argument("--version", action="version", version="cadbridge 0.1.0")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress lines (errors and the summary are still printed)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("inspect", help="entities, faces, names, units, bounding box of an IGES file", formatter_class=fmt,
@@ -472,6 +496,7 @@ def _known_errors() -> tuple[type[BaseException], ...]:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    Progress.quiet = bool(getattr(args, "quiet", False))
     from cadbridge._jit import announce_compilation
 
     announce_compilation()  # one line on the then-current stderr if numba has to compile (cold cache)

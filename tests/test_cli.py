@@ -19,6 +19,7 @@ import meshio
 import numpy as np
 import pytest
 
+from cadbridge import cli
 from cadbridge.cli import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_OK, Progress, build_parser, main
 
 SAMPLES = Path(__file__).resolve().parent.parent / "iges_samples"
@@ -28,10 +29,15 @@ SUMMARY_ROW = re.compile(
 )
 
 
+PROGRESS_LINE = re.compile(cli.PROGRESS_LINE)
+
+
 def run(capsys, *argv: str) -> tuple[int, str, str]:
+    """Exit code, stdout and stderr without the progress lines (off a terminal `Progress`
+    writes one line per stage; the tests of those lines are under "progress")."""
     code = main([str(a) for a in argv])
     out, err = capsys.readouterr()
-    return code, out, err
+    return code, out, "".join(ln for ln in err.splitlines(keepends=True) if not PROGRESS_LINE.match(ln))
 
 
 def tree(folder: Path) -> dict[str, bytes]:
@@ -180,7 +186,7 @@ def test_nagata_writes_tool_file_and_report(die_mesh, tmp_path, capsys):
 
     out = tmp_path / "die_tool"
     code, text, err = run(capsys, "nagata", die_mesh, "--cad", SAMPLES / "ushape_die_nurbs.igs", "-o", out)
-    assert code == EXIT_OK and err == ""  # no progress output when stderr is not a terminal
+    assert code == EXIT_OK and err == ""  # nothing but progress lines on stderr
     rows = summary_rows(text)
     assert [r["tool"] for r in rows] == ["die"]
     files = {p.name for p in out.iterdir()}
@@ -299,13 +305,30 @@ def test_ushape_cli_prints_table_and_findings(tmp_path, capsys, monkeypatch):
 
 
 # ----------------------------------------------------------------------------- progress
-def test_progress_silent_unless_terminal():
+def test_progress_off_a_terminal_writes_plain_lines(monkeypatch):
+    """Off a terminal (a log, a pipe): one plain line per stage, a line within a stage only
+    every `log_every` seconds, and the closing line; no carriage returns."""
     buf = io.StringIO()
     p = Progress("cadbridge test", stream=buf)
     p.stage("projecting")
-    p.update(5, 10)
+    p.update(5, 10)  # within log_every of the stage line: not written
+    monkeypatch.setattr(Progress, "log_every", 0.0)
+    p.update(6, 10)
     p.close()
-    assert buf.getvalue() == ""
+    lines = buf.getvalue().splitlines()
+    assert "\r" not in buf.getvalue() and len(lines) == 3
+    assert lines[0].startswith("cadbridge test [ 1] projecting") and "60%" in lines[1]
+    assert lines[2].startswith("cadbridge test: done in") and all(PROGRESS_LINE.match(ln) for ln in lines)
+
+
+def test_quiet_silences_progress(tmp_path, capsys):
+    code = main(["--quiet", "convert", str(SAMPLES / "ushape_blankholder_nurbs.igs"), "-o", str(tmp_path / "o")])
+    assert code == EXIT_OK and capsys.readouterr().err == ""
+    Progress.quiet = False
+    code = main(["convert", str(SAMPLES / "ushape_blankholder_nurbs.igs"), "-o", str(tmp_path / "p")])
+    err = capsys.readouterr().err.splitlines()
+    assert code == EXIT_OK and err and all(PROGRESS_LINE.match(ln) for ln in err)
+    assert any("writing" in ln for ln in err) and err[-1].startswith("cadbridge convert: done in")
 
 
 def test_progress_on_a_terminal_draws_stages():
