@@ -524,11 +524,6 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         "Mesh.MeshSizeMin": size / 20.0 if kw["curvature_elements"] else 0.0,
         "Mesh.MeshSizeFromPoints": 0,
         "Mesh.MeshSizeFromCurvature": kw["curvature_elements"],
-        # relative accuracy of the integral of 1/size along a curve, which places the 1D nodes
-        # (gmsh default 1e-9): with curvature sizing every integration point evaluates the
-        # curvature of the curve and of its faces, and the die's 1D mesh took 15.7 s of CPU;
-        # at 1e-5 it takes 2.5 s for the same node counts (67 266 vs 67 319 nodes)
-        "Mesh.LcIntegrationPrecision": 1e-5,
         "Mesh.ElementOrder": 1,
         # triangles: Frontal-Delaunay (6). Quads: Delaunay (5) then Blossom recombination
         # with extra smoothing: on the samples this keeps quad corner angles below ~150
