@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from cadbridge.model import Face, Model, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.trims import segment_distance
 
 __all__ = ["Excursion", "find_excursions", "heal_excursions", "RATIO", "COS_SAME_WAY", "MIN_LENGTH", "SAMPLES_PER_SPAN"]
 
@@ -227,11 +228,7 @@ def _loop_excursion(f: Face, li: int, lp: TrimLoop, width: float, min_length: fl
 def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
     """Distance of points (N, 3) to the open polyline (M, 3), (N,); all pairs (a few hundred
     mesh nodes of one face against one loop)."""
-    a, b = line[:-1], line[1:]
-    ab = b - a
-    t = np.einsum("nmk,mk->nm", p[:, None, :] - a[None], ab) / np.maximum(np.einsum("mk,mk->m", ab, ab), 1e-300)
-    q = a[None] + np.clip(t, 0.0, 1.0)[..., None] * ab[None]
-    return np.linalg.norm(p[:, None, :] - q, axis=2).min(axis=1)
+    return segment_distance(p[:, None, :], line[None, :-1], line[None, 1:]).min(axis=1)
 
 
 def _restricted(c: NurbsCurve, t0: float, t1: float) -> NurbsCurve:

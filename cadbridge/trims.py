@@ -34,7 +34,8 @@ from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.project import _ders2_one, _ders2_scratch
 
-__all__ = ["LoopBoundary", "loop_contains", "polygon_contains", "polygon_distance", "project_to_trims", "trim_contains"]
+__all__ = ["LoopBoundary", "loop_contains", "polygon_contains", "polygon_distance", "project_to_trims", "segment_distance",
+           "trim_contains"]
 
 _START_PER_SPAN = 8  # polygon edges per knot span before refinement
 _MAX_ROUNDS = 24  # halvings of an edge at most (2^-24 of a span)
@@ -160,7 +161,7 @@ def _curve_ders(c, t, order: int) -> np.ndarray:
 # chord bounds of polygon edges
 
 
-def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance of points p (..., 2) to segments [a, b] (broadcast to p's shape), (...)."""
     ab = b - a
     ll = np.einsum("...j,...j->...", ab, ab)
@@ -259,7 +260,7 @@ def _sampled_bounds(c, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.nd
     s = np.linspace(0.0, 1.0, 7)
     t = (ta[:, None] + (tb - ta)[:, None] * s).ravel()
     d = c.derivatives(t, 2)[:, :, :2].reshape(len(ta), len(s), 3, 2)
-    dev = np.max(_segment_distance(d[:, :, 0], pa[:, None], pb[:, None]), axis=1)
+    dev = np.max(segment_distance(d[:, :, 0], pa[:, None], pb[:, None]), axis=1)
     curv = np.max(np.linalg.norm(d[:, :, 2], axis=2), axis=1) * (tb - ta) ** 2 / 8.0
     chord = pb - pa
     graph = np.all(np.einsum("msj,mj->ms", d[:, :, 1], chord) >= 0, axis=1)
@@ -589,25 +590,23 @@ class LoopBoundary:
         target, lmax = _BAND_TARGET * self.size, _EDGE_TARGET * self.size
         a, b, band, cid, ta, tb = [], [], [], [], [], []
         for k, c in enumerate(self.curves):
-            bounds = _bezier_bounds if isinstance(c, NurbsCurve) else _sampled_bounds
             t, p = ts[k], ps[k]
             if isinstance(c, NurbsCurve):  # the whole refinement compiled (same steps)
                 fact, tmat = _taylor_to_bernstein(c.degree)[1:]
                 t, p, bd, graph = _refine_kernel(c._pw, c.knots, c.degree, c.rational, _homogeneous_xyw(c)._pw,
                                                  fact, tmat, np.ascontiguousarray(t), np.ascontiguousarray(p),
                                                  float(target), float(lmax), _MAX_ROUNDS)
-                e0, e1 = t[:-1], t[1:]
-            else:
-                bd, graph = bounds(c, t[:-1], t[1:], p[:-1], p[1:])
-            for r in range(_MAX_ROUNDS + 1 if not isinstance(c, NurbsCurve) else 0):
-                e0, e1 = t[:-1], t[1:]
-                long = np.linalg.norm(p[1:] - p[:-1], axis=1) > lmax
-                bad = (bd > target) | ~graph | long
-                if r == _MAX_ROUNDS or not bad.any():
-                    break
-                # halve the bad edges: only the new points and the new edges are computed
-                # (evaluation and bounds are per point / per edge: the same values as a full pass)
-                t, p, bd, graph = _halve_edges(c, bounds, t, p, bd, graph, bad)
+            else:  # exactly mapped curves: the same rounds in numpy (no control net to compile)
+                bd, graph = _sampled_bounds(c, t[:-1], t[1:], p[:-1], p[1:])
+                for r in range(_MAX_ROUNDS + 1):
+                    long = np.linalg.norm(p[1:] - p[:-1], axis=1) > lmax
+                    bad = (bd > target) | ~graph | long
+                    if r == _MAX_ROUNDS or not bad.any():
+                        break
+                    # halve the bad edges: only the new points and the new edges are computed
+                    # (evaluation and bounds are per point / per edge: the same values as a full pass)
+                    t, p, bd, graph = _halve_edges(c, _sampled_bounds, t, p, bd, graph, bad)
+            e0, e1 = t[:-1], t[1:]
             if not np.all(np.isfinite(bd)):
                 raise ValueError(f"LoopBoundary: curve {k} ({c!r}) has no finite chord bound after {_MAX_ROUNDS} halvings")
             a.append(p[:-1]), b.append(p[1:]), band.append(bd + 1e-14 * self.size * (bd > 0))
@@ -947,7 +946,7 @@ def polygon_distance(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     cnt = np.array([len(x) for x in cand])
     ci = np.concatenate([np.asarray(x, dtype=np.int64) for x in cand]) if len(pts) else np.zeros(0, dtype=np.int64)
     pi = np.repeat(np.arange(len(pts)), cnt)
-    d = _segment_distance(pts[pi], pa[ci], pb[ci])
+    d = segment_distance(pts[pi], pa[ci], pb[ci])
     out = np.full(len(pts), np.inf)
     np.minimum.at(out, pi, d)
     return out
