@@ -250,16 +250,18 @@ def next_sizes(sizes: np.ndarray, factor: np.ndarray, marked: np.ndarray, field:
     return np.asarray(factor) * np.minimum(np.asarray(sizes, dtype=float), np.minimum(marked, field))
 
 
-def element_marks(mesh: Mesh, elems: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def element_marks(mesh: Mesh, elems: np.ndarray, sizes: np.ndarray, centres: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Refinement marks asking for ``sizes`` (K,) [length] at the elements ``elems`` (K,)
-    (global, 0-based) of ``mesh``: over the ball about each element's centroid that holds its
-    corners and half a new element more (`cadbridge.mesh.sizing.ball_marks`), so that the
-    nodes gmsh makes there read the size asked. Returns points (M, 3), sizes (M,)."""
+    (global, 0-based) of ``mesh``: over the ball about each element's centroid (``centres``
+    (K, 3) if the caller has them) that holds its corners and half a new element more
+    (`cadbridge.mesh.sizing.ball_marks`), so that the nodes gmsh makes there read the size
+    asked. Returns points (M, 3), sizes (M,)."""
     from cadbridge.mesh.sizing import ball_marks
 
     elems = np.asarray(elems, dtype=np.int64).ravel()
     sizes = np.broadcast_to(np.asarray(sizes, dtype=float), elems.shape)
-    cen = _centroids(mesh)[elems]
+    cen = _centroids(mesh)[elems] if centres is None else np.asarray(centres, dtype=float)
     return ball_marks(cen, _reach(mesh, elems, cen) + 0.5 * sizes, sizes)
 
 
@@ -495,7 +497,7 @@ def refine_mesh(
             # about its centroid), not at its corners: gmsh reads the field at the nodes it
             # makes, where point marks graded at g are h_new + g h / 2 (`ball_marks`: the
             # production die's 7.3 mm elements were remade at 7.3 mm for 5.5 asked)
-            bp, bh = element_marks(t.mesh, elems, h_new)
+            bp, bh = element_marks(t.mesh, elems, h_new, cen)
             marks_p.append(bp)
             marks_h.append(bh)
             # an element inside a mapped face: its sides' divisions come from the face's
@@ -592,19 +594,22 @@ def refine_mesh(
                           time.perf_counter() - t_start)
 
 
-def _is_grid(quads: np.ndarray) -> bool:
-    """Whether the quads (F, 4) (node numbers) of one face form a structured a x b grid: 2 (a +
-    b) of their edges are on the border and a b = their number."""
+def _grid_border(quads: np.ndarray) -> np.ndarray | None:
+    """The border edges (B, 2) of the quads (F, 4) (node numbers) of one face when they form
+    a structured a x b grid (2 (a + b) border edges and a b = their number), else None."""
     e = np.sort(np.stack([quads, np.roll(quads, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-    _, count = np.unique(e, axis=0, return_counts=True)
-    half = np.count_nonzero(count == 1) / 2.0  # a + b
+    uniq, count = np.unique(e, axis=0, return_counts=True)
+    border = uniq[count == 1]
+    half = len(border) / 2.0  # a + b
     disc = half * half - 4.0 * len(quads)
-    return not (disc < 0 or abs(math.sqrt(disc) - round(math.sqrt(disc))) > 1e-9 or (half + math.sqrt(disc)) % 2)
+    if disc < 0 or abs(math.sqrt(disc) - round(math.sqrt(disc))) > 1e-9 or (half + math.sqrt(disc)) % 2:
+        return None
+    return border
 
 
 def _in_grid_faces(t, elems: np.ndarray) -> np.ndarray:
     """(K,) bool: whether each element ``elems`` of tool ``t`` lies in a face whose elements
-    are all quads forming a structured grid (a mapped face, `_is_grid`)."""
+    are all quads forming a structured grid (a mapped face, `_grid_border`)."""
     ef = t.element_face
     out = np.zeros(len(elems), dtype=bool)
     if ef is None or len(elems) == 0:
@@ -616,7 +621,7 @@ def _in_grid_faces(t, elems: np.ndarray) -> np.ndarray:
         qconn[kind] = np.concatenate(quads)
     for f in np.unique(ef[elems]):  # loop over the (few) faces with marks
         own = np.flatnonzero(ef == f)
-        if np.all(kind[own]) and _is_grid(qconn[own]):
+        if np.all(kind[own]) and _grid_border(qconn[own]) is not None:
             out[ef[elems] == f] = True
     return out
 
@@ -637,28 +642,20 @@ def _mapped_border_marks(t, elems: np.ndarray, factor: np.ndarray) -> tuple[np.n
     x = t.mesh.nodes
     pts, hs = [], []
     for f in np.unique(ef[elems]):  # loop over the (few) faces with marks
-        own = np.flatnonzero(ef == f)
-        q = conn[own]
-        e = np.sort(np.stack([q, np.roll(q, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
-        uniq, count = np.unique(e, axis=0, return_counts=True)
-        border = uniq[count == 1]
-        half = len(border) / 2.0  # a + b
-        disc = half * half - 4.0 * len(own)
-        if disc < 0 or abs(math.sqrt(disc) - round(math.sqrt(disc))) > 1e-9 or (half + math.sqrt(disc)) % 2:
+        border = _grid_border(conn[np.flatnonzero(ef == f)])
+        if border is None:
             continue  # not a structured grid: the background field takes the marks
         mid = 0.5 * (x[border[:, 0]] + x[border[:, 1]])
         bdir = x[border[:, 1]] - x[border[:, 0]]
         bdir /= np.maximum(np.linalg.norm(bdir, axis=1, keepdims=True), 1e-300)
         sel = np.flatnonzero(ef[elems] == f)
-        h = np.full(len(border), np.inf)
-        for k in sel:  # loop over the marked elements of this face
-            c = x[conn[elems[k]]]
-            ed = np.roll(c, -1, axis=0) - c  # (4, 3) the quad's edges
-            length = np.linalg.norm(ed, axis=1)
-            cos = np.abs(bdir @ (ed / np.maximum(length, 1e-300)[:, None]).T)  # (B, 4)
-            h = np.minimum(h, factor[k] * length[np.argmax(cos, axis=1)])
+        c = x[conn[elems[sel]]]  # (K, 4, 3) the marked quads of this face
+        ed = np.roll(c, -1, axis=1) - c  # (K, 4, 3) their edges
+        length = np.linalg.norm(ed, axis=2)  # (K, 4)
+        cos = np.abs(np.einsum("bj,kej->kbe", bdir, ed / np.maximum(length, 1e-300)[..., None]))  # (K, B, 4)
+        best = np.take_along_axis(length[:, None, :], np.argmax(cos, axis=2)[..., None], axis=2)[..., 0]  # (K, B)
         pts.append(mid)
-        hs.append(h)
+        hs.append((factor[sel][:, None] * best).min(axis=0))
     if not pts:
         return np.zeros((0, 3)), np.zeros(0)
     return np.concatenate(pts), np.concatenate(hs)
