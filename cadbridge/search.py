@@ -721,12 +721,14 @@ def project_points(
     # whatever its restarts find (every foot on its trimmed region, or on its trim loops in
     # step 3, is at least that far; a restart never makes a foot FAILED); the known foot is
     # taken again after the other pairs' checks (a restart may move it off its face)
-    hopeless = (p2.status != FAILED) & (lb2 > _known_distance(n, (p1, pa, p2))[cp2] * (1.0 + 1e-9) + 1e-9 * size)
+    def beyond_known() -> np.ndarray:  # (len(cp2),) the pair's face lies beyond a known foot
+        return lb2 > _known_distance(n, (p1, pa, p2))[cp2] * (1.0 + 1e-9) + 1e-9 * size
+
+    hopeless = (p2.status != FAILED) & beyond_known()
     for pp, skip in ((p1, None), (pa, None), (p2, hopeless)):
         pp.finish(open_[pp.cp] if skip is None else open_[pp.cp] & ~skip)
     if np.any(hopeless):
-        again = hopeless & ~(lb2 > _known_distance(n, (p1, pa, p2))[cp2] * (1.0 + 1e-9) + 1e-9 * size)
-        p2.finish(open_[cp2] & again)
+        p2.finish(open_[cp2] & hopeless & ~beyond_known())
     parts = [p1.take(np.flatnonzero(open_[cp1] | on1)), pa.take(np.flatnonzero(open_[cpa] | ona)),
              p2.take(np.flatnonzero(open_[cp2]))]
     cp, cf, pu, pv, pfoot, pdist, pnorm, pstat, valid, out = (np.concatenate(x) for x in zip(*parts))
