@@ -155,13 +155,6 @@ def _split_matrices(p: int, s: int) -> np.ndarray:
     return out
 
 
-@lru_cache(maxsize=256)
-def _split_path(a: tuple, b: tuple, c: tuple) -> list:
-    """The contraction order ``optimize=True`` picks for `_subpatches`' einsum, cached per
-    shapes (its search cost more than the contraction on small nets; same order, same sums)."""
-    return np.einsum_path("aij,bkl,njlc->nabikc", np.empty(a), np.empty(b), np.empty(c), optimize=True)[0]
-
-
 def _subpatches(surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Bezier sub-patches of the surface over its domain: every knot span cut into up to
     ``_SUB_SPLITS`` equal parts per direction (at most ``_SUB_PATCHES`` per face). Returns uv
@@ -177,7 +170,10 @@ def _subpatches(surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray, np.ndarr
         if sv < _SUB_SPLITS and k * su * (2 * sv) <= _SUB_PATCHES:
             sv *= 2
     mu, mv = _split_matrices(p1 - 1, su), _split_matrices(q1 - 1, sv)
-    sub = np.einsum("aij,bkl,njlc->nabikc", mu, mv, net, optimize=_split_path(mu.shape, mv.shape, net.shape))
+    # sub[n, a, b, i, k] = sum_jl mu[a, i, j] mv[b, k, l] net[n, j, l]: two matmuls
+    t = mu.reshape(-1, p1) @ net.reshape(k, p1, -1)  # (K, su*(p+1), (q+1)*4)
+    t = mv.reshape(-1, q1) @ t.reshape(k, -1, q1, 4)  # (K, su*(p+1), sv*(q+1), 4)
+    sub = t.reshape(k, su, p1, sv, q1, 4).transpose(0, 1, 3, 2, 4, 5)
     fu = np.arange(su + 1) / su
     fv = np.arange(sv + 1) / sv
     ua = uvb[:, 0:1] + (uvb[:, 1:2] - uvb[:, 0:1]) * fu  # (K, su+1)

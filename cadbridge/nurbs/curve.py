@@ -156,8 +156,9 @@ class NurbsCurve:
         t0, t1 = self.domain
         brk = np.unique(self.knots[(self.knots > t0) & (self.knots < t1)])
         edges = np.concatenate([[t0], brk, [t1]])
-        parts = [np.linspace(a, b, per_span + 1)[:-1] for a, b in zip(edges[:-1], edges[1:])]
-        return np.concatenate(parts + [[t1]])
+        a = edges[:-1, None]
+        step = (edges[1:, None] - a) / per_span  # each span as np.linspace(a, b, per_span + 1)[:-1]
+        return np.append((np.arange(per_span) * step + a).ravel(), t1)
 
     def bbox(self) -> np.ndarray:
         """Box of the control polygon, (2, dim)."""

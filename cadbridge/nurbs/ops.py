@@ -426,6 +426,14 @@ def bezier_patches(surface: NurbsSurface) -> tuple[np.ndarray, np.ndarray, np.nd
     Returns uv_boxes (K, 4) rows (u0, u1, v0, v1), control points (K, p+1, q+1, 3) and
     weights (K, p+1, q+1); patch k = iu * Kv + iv (v fastest).
     """
+    p, q = surface.degree_u, surface.degree_v
+    ku_, kv_ = surface.knots_u, surface.knots_v
+    if (len(ku_) == 2 * (p + 1) and len(kv_) == 2 * (q + 1) and ku_[0] == ku_[p] and ku_[p + 1] == ku_[-1]
+            and kv_[0] == kv_[q] and kv_[q + 1] == kv_[-1]
+            and tuple(surface.domain) == (ku_[p], ku_[p + 1], kv_[q], kv_[q + 1])):
+        # already one clamped Bézier patch over its domain (most faces of real CAD): nothing to cut
+        pts, w = from_homogeneous(surface._pw[None])
+        return np.array([[ku_[p], ku_[p + 1], kv_[q], kv_[q + 1]]], dtype=float), pts, w
     s = restrict_surface(surface)
     p, q = s.degree_u, s.degree_v
     bu, segs = decompose(s.knots_u, p, s._pw, axis=0)  # (Ku, p+1, nv, 4)
