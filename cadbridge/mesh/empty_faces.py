@@ -115,9 +115,16 @@ def fill_empty_faces(g, surfaces: list[int], *, size: float, curvature_elements:
     shape healing)."""
     notes = []
     failed = failed or {}
+    from cadbridge.mesh.generate import MERGE_TOLERANCE  # the node merge mesh_cad applies afterwards
+
     for s in surfaces:
         if _has_elements(g, s):
             continue
+        if s in failed:
+            tiny = _fill_tiny_face(g, s, MERGE_TOLERANCE * size)
+            if tiny:
+                notes.append(tiny.replace("mesh: ", f"mesh: gmsh failed ({failed[s]}) on ", 1))
+                continue
         try:
             # a face gmsh failed on is not a cusp face: only strips within the file's own
             # curve-to-surface disagreement are cut (not h / 8: its acute corners are geometry)
@@ -208,6 +215,30 @@ def _face_loops(g, s: int) -> list[tuple]:
     if cur is not None:
         raise MeshError(f"{_label(g, s)}: its boundary curves do not close into loops")
     return loops
+
+
+def _fill_tiny_face(g, s: int, tol: float) -> str | None:
+    """Fill a face smaller than the node-merge tolerance ``tol`` (its 3D box diagonal below it)
+    with a fan of triangles on its boundary nodes, and return a note; None for a larger face.
+
+    OCC's fragment with a crease curve can leave such slivers (the analytic die's gmsh surface
+    1131: 1.3e-4 x 7e-7 mm between the crease and a binder edge, its vertex tolerance larger
+    than the face, so its two curves do not close in (u, v) and gmsh's periodic mesher fails).
+    All its nodes lie within ``tol`` of each other, so `cadbridge.mesh.cleanup.merge_close_nodes`
+    joins them into one and drops these triangles: the face leaves no element and no crack."""
+    bb = np.asarray(g.model.getBoundingBox(2, s), dtype=float)
+    if not float(np.linalg.norm(bb[3:] - bb[:3])) < tol:
+        return None
+    tags: list[int] = []
+    for _, ct in g.model.getBoundary([(2, s)], combined=False, oriented=True, recursive=False):
+        nt = g.model.mesh.getNodes(1, abs(ct), includeBoundary=True)[0]  # the curve's nodes, ends included
+        tags.extend(int(t) for t in nt if int(t) not in tags)
+    if len(tags) < 3:
+        return None
+    fan = np.array([[tags[0], tags[i], tags[i + 1]] for i in range(1, len(tags) - 1)], dtype=np.int64)
+    g.model.mesh.addElementsByType(s, 2, [], fan.ravel().tolist())
+    return (f"mesh: {_label(g, s)}, a sliver {float(np.linalg.norm(bb[3:] - bb[:3])):.2g} across (below the "
+            f"node-merge tolerance {tol:.2g}); its {len(tags)} boundary nodes merge into one, it leaves no elements")
 
 
 def _pcurve(g, c: int, t: list[float], s: int, which: int, backwards: bool) -> np.ndarray:
