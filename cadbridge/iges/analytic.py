@@ -244,7 +244,10 @@ def _unwrap_rows(nat: np.ndarray, angular: tuple[bool, bool]) -> np.ndarray:
 class ArcMap:
     """Scalar map x -> start_out + arc_parameter(x - start_in, sweep): the NURBS parameter of a
     rational quadratic arc (``construct.circular_arc`` / ``revolved_surface``) at the angle x,
-    x clipped to [start_in, start_in + sweep]. Closed form per quarter segment of width d:
+    x clipped to [start_in, start_in + sweep], after a shift by whole turns where that puts an x
+    outside the range inside it (an angle is modular: the analytic die's 120 faces BED01060 &c.
+    have generatrix pcurves at 5.05..6.28 rad on an arc of angles -1.23..0, which clipping
+    collapsed to one point). Closed form per quarter segment of width d:
     with T = tan(rel / 2), rel the angle from the segment's middle,
     f = start_out + (k + (1 + T / tan(d/4)) / 2) d, f' = d (1 + T^2) / (4 tan(d/4)),
     f'' = f' T; f is C1 at the segment breaks, f'' jumps there (`breaks`)."""
@@ -259,6 +262,10 @@ class ArcMap:
         n = c.arc_segments(self.sweep)
         d = self.sweep / n
         r = np.asarray(x, dtype=float) - self.start_in
+        wrapped = r - TWO_PI * np.round((r - 0.5 * self.sweep) / TWO_PI)
+        turn_tol = 1e-9 * max(abs(self.sweep), 1.0)
+        r = np.where(((r < 0.0) | (r > self.sweep)) & (wrapped >= -turn_tol) & (wrapped <= self.sweep + turn_tol),
+                     wrapped, r)
         a = np.clip(r, 0.0, self.sweep)
         k = np.clip(np.floor(a / d), 0, n - 1)
         tt = np.tan((a - k * d - d / 2) / 2)
