@@ -509,14 +509,14 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         raise MeshError(f"{path}: gmsh/OCC cannot import the file: {exc}") from exc
     if not g.model.getEntities(2):
         raise MeshError(f"{path}: no surfaces found in the CAD file")
+    if kw["embed_curves"]:
+        _embed_curves(g, kw["embed_curves"], path)
+    surfaces = [t for _, t in g.model.getEntities(2)]
     bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
     diag = float(np.linalg.norm(bb[3:] - bb[:3]))
     size = kw["size"] if kw["size"] is not None else diag / 20.0
     if not size > 0:
         raise MeshError(f"{path}: degenerate bounding box {bb.tolist()}")
-    if kw["embed_curves"]:
-        _embed_curves(g, kw["embed_curves"], path, snap=MERGE_TOLERANCE * size)
-    surfaces = [t for _, t in g.model.getEntities(2)]
     mopts: dict[str, float | str] = {
         "Mesh.MeshSizeMax": size,
         # curvature sizing refines at most 20 x below the size (a pole or a sliver face
@@ -691,15 +691,8 @@ def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:
                     f"try another --size, or mesh the CAD elsewhere and run `cadbridge nagata MESH --cad CAD`")
 
 
-def _embed_curves(g, curves: list, path: Path, snap: float = 0.0) -> None:
-    """Fragment the surfaces with the curves lying on them, so mesh edges follow the curves.
-
-    snap : model units; the fuse is fuzzy by ``snap`` (``Geometry.ToleranceBoolean``), so a
-        curve end within ``snap`` of a face corner fuses with that corner. Else the fuse splits
-        the corner's edge at the end and leaves a sliver edge as short as the miss (0.006 mm on
-        the production die's crease 130), which the node merge (``MERGE_TOLERANCE`` x size)
-        collapses into non-manifold edges. (Moving the curve's end control point onto the
-        corner instead bent the curve off the face: the fuse then did not split it.)"""
+def _embed_curves(g, curves: list, path: Path) -> None:
+    """Fragment the surfaces with the curves lying on them, so mesh edges follow the curves."""
     bb_all = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
     tol = 1e-7 * float(np.linalg.norm(bb_all[3:] - bb_all[:3]))
     surf = [t for _, t in g.model.getEntities(2)]
@@ -731,12 +724,7 @@ def _embed_curves(g, curves: list, path: Path, snap: float = 0.0) -> None:
     for s in hosts:
         for _, c in g.model.getBoundary([(2, s)], combined=False, oriented=False):
             near.update(int(t) for t in g.model.getAdjacencies(1, abs(c))[0])
-    if snap > tol:  # OCC's fuzzy fuse: a curve end within snap of a corner fuses with it
-        g.option.setNumber("Geometry.ToleranceBoolean", snap)
-    try:
-        g.model.occ.fragment([(2, s) for s in sorted(near)], tools)
-    finally:
-        g.option.setNumber("Geometry.ToleranceBoolean", 0.0)
+    g.model.occ.fragment([(2, s) for s in sorted(near)], tools)
     g.model.occ.synchronize()
     # curve pieces outside every face (beyond trims) would be meshed as free edges: drop them
     free = [(1, t) for _, t in g.model.getEntities(1) if len(g.model.getAdjacencies(1, t)[0]) == 0]
