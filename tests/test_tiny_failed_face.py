@@ -39,7 +39,8 @@ def test_face_below_merge_tolerance_is_filled_and_merged_away():
         gmsh.model.mesh.generate(2)
         gmsh.model.mesh.clear([(2, small)])
         notes = fill_empty_faces(gmsh, surfaces, size=size, curvature_elements=0, element="tri",
-                                 subdivided=False, label="t", failed={small: "Impossible to mesh"})
+                                 subdivided=False, label="t", failed={small: "Impossible to mesh"},
+                                 merge_tolerance=MERGE_TOLERANCE * size)
         assert len(notes) == 1 and "sliver" in notes[0] and "gmsh failed (Impossible to mesh)" in notes[0]
         assert any(len(t) for t in gmsh.model.mesh.getElements(2, small)[1])  # _check_all_meshed holds
         tags, x, _ = gmsh.model.mesh.getNodes()

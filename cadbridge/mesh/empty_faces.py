@@ -104,24 +104,24 @@ def generate_surfaces(g, surfaces: list[int]) -> dict[int, str]:
 
 def fill_empty_faces(g, surfaces: list[int], *, size: float, curvature_elements: int, element: str,
                      subdivided: bool, label: str, cuts: dict | None = None,
-                     failed: dict[int, str] | None = None) -> list[str]:
+                     failed: dict[int, str] | None = None, merge_tolerance: float = 0.0) -> list[str]:
     """Mesh every surface of ``surfaces`` that has no 2D elements in the current gmsh model
     (see module docs); ``size`` the largest element size (model units), ``element`` "tri" or
     "quad", ``subdivided`` when the model's mesh went through gmsh's all-quad subdivision;
     ``cuts`` {surface: trim-loop excursions} whose boundary nodes are left out of the loop
-    (`cadbridge.mesh.loop_cuts`); ``failed`` {surface: gmsh's error} from `generate_surfaces`.
+    (`cadbridge.mesh.loop_cuts`); ``failed`` {surface: gmsh's error} from `generate_surfaces`;
+    ``merge_tolerance`` the distance below which the caller merges nodes afterwards (a failed
+    face smaller than it gets a fan that the merge collapses: `_fill_tiny_face`).
     Returns one note per face filled. Raises `MeshError` naming a face it cannot mesh; for a
     face gmsh failed on, the message says "gmsh failed" (so `mesh_cad` retries with OCC's
     shape healing)."""
     notes = []
     failed = failed or {}
-    from cadbridge.mesh.generate import MERGE_TOLERANCE  # the node merge mesh_cad applies afterwards
-
     for s in surfaces:
         if _has_elements(g, s):
             continue
         if s in failed:
-            tiny = _fill_tiny_face(g, s, MERGE_TOLERANCE * size)
+            tiny = _fill_tiny_face(g, s, merge_tolerance)
             if tiny:
                 notes.append(tiny.replace("mesh: ", f"mesh: gmsh failed ({failed[s]}) on ", 1))
                 continue

@@ -667,7 +667,7 @@ def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdi
         loop_cuts.clear(g, cuts)
     return fill_empty_faces(g, surfaces, size=size, curvature_elements=kw["curvature_elements"],
                             element=kw["element"], subdivided=subdivided, label=str(path), cuts=cuts,
-                            failed=failed)
+                            failed=failed, merge_tolerance=MERGE_TOLERANCE * size)
 
 
 def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:
