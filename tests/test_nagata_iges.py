@@ -260,3 +260,24 @@ def test_opencascade_collapsed_edge(tmp_path):
     for s, c in zip(occ, tri):
         poles = [s.Pole(1, j) for j in (1, 2, 3)]  # OCC poles are 1-based
         assert all([p.X(), p.Y(), p.Z()] == c[0].tolist() for p in poles)
+
+
+def test_batch_text_is_the_generic_writers(monkeypatch):
+    """Reference: `cadbridge.iges.writer.iges_text` of the `NurbsSurface` s of
+    `nagata_to_surfaces` (the generic per-face writer): the batch text of
+    `bezier_iges_text` that `write_nagata_iges` writes is the same, character for
+    character, over magnitudes from 1e-3 to 1e4 and both element kinds."""
+    import cadbridge.iges.writer as w
+    from cadbridge.model import Face, Units
+
+    monkeypatch.setattr(w.time, "strftime", lambda fmt: "20261202.120000")
+    rng = np.random.default_rng(7)
+    for et, eq in ((0, 1), (1, 0), (13, 29)):
+        tri = rng.normal(size=(et, 6, 3)) * 10.0 ** rng.uniform(-3, 4, size=(et, 1, 1))
+        quad = rng.normal(size=(eq, 8, 3)) * 10.0 ** rng.uniform(-3, 4, size=(eq, 1, 1))
+        labels = [("NTRI", k + 1) for k in range(et)] + [("NQUAD", et + k + 1) for k in range(eq)]
+        faces = [Face(surface=s, de=0) for s in nagata_to_surfaces(tri, quad)]
+        generic = w.iges_text(faces, units=Units(), labels=labels, filename="t.igs", description="d")
+        batch = w.bezier_iges_text(nagata_control_points(tri, quad), units=Units(), labels=labels,
+                                   filename="t.igs", description="d")
+        assert batch == generic

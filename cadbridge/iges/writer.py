@@ -13,6 +13,7 @@ written exactly."""
 
 from __future__ import annotations
 
+import re
 import time
 from dataclasses import dataclass, field
 from os import PathLike
@@ -26,7 +27,7 @@ from cadbridge.model import Face, Model, Units
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["write_iges", "iges_text", "format_real", "TRIM_REL_TOL"]
+__all__ = ["write_iges", "iges_text", "bezier_iges_text", "format_real", "TRIM_REL_TOL"]
 
 TRIM_REL_TOL = 1e-10  # non-NURBS trim curves: cubic deviation / (u, v) domain diagonal
 
@@ -163,7 +164,18 @@ def _as_2d(c, surface: NurbsSurface) -> NurbsCurve:
 
 
 def _pack(tokens: list[str], width: int) -> list[str]:
-    """Free-format lines of at most ``width`` characters; only strings are split across lines."""
+    """Free-format lines of at most ``width`` characters; only strings are split across lines.
+
+    Greedy: a line takes whole tokens, each with its delimiter, while they fit. Where no token
+    holds a delimiter and none is longer than a line (numbers; every entity of a Nagata
+    export), the same lines come from one regular-expression pass over the joined text: each
+    match is the longest run of at most ``width`` characters ending with a delimiter."""
+    if not tokens:
+        return []
+    text = ",".join(tokens) + ";"
+    if max(map(len, tokens)) < width and text.count(",") == len(tokens) - 1 and text.count(";") == 1 \
+            and "\n" not in text:
+        return _WHOLE_TOKENS[width].findall(text)
     lines: list[str] = []
     cur = ""
     for k, tok in enumerate(tokens):
@@ -183,6 +195,9 @@ def _pack(tokens: list[str], width: int) -> list[str]:
     return lines
 
 
+_WHOLE_TOKENS = {w: re.compile(r".{0,%d}[,;]" % (w - 1)) for w in (64, 72)}
+
+
 def _global(model: Model | None, units: Units, author: str | None, filename: str, max_coord: float) -> list[str]:
     now = time.strftime("%Y%m%d.%H%M%S")
     res = model.resolution if (model is not None and model.resolution) else 1e-8
@@ -198,37 +213,73 @@ def _global(model: Model | None, units: Units, author: str | None, filename: str
     return _pack(g, 72)
 
 
+def _check_labels(labels, n: int):
+    if labels is None:
+        return None
+    labels = list(labels)
+    if len(labels) != n:
+        raise ValueError(f"{len(labels)} labels for {n} faces")
+    for lab, _ in labels:
+        if len(lab) > 8 or not lab.isascii() or not lab.isprintable():
+            raise ValueError(f"IGES entity labels are at most 8 printable ASCII characters: {lab!r}")
+    return labels
+
+
 def iges_text(faces: list[Face], model: Model | None = None, *, units: Units | None = None,
               author: str | None = None, filename: str = "model.igs",
               labels: Sequence[tuple[str, int]] | None = None, description: str | None = None) -> str:
     """The IGES file text for ``faces`` (see `write_iges`)."""
     units = units or (model.units if model is not None else Units())
-    if labels is not None:
-        labels = list(labels)
-        if len(labels) != len(faces):
-            raise ValueError(f"{len(labels)} labels for {len(faces)} faces")
-        for lab, _ in labels:
-            if len(lab) > 8 or not lab.isascii() or not lab.isprintable():
-                raise ValueError(f"IGES entity labels are at most 8 printable ASCII characters: {lab!r}")
+    labels = _check_labels(labels, len(faces))
     f = _File()
     for k, face in enumerate(faces):
         _add_face(f, face, *(labels[k] if labels is not None else ("", 0)))
     max_coord = 0.0
     for face in faces:
         max_coord = max(max_coord, float(np.max(np.abs(face.surface.bbox()))))
+    return _file_text(f, description or "cadbridge IGES 5.3 export",
+                      _global(model, units, author, filename, max_coord))
+
+
+def bezier_iges_text(nets: np.ndarray, *, units: Units, labels: Sequence[tuple[str, int]],
+                     filename: str = "model.igs", description: str | None = None) -> str:
+    """The IGES text of polynomial Bézier patches, one independent 128 each, on [0, 1]^2:
+    the same text as `iges_text` of the faces ``NurbsSurface(p, q, clamped knots, net)``, with
+    the reals of all nets formatted in one pass (a Nagata export writes ~10^5 patches).
+
+    nets : (E, p + 1, q + 1, 3) control nets, [e, i, j] with i along u; labels : one
+    (label, subscript) per patch."""
+    nets = np.asarray(nets, dtype=float)
+    if nets.ndim != 4 or nets.shape[3] != 3:
+        raise ValueError(f"nets must have shape (E, p + 1, q + 1, 3), got {nets.shape}")
+    labels = _check_labels(labels, len(nets))
+    e, nu, nv = nets.shape[:3]
+    p, q = nu - 1, nv - 1
+    knots = [0.0] * nu + [1.0] * nu + [0.0] * nv + [1.0] * nv
+    head = [str(v) for v in (p, q, p, q, 0, 0, 1, 0, 0)] + _reals(knots + [1.0] * (nu * nv))
+    tail = _reals([0.0, 1.0, 0.0, 1.0])
+    k = nu * nv * 3
+    cps = _reals(nets.transpose(0, 2, 1, 3))  # IGES order: the u index fastest
+    f = _File()
+    for i, (lab, sub) in enumerate(labels):
+        f.add(_Entity(128, head + cps[i * k : (i + 1) * k] + tail, status=ST_INDEPENDENT, label=lab, subscript=sub))
+    max_coord = float(np.max(np.abs(nets))) if e else 0.0
+    return _file_text(f, description or "cadbridge IGES 5.3 export", _global(None, units, None, filename, max_coord))
+
+
+def _file_text(f: _File, description: str, gl: list[str]) -> str:
+    """Start, Global, Directory, Parameter and Terminate sections of the entities of ``f``."""
     out: list[str] = []
-    text = description or "cadbridge IGES 5.3 export"
-    start = [text[i : i + 72] for i in range(0, len(text), 72)]
+    start = [description[i : i + 72] for i in range(0, len(description), 72)]
     out += [s.ljust(72)[:72] + f"S{k + 1:7d}" for k, s in enumerate(start)]
-    gl = _global(model, units, author, filename, max_coord)
     out += [s.ljust(72) + f"G{k + 1:7d}" for k, s in enumerate(gl)]
     plines: list[str] = []
     dlines: list[str] = []
     for e in f.entities:
         body = _pack([str(e.etype)] + e.params, 64)
         pptr = len(plines) + 1
-        for s in body:
-            plines.append(s.ljust(64) + f" {e.de:7d}P{len(plines) + 1:7d}")
+        tail = f" {e.de:7d}P"
+        plines += [s.ljust(64) + tail + f"{pptr + k:7d}" for k, s in enumerate(body)]
         d1 = f"{e.etype:8d}{pptr:8d}{0:8d}{0:8d}{0:8d}{0:8d}{0:8d}{0:8d}{e.status:>8s}"
         d2 = f"{e.etype:8d}{0:8d}{e.color:8d}{len(body):8d}{e.form:8d}{'':8s}{'':8s}{e.label[:8]:>8s}{e.subscript:8d}"
         dlines.append(d1 + f"D{len(dlines) + 1:7d}")

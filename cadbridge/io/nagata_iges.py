@@ -98,27 +98,26 @@ def write_nagata_iges(
 
     Order: triangles then quads (global element numbering). ``names`` (one per patch, at most
     8 characters) go to the DE entity label; without names the labels are "NTRI"/"NQUAD". The
-    entity subscript is the 1-based global patch number. Written by `cadbridge.iges.write_iges`.
+    entity subscript is the 1-based global patch number. The text is that of
+    `cadbridge.iges.write_iges` of `nagata_to_surfaces` (`cadbridge.iges.writer.bezier_iges_text`), written atomically.
     """
+    from cadbridge.io.atomic import atomic_write
     from cadbridge.iges.globals import units_from_flag
-    from cadbridge.iges.writer import write_iges
-    from cadbridge.model import Face
+    from cadbridge.iges.writer import bezier_iges_text
 
     tri = _as_coefficients(tri_coefficients, 6, "tri_coefficients")
     quad = _as_coefficients(quad_coefficients, 8, "quad_coefficients")
     unit = units.upper()
     if unit not in IGES_UNIT_FLAGS:
         raise ValueError(f"unknown IGES unit {units!r}; known: {sorted(IGES_UNIT_FLAGS)}")
-    surfaces = nagata_to_surfaces(tri, quad)
+    nets = nagata_control_points(tri, quad)
     if names is None:
         names = ["NTRI"] * len(tri) + ["NQUAD"] * len(quad)
     names = list(names)
-    if len(names) != len(surfaces):
-        raise ValueError(f"{len(names)} names for {len(surfaces)} patches")
-    write_iges(
-        [Face(surface=s, de=0) for s in surfaces],
-        path,
-        units=units_from_flag(IGES_UNIT_FLAGS[unit], unit),
-        labels=[(nm, k + 1) for k, nm in enumerate(names)],
-        description=f"cadbridge Nagata patches: {len(tri)} triangles, {len(quad)} quads",
-    )
+    if len(names) != len(nets):
+        raise ValueError(f"{len(names)} names for {len(nets)} patches")
+    text = bezier_iges_text(nets, units=units_from_flag(IGES_UNIT_FLAGS[unit], unit),
+                            labels=[(nm, k + 1) for k, nm in enumerate(names)], filename=os.path.basename(path),
+                            description=f"cadbridge Nagata patches: {len(tri)} triangles, {len(quad)} quads")
+    with atomic_write(path, "w", encoding="latin-1") as fh:
+        fh.write(text)
