@@ -160,13 +160,27 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
 
     folded = {line.face for line in folds_for(model).lines}
     quantum = COINCIDENT * model.size()
+    # the faces' untrimmed surfaces in one compiled call over all (point, face) pairs
+    # (`project_to_surfaces`: the result of `project_to_surface` face by face)
+    batch = np.flatnonzero((face >= 0) & ~np.isin(face, np.fromiter(folded, dtype=np.int64, count=len(folded))))
+    at = np.full(len(points), -1, dtype=np.int64)
+    at[batch] = np.arange(len(batch))
+    if len(batch):
+        from cadbridge.nurbs.project_many import project_to_surfaces
+        from cadbridge.search import index_for
+
+        rep, inv = _unique_points(points[batch], quantum, key=face[batch])
+        feet = _expand(project_to_surfaces(index_for(model).surface_pack(model), face[batch][rep],
+                                           points[batch][rep]), inv)
     for f in np.unique(face[face >= 0]):  # loop over faces, vectorised over points
         sel = np.flatnonzero(face == f)
         s = model.faces[f].surface
-        # on a folded face the sheets lie close: Newton from the nearest grid sample alone can
-        # end on another sheet than the nearest one
-        pr = _project_unique(lambda x, **kw: project_to_surface(s, x, **kw), points[sel], quantum,
-                             n_starts=4 if f in folded else 1)
+        if f in folded:
+            # on a folded face the sheets lie close: Newton from the nearest grid sample alone
+            # can end on another sheet than the nearest one
+            pr = _project_unique(lambda x: project_to_surface(s, x, n_starts=4), points[sel], quantum)
+        else:
+            pr = _expand(feet, at[sel])
         pieces = _crease_pieces(s)
         if len(pieces) > 1:
             if piece_uv is None:
