@@ -574,7 +574,9 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     filled = _fill_empty(g, surfaces, size, kw, path, subdivided=False, failed=failed)
     _check_all_meshed(g, surfaces, path)
     mesh = _collect(g, surfaces, kw["parametric"], path)
+    subdivided = False
     if kw["element"] == "quad" and len(mesh.triangles):
+        subdivided = True
         # recombination left triangles: gmsh's all-quad subdivision (splits every element
         # into quads, halving the size) on a mesh made at twice the target size.
         g.model.mesh.clear()
@@ -597,14 +599,34 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
             raise MeshError(f"{path}: gmsh left {len(mesh.triangles)} triangles in quad mode")
     # faces that pinch to a point (two boundary curves touching) and edges far below the
     # size make gmsh grade nodes down to ~1e-13 apart and overlap slivers there: nodes
-    # closer than 1e-4 x size are one node (cadbridge.mesh.cleanup)
+    # closer than 1e-4 x size are one node (cadbridge.mesh.cleanup), but CAD vertices
+    # farther apart stay apart (a chain of short CAD edges, each step below the tolerance)
     from cadbridge.mesh.cleanup import merge_close_nodes
 
-    mesh, merged = merge_close_nodes(mesh, MERGE_TOLERANCE * size)
+    # the all-quad subdivision halves every distance of the mesh it splits (made at twice the
+    # size), so its tolerance halves too: the same node pairs as that mesh's merge at
+    # MERGE_TOLERANCE x size (on the production die the subdivision put the midpoints of two
+    # needle triangles on 0.0077 and 0.0123 mm CAD edges 0.0038 and 0.0062 mm apart; merged at
+    # 0.0072 mm they folded the elements there into non-manifold edges)
+    tol = MERGE_TOLERANCE * size * (0.5 if subdivided else 1.0)
+    mesh, merged = merge_close_nodes(mesh, tol, anchors=_vertex_nodes(g, mesh))
     mesh.notes += filled
     if merged:
         mesh.notes.append(f"mesh: {merged.summary()}")
     return mesh
+
+
+def _vertex_nodes(g, mesh: Mesh) -> np.ndarray:
+    """Indices (A,) of ``mesh``'s nodes at gmsh points (CAD vertices: the nodes gmsh
+    classifies on dimension 0, found by their coordinates, which are the same numbers)."""
+    _, xyz, _ = g.model.mesh.getNodes(0, -1)
+    xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+    if not len(xyz) or not len(mesh.nodes):
+        return np.zeros(0, dtype=np.int64)
+    from scipy.spatial import cKDTree
+
+    d, i = cKDTree(mesh.nodes).query(xyz)
+    return np.unique(i[d == 0.0]).astype(np.int64)
 
 
 def _one_segment_short_curves(g, shorter: float, skip: set[int]) -> None:
