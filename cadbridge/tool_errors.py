@@ -163,8 +163,8 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
     # the faces' untrimmed surfaces in one compiled call over all (point, face) pairs
     # (`project_to_surfaces`: the result of `project_to_surface` face by face)
     batch = np.flatnonzero((face >= 0) & ~np.isin(face, np.fromiter(folded, dtype=np.int64, count=len(folded))))
-    at = np.full(len(points), -1, dtype=np.int64)
-    at[batch] = np.arange(len(batch))
+    row = np.full(len(points), -1, dtype=np.int64)  # point -> its row of ``feet``
+    row[batch] = np.arange(len(batch))
     if len(batch):
         from cadbridge.nurbs.project_many import project_to_surfaces
         from cadbridge.search import index_for
@@ -180,7 +180,7 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
             # can end on another sheet than the nearest one
             pr = _project_unique(lambda x: project_to_surface(s, x, n_starts=4), points[sel], quantum)
         else:
-            pr = _expand(feet, at[sel])
+            pr = _expand(feet, row[sel])
         pieces = _crease_pieces(s)
         if len(pieces) > 1:
             if piece_uv is None:
