@@ -570,10 +570,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
                 g.model.mesh.setTransfiniteSurface(f.tag, cornerTags=f.corners)
                 if kw["element"] == "quad":
                     g.model.mesh.setRecombine(2, f.tag)
-    failed = _generate(g, surfaces)
-    filled = _fill_empty(g, surfaces, size, kw, path, subdivided=False, failed=failed)
-    _check_all_meshed(g, surfaces, path)
-    mesh = _collect(g, surfaces, kw["parametric"], path)
+    redone: dict[int, int] = {}
+    mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, False, redone)
     subdivided = False
     if kw["element"] == "quad" and len(mesh.triangles):
         subdivided = True
@@ -591,10 +589,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
             for c, n in counts.items():
                 g.model.mesh.setTransfiniteCurve(c, max(1, math.ceil(n / 2)) + 1)
         _one_segment_short_curves(g, 4.0 * MERGE_TOLERANCE * size, set(counts) if kw["structured"] else set())
-        failed = _generate(g, surfaces)
-        filled = _fill_empty(g, surfaces, size, kw, path, subdivided=True, failed=failed)
-        _check_all_meshed(g, surfaces, path)
-        mesh = _collect(g, surfaces, kw["parametric"], path)
+        mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, True, redone)
         if len(mesh.triangles):
             raise MeshError(f"{path}: gmsh left {len(mesh.triangles)} triangles in quad mode")
     # faces that pinch to a point (two boundary curves touching) and edges far below the
@@ -611,9 +606,75 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     tol = MERGE_TOLERANCE * size * (0.5 if subdivided else 1.0)
     mesh, merged = merge_close_nodes(mesh, tol, anchors=_vertex_nodes(g, mesh))
     mesh.notes += filled
+    if redone:
+        mesh.notes.append(f"mesh: gmsh's mesh folded over itself on surface(s) "
+                          f"{', '.join(f'{t} ({k} element pairs)' for t, k in sorted(redone.items()))} (neighbouring "
+                          f"elements more than {FOLD_DEG:g} degrees apart); meshed again with gmsh algorithm "
+                          f"{_REFOLD_ALGORITHM[kw['element']]} there")
     if merged:
         mesh.notes.append(f"mesh: {merged.summary()}")
     return mesh
+
+
+FOLD_DEG = 150.0
+"""Two elements of one gmsh surface sharing an edge whose normals differ by more than this
+are a fold of gmsh's mesh."""
+
+_REFOLD_ALGORITHM = {"quad": 8, "tri": 1}
+"""gmsh's 2D algorithm for a surface whose mesh folded: Frontal-Delaunay for quads (8),
+MeshAdapt (1) for triangles."""
+
+
+def _folded_surfaces(mesh: Mesh) -> dict[int, int]:
+    """{gmsh surface: element pairs} of the surfaces where two elements sharing an edge have
+    normals (of their corners' polygon) more than `FOLD_DEG` apart. A surface is smooth
+    between its curves (creases are curves after `_embed_curves`) and the curvature sizing
+    turns the normal by ~30 degrees an element, so such a pair is an element gmsh laid over
+    its neighbours: on the production die quad the boss wall BOS00373 at (-31.1, -95.2, -85.1)
+    (sub-quads' normals radial -1 among +1: the convert guard's 3 straddlers there; algorithm
+    8 meshes it without) and the binder BND00963 near its corners (z -0.994 among +0.994; the
+    same mesh with every algorithm tried, 1, 5, 6, 8: not repaired here)."""
+    from cadbridge.mesh.topology import edge_table
+
+    x = mesh.nodes
+    nrm = []
+    for b in mesh.cells:  # one or two blocks
+        c = np.asarray(b.data)
+        d1, d2 = ((x[c[:, 1]] - x[c[:, 0]], x[c[:, 2]] - x[c[:, 0]]) if c.shape[1] == 3 else
+                  (x[c[:, 2]] - x[c[:, 0]], x[c[:, 3]] - x[c[:, 1]]))
+        n = np.cross(d1, d2)
+        nrm.append(n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None])
+    n = np.concatenate(nrm)
+    ent = np.asarray(mesh.cell_data["element_entity"])
+    t = edge_table(mesh)
+    two = np.flatnonzero(t.counts == 2)
+    a, b = t.elems[t.ptr[two]], t.elems[t.ptr[two] + 1]
+    bad = (ent[a] == ent[b]) & (np.einsum("ij,ij->i", n[a], n[b]) < math.cos(math.radians(FOLD_DEG)))
+    s, k = np.unique(ent[a[bad]], return_counts=True)
+    return {int(i): int(j) for i, j in zip(s, k)}
+
+
+def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path, subdivided: bool,
+                       redone: dict[int, int]) -> tuple[Mesh, list[str]]:
+    """gmsh's 2D mesh (`_generate`, `_fill_empty`) collected; where it folds
+    (`_folded_surfaces`) on a surface not yet in ``redone``, the whole mesh is cleared and
+    generated once more with `_REFOLD_ALGORITHM` on those surfaces (``redone`` gets them:
+    {surface: folded pairs}). Returns (mesh, notes of the filled faces). A quad mesh that
+    leaves triangles goes to the subdivision pass anyway: it is checked there."""
+    while True:
+        failed = _generate(g, surfaces)
+        filled = _fill_empty(g, surfaces, size, kw, path, subdivided=subdivided, failed=failed)
+        _check_all_meshed(g, surfaces, path)
+        mesh = _collect(g, surfaces, kw["parametric"], path)
+        if kw["element"] == "quad" and not subdivided and len(mesh.triangles):
+            return mesh, filled
+        folds = {s: k for s, k in _folded_surfaces(mesh).items() if s not in redone}
+        if not folds:
+            return mesh, filled
+        redone.update(folds)
+        g.model.mesh.clear()
+        for s in folds:
+            g.model.mesh.setAlgorithm(2, s, _REFOLD_ALGORITHM[kw["element"]])
 
 
 def _vertex_nodes(g, mesh: Mesh) -> np.ndarray:
