@@ -245,7 +245,7 @@ class ArcMap:
     """Scalar map x -> start_out + arc_parameter(x - start_in, sweep): the NURBS parameter of a
     rational quadratic arc (``construct.circular_arc`` / ``revolved_surface``) at the angle x,
     x clipped to [start_in, start_in + sweep], after a shift by whole turns where that puts an x
-    outside the range inside it (an angle is modular: the analytic die's 120 faces BED01060 &c.
+    farther outside the range than 1e-9 x the sweep inside it (an angle is modular: the analytic die's 120 faces BED01060 &c.
     have generatrix pcurves at 5.05..6.28 rad on an arc of angles -1.23..0, which clipping
     collapsed to one point). Closed form per quarter segment of width d:
     with T = tan(rel / 2), rel the angle from the segment's middle,
@@ -264,8 +264,12 @@ class ArcMap:
         r = np.asarray(x, dtype=float) - self.start_in
         wrapped = r - TWO_PI * np.round((r - 0.5 * self.sweep) / TWO_PI)
         turn_tol = 1e-9 * max(abs(self.sweep), 1.0)
-        r = np.where(((r < 0.0) | (r > self.sweep)) & (wrapped >= -turn_tol) & (wrapped <= self.sweep + turn_tol),
-                     wrapped, r)
+        # only an x beyond the range by more than the tolerance is shifted: one within it is
+        # the range's end up to rounding (on a full turn, the seam at 0 read as 1e-17 beyond
+        # 2 pi went to the other end of the arc and folded the analytic die's boss BOS00346's
+        # trim loop onto itself)
+        r = np.where(((r < -turn_tol) | (r > self.sweep + turn_tol)) & (wrapped >= -turn_tol)
+                     & (wrapped <= self.sweep + turn_tol), wrapped, r)
         a = np.clip(r, 0.0, self.sweep)
         k = np.clip(np.floor(a / d), 0, n - 1)
         tt = np.tan((a - k * d - d / 2) / 2)
