@@ -28,6 +28,8 @@ FACE(401) of ANSA9 has an excursion).
 
 from __future__ import annotations
 
+import copy
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -231,9 +233,17 @@ def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
     return segment_distance(p[:, None, :], line[None, :-1], line[None, 1:]).min(axis=1)
 
 
-def _restricted(c: NurbsCurve, t0: float, t1: float) -> NurbsCurve:
-    """``c`` on the domain [t0, t1] (the same exact curve, fewer of it)."""
-    return NurbsCurve(c.degree, c.knots, c.control_points, c.weights, domain=(t0, t1))
+def _restricted(c, t0: float, t1: float):
+    """``c`` on the domain [t0, t1] (the same exact curve, fewer of it): a `NurbsCurve`, or a
+    trim curve mapped exactly from an analytic surface's parametrisation
+    (`cadbridge.iges.analytic.MappedCurve` &c., whose domain is its base curve's)."""
+    if isinstance(c, NurbsCurve):
+        return NurbsCurve(c.degree, c.knots, c.control_points, c.weights, domain=(t0, t1))
+    out = copy.copy(c)
+    for k in [k for k in vars(out) if k.startswith("_")]:  # caches of the whole curve
+        del out.__dict__[k]
+    out.base = _restricted(c.base, t0, t1)
+    return out
 
 
 def _segment(a: np.ndarray, b: np.ndarray) -> NurbsCurve:

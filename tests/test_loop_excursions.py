@@ -234,3 +234,26 @@ def test_inspect_names_the_trim_defect(capsys):
     sample = Path(__file__).resolve().parents[1] / "iges_samples" / "trimmed_hole.igs"
     assert main(["inspect", str(sample)]) == 0
     assert "trim defect" not in capsys.readouterr().out
+
+
+def test_restricted_mapped_trim_curve_is_the_same_curve():
+    """A cut through a loop of an analytic face restricts a `MappedCurve` (trim curve mapped
+    exactly into the converted surface's parameters). Reference: the unrestricted curve at
+    the same parameters (the restriction changes the domain only); the U-shape's analytic
+    tools have such curves."""
+    from cadbridge.iges import read_iges
+    from cadbridge.iges.analytic import MappedCurve
+    from cadbridge.loop_excursions import _restricted
+
+    model = read_iges(Path(__file__).resolve().parents[1] / "iges_samples" / "ushape_tools_analytic.igs")
+    mapped = [c for f in model.faces if f.trims is not None and f.trims.outer is not None
+              for c in f.trims.outer.curves if isinstance(c, MappedCurve)]
+    assert mapped
+    for c in mapped:
+        a, b = c.domain
+        t0, t1 = a + 0.3 * (b - a), a + 0.8 * (b - a)
+        r = _restricted(c, t0, t1)
+        assert r.domain == (t0, t1) and c.domain == (a, b)
+        t = np.linspace(t0, t1, 11)
+        np.testing.assert_array_equal(r.evaluate(t), c.evaluate(t))
+        np.testing.assert_array_equal(r.derivatives(t, 2), c.derivatives(t, 2))
