@@ -598,12 +598,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     # farther apart stay apart (a chain of short CAD edges, each step below the tolerance)
     from cadbridge.mesh.cleanup import merge_close_nodes
 
-    # the all-quad subdivision halves every distance of the mesh it splits (made at twice the
-    # size), so its tolerance halves too: the same node pairs as that mesh's merge at
-    # MERGE_TOLERANCE x size (on the production die the subdivision put the midpoints of two
-    # needle triangles on 0.0077 and 0.0123 mm CAD edges 0.0038 and 0.0062 mm apart; merged at
-    # 0.0072 mm they folded the elements there into non-manifold edges)
-    tol = MERGE_TOLERANCE * size * (0.5 if subdivided else 1.0)
+    tol = _merge_tolerance(size, subdivided)
     mesh, merged = merge_close_nodes(mesh, tol, anchors=_vertex_nodes(g, mesh))
     mesh.notes += filled
     if redone:
@@ -755,7 +750,17 @@ def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdi
         loop_cuts.clear(g, cuts)
     return fill_empty_faces(g, surfaces, size=size, curvature_elements=kw["curvature_elements"],
                             element=kw["element"], subdivided=subdivided, label=str(path), cuts=cuts,
-                            failed=failed, merge_tolerance=MERGE_TOLERANCE * size)
+                            failed=failed, merge_tolerance=_merge_tolerance(size, subdivided))
+
+
+def _merge_tolerance(size: float, subdivided: bool) -> float:
+    """The distance (model units) below which `mesh_cad` merges nodes: MERGE_TOLERANCE x size,
+    halved after the all-quad subdivision, which halves every distance of the mesh it splits
+    (made at twice the size): the same node pairs as that mesh's merge (on the production die
+    the subdivision put the midpoints of two needle triangles on 0.0077 and 0.0123 mm CAD edges
+    0.0038 and 0.0062 mm apart; merged at 0.0072 mm they folded the elements there into
+    non-manifold edges). The tiny-face fill (`empty_faces._fill_tiny_face`) uses the same."""
+    return MERGE_TOLERANCE * size * (0.5 if subdivided else 1.0)
 
 
 def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:
