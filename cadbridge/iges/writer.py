@@ -255,10 +255,12 @@ def bezier_iges_text(nets: np.ndarray, *, units: Units, labels: Sequence[tuple[s
     labels = _check_labels(labels, len(nets))
     e, nu, nv = nets.shape[:3]
     p, q = nu - 1, nv - 1
-    knots = [0.0] * nu + [1.0] * nu + [0.0] * nv + [1.0] * nv
-    head = [str(v) for v in (p, q, p, q, 0, 0, 1, 0, 0)] + _reals(knots + [1.0] * (nu * nv))
-    tail = _reals([0.0, 1.0, 0.0, 1.0])
     k = nu * nv * 3
+    # every patch shares all parameters but its control points: those of one patch, from the
+    # generic `_surface_params` (degrees, knots, weights, then the net, then the domain)
+    one = _surface_params(NurbsSurface(p, q, [0.0] * nu + [1.0] * nu, [0.0] * nv + [1.0] * nv,
+                                       nets[0] if e else np.zeros((nu, nv, 3))))
+    head, tail = one[: len(one) - k - 4], one[len(one) - 4 :]
     cps = _reals(nets.transpose(0, 2, 1, 3))  # IGES order: the u index fastest
     f = _File()
     for i, (lab, sub) in enumerate(labels):
