@@ -417,6 +417,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
         loop_tags, uv, quads = _split_to_quads(uv, tris, quads, kept_loops, len(loop_tags))
         tris = np.zeros((0, 3), dtype=np.int64)
     n_loop = len(loop_tags)
+    uv, tangled = _untangled(uv, scale, tris, quads, n_loop)
     interior_uv = uv[n_loop:]
     xyz_new = np.asarray(g.model.getValue(2, s, interior_uv.ravel().tolist()), dtype=float).reshape(-1, 3) \
         if len(interior_uv) else np.zeros((0, 3))
@@ -438,10 +439,31 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     if cut:
         note = (f"mesh: {name} meshed in its (u, v) on gmsh's boundary nodes ({what}) without its trim-loop "
                 f"excursion ({n_cut} boundary nodes left to the neighbour, a crack <= {max(e.chord for e in cut):.3g})")
+    if tangled:
+        note += f" ({tangled} element(s) inverted in (u, v) smoothed out)" if tangled > 0 else \
+            f" ({-tangled} element(s) inverted in (u, v) that smoothing could not repair)"
     if notes_strip:
         note += (f"; {len(notes_strip)} cusp strip(s) narrower than {eps:.2g} (where two boundary curves run "
                  f"together within the CAD's accuracy) left open: " + "; ".join(notes_strip))
     return note
+
+
+def _untangled(uv: np.ndarray, scale: np.ndarray, tris: np.ndarray, quads: np.ndarray,
+               n_loop: int) -> tuple[np.ndarray, int]:
+    """(uv (N, 2), k): the interior nodes (index >= ``n_loop``) moved by
+    `cadbridge.mesh.untangle` in the face's scaled (u, v) where an element (counter-clockwise
+    there) has an inverted corner: k > 0 elements were inverted and none is now, k < 0: -k
+    are still inverted; (uv, 0) unchanged where none was (gmsh's and the split's meshes as
+    they are)."""
+    from cadbridge.mesh.untangle import corner_sines, untangle
+
+    q = uv * scale
+    blocks = [b for b in (tris, quads) if len(b)]
+    inverted = sum(int(np.sum(corner_sines(q, b).min(axis=1) <= 0.0)) for b in blocks)
+    if not inverted:
+        return uv, 0
+    q, left = untangle(q, blocks, n_loop)
+    return q / scale, (inverted if not left else -left)
 
 
 def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_loops: list, n_loop: int):

@@ -530,7 +530,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         # degrees, where "Frontal-Delaunay for quads" (8) left 170-degree corners that Nagata
         # patches cannot bend over, and its quads are rounder than from (6): on
         # multiple_knots.igs the Nagata normal error drops from 1.13 to 0.87 degrees.
-        "Mesh.Algorithm": 5 if kw["element"] == "quad" else 6,
+        "Mesh.Algorithm": _algorithm(kw),
         "Mesh.RecombineAll": 1 if kw["element"] == "quad" else 0,
         "Mesh.RecombinationAlgorithm": 1,
         "Mesh.Smoothing": 10,
@@ -654,8 +654,12 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
     """gmsh's 2D mesh (`_generate`, `_fill_empty`) collected; where it folds
     (`_folded_surfaces`) on a surface not yet in ``redone``, the whole mesh is cleared and
     generated once more with `_REFOLD_ALGORITHM` on those surfaces (``redone`` gets them:
-    {surface: folded pairs}). Returns (mesh, notes of the filled faces). A quad mesh that
-    leaves triangles goes to the subdivision pass anyway: it is checked there."""
+    {surface: folded pairs}). A surface that still folds after that (the production die's
+    binder BND00963 in the quad subdivision pass: every gmsh algorithm gives the same fold) is
+    cleared and meshed by cadbridge in its (u, v) on gmsh's boundary nodes
+    (`cadbridge.mesh.empty_faces`), as a surface gmsh failed on. Returns (mesh, notes of the
+    filled faces). A quad mesh that leaves triangles goes to the subdivision pass anyway: it is
+    checked there."""
     while True:
         failed = _generate(g, surfaces)
         filled = _fill_empty(g, surfaces, size, kw, path, subdivided=subdivided, failed=failed)
@@ -663,13 +667,33 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
         mesh = _collect(g, surfaces, kw["parametric"], path)
         if kw["element"] == "quad" and not subdivided and len(mesh.triangles):
             return mesh, filled
-        folds = {s: k for s, k in _folded_surfaces(mesh).items() if s not in redone}
-        if not folds:
-            return mesh, filled
-        redone.update(folds)
+        folds = _folded_surfaces(mesh)
+        new = {s: k for s, k in folds.items() if s not in redone}
+        if not new:
+            break
+        redone.update(new)
         g.model.mesh.clear()
-        for s in folds:
+        for s in new:
             g.model.mesh.setAlgorithm(2, s, _REFOLD_ALGORITHM[kw["element"]])
+    if not folds:
+        return mesh, filled
+    from cadbridge.mesh.empty_faces import fill_empty_faces
+
+    for s in folds:
+        g.model.mesh.clear([(2, s)])  # the surface's own nodes and elements; its curves' nodes stay
+    why = {s: f"its mesh folded over itself ({k} element pairs more than {FOLD_DEG:g} degrees apart) with gmsh "
+              f"algorithms {_algorithm(kw)} and {_REFOLD_ALGORITHM[kw['element']]}" for s, k in folds.items()}
+    notes = fill_empty_faces(g, sorted(folds), size=size, curvature_elements=kw["curvature_elements"],
+                             element=kw["element"], subdivided=subdivided, label=str(path), failed=why,
+                             merge_tolerance=_merge_tolerance(size, subdivided))
+    filled += [n.replace(") and left ", ") on ", 1).replace(" without elements;", ";", 1) for n in notes]
+    mesh = _collect(g, surfaces, kw["parametric"], path)
+    return mesh, filled
+
+
+def _algorithm(kw: dict) -> int:
+    """gmsh's 2D algorithm `_mesh_in_session` sets for ``kw["element"]``."""
+    return 5 if kw["element"] == "quad" else 6
 
 
 def _vertex_nodes(g, mesh: Mesh) -> np.ndarray:

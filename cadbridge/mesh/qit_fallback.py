@@ -39,7 +39,44 @@ def mesh_planar_loops(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
     Returns uv (N, 2) as there, triangles (T, 3) and quads (Q, 4), counter-clockwise in (u, v).
     Works inside a caller's gmsh session too (a private model; every option it sets is
     restored on exit).
+
+    The elements must cover the loops' area once (`_covers_once`). gmsh's Blossom
+    recombination does not always: on the production die's binder (15 holes, boundary nodes
+    from 1 to 70 mm apart) it laid quads over a triangle of three hole nodes, 25 mm^2 of
+    overlap, which the winding fix below would have hidden. Such a mesh is made again with
+    gmsh's simple recombination (0), then as triangles.
     """
+    from cadbridge.mesh.mesh import MeshError
+
+    tries = [(True, 1), (True, 0), (False, 1)] if recombine else [(False, 1)]
+    for rec, algorithm in tries:
+        uv, tris, quads = _mesh_planar_once(loops_uv, scale, size, label, point_sizes=point_sizes,
+                                            recombine=rec, recombination=algorithm)
+        if _covers_once(loops_uv, scale, uv, tris, quads):
+            return uv, tris, quads
+    raise MeshError(f"{label}: the gmsh fallback's triangles overlap (their area exceeds the face's in (u, v))")
+
+
+def _covers_once(loops_uv: list[np.ndarray], scale: np.ndarray, uv: np.ndarray, tris: np.ndarray,
+                 quads: np.ndarray) -> bool:
+    """True if the elements' areas (their absolute values, scaled (u, v)) add up to the area
+    inside the loops (outer minus holes) within 1e-9 relative: no element lies over another."""
+    def area(p: np.ndarray) -> np.ndarray:  # (E, k, 2) -> (E,) shoelace
+        return 0.5 * np.sum(p[..., 0] * np.roll(p[..., 1], -1, axis=-1) - np.roll(p[..., 0], -1, axis=-1) * p[..., 1],
+                            axis=-1)
+
+    scale = np.asarray(scale, dtype=float)
+    a = [abs(float(area(np.asarray(lp, dtype=float)[None] * scale)[0])) for lp in loops_uv]
+    inside = a[0] - sum(a[1:])
+    q = uv * scale
+    covered = sum(float(np.abs(area(q[e])).sum()) for e in (tris, quads) if len(e))
+    return abs(covered - inside) <= 1e-9 * max(abs(inside), 1e-300)
+
+
+def _mesh_planar_once(loops_uv: list[np.ndarray], scale: np.ndarray, size: float, label: str, *,
+                      point_sizes: list[np.ndarray] | None, recombine: bool,
+                      recombination: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One gmsh run of `mesh_planar_loops` with ``Mesh.RecombinationAlgorithm`` ``recombination``."""
     from cadbridge.mesh.generate import GmshSession
     from cadbridge.mesh.mesh import MeshError
 
@@ -70,7 +107,7 @@ def mesh_planar_loops(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
         sess.set("Mesh.MeshSizeFromPoints", 1)
         sess.set("Mesh.SubdivisionAlgorithm", 0)
         sess.set("Mesh.RecombineAll", 1 if recombine else 0)
-        sess.set("Mesh.RecombinationAlgorithm", 1)
+        sess.set("Mesh.RecombinationAlgorithm", recombination)
         sess.set("Mesh.ElementOrder", 1)
         try:
             g.model.mesh.generate(2)
