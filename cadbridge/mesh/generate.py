@@ -675,6 +675,7 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
         g.model.mesh.clear()
         for s in new:
             g.model.mesh.setAlgorithm(2, s, _REFOLD_ALGORITHM[kw["element"]])
+    folds = {s: k for s, k in folds.items() if _wound_against_surface(g, mesh, s)}
     if not folds:
         return mesh, filled
     from cadbridge.mesh.empty_faces import fill_empty_faces
@@ -689,6 +690,37 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
     filled += [n.replace(") and left ", ") on ", 1).replace(" without elements;", ";", 1) for n in notes]
     mesh = _collect(g, surfaces, kw["parametric"], path)
     return mesh, filled
+
+
+def _wound_against_surface(g, mesh: Mesh, s: int) -> bool:
+    """True if an element of gmsh surface ``s`` is wound against the surface: its polygon's
+    normal and gmsh's surface normal at its centroid's (u, v) more than 90 degrees apart,
+    where most of the surface's elements agree with it. A pair of neighbours more than
+    `FOLD_DEG` apart can also be the CAD's own turn (FTR00131 of the production die: a band
+    0.02 mm wide whose normal turns 180 degrees), which a mesh in (u, v) cannot change; only
+    an element laid over its neighbours is a fold the (u, v) fill repairs."""
+    ent = np.asarray(mesh.cell_data["element_entity"])
+    x = mesh.nodes
+    dots = []
+    first = 0
+    for b in mesh.cells:
+        c = np.asarray(b.data)
+        on = np.flatnonzero(ent[first:first + len(c)] == s)
+        first += len(c)
+        if not len(on):
+            continue
+        c = c[on]
+        d1, d2 = ((x[c[:, 1]] - x[c[:, 0]], x[c[:, 2]] - x[c[:, 0]]) if c.shape[1] == 3 else
+                  (x[c[:, 2]] - x[c[:, 0]], x[c[:, 3]] - x[c[:, 1]]))
+        n = np.cross(d1, d2)
+        uv = g.model.getParametrization(2, s, x[c].mean(axis=1).ravel().tolist())  # centroids' (u, v)
+        sn = np.asarray(g.model.getNormal(s, list(uv)), dtype=float).reshape(-1, 3)
+        dots.append(np.einsum("ij,ij->i", n, sn))
+    if not dots:
+        return False
+    d = np.concatenate(dots)
+    major = 1.0 if np.sum(d > 0) >= np.sum(d < 0) else -1.0  # gmsh's winding of the surface
+    return bool(np.any(major * d < 0))
 
 
 def _algorithm(kw: dict) -> int:
