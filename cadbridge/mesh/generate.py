@@ -620,6 +620,14 @@ _REFOLD_ALGORITHM = {"quad": 8, "tri": 1}
 MeshAdapt (1) for triangles."""
 
 
+def _polygon_normals(x: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Unnormalised normals (E, 3) of the triangles or quads ``c`` (E, 3|4) over nodes ``x``
+    (N, 3): the cross product of the edges, or of the diagonals for quads."""
+    d1, d2 = ((x[c[:, 1]] - x[c[:, 0]], x[c[:, 2]] - x[c[:, 0]]) if c.shape[1] == 3 else
+              (x[c[:, 2]] - x[c[:, 0]], x[c[:, 3]] - x[c[:, 1]]))
+    return np.cross(d1, d2)
+
+
 def _folded_surfaces(mesh: Mesh) -> dict[int, int]:
     """{gmsh surface: element pairs} of the surfaces where two elements sharing an edge have
     normals (of their corners' polygon) more than `FOLD_DEG` apart. A surface is smooth
@@ -634,10 +642,7 @@ def _folded_surfaces(mesh: Mesh) -> dict[int, int]:
     x = mesh.nodes
     nrm = []
     for b in mesh.cells:  # one or two blocks
-        c = np.asarray(b.data)
-        d1, d2 = ((x[c[:, 1]] - x[c[:, 0]], x[c[:, 2]] - x[c[:, 0]]) if c.shape[1] == 3 else
-                  (x[c[:, 2]] - x[c[:, 0]], x[c[:, 3]] - x[c[:, 1]]))
-        n = np.cross(d1, d2)
+        n = _polygon_normals(x, np.asarray(b.data))
         nrm.append(n / np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None])
     n = np.concatenate(nrm)
     ent = np.asarray(mesh.cell_data["element_entity"])
@@ -710,9 +715,7 @@ def _wound_against_surface(g, mesh: Mesh, s: int) -> bool:
         if not len(on):
             continue
         c = c[on]
-        d1, d2 = ((x[c[:, 1]] - x[c[:, 0]], x[c[:, 2]] - x[c[:, 0]]) if c.shape[1] == 3 else
-                  (x[c[:, 2]] - x[c[:, 0]], x[c[:, 3]] - x[c[:, 1]]))
-        n = np.cross(d1, d2)
+        n = _polygon_normals(x, c)
         uv = g.model.getParametrization(2, s, x[c].mean(axis=1).ravel().tolist())  # centroids' (u, v)
         sn = np.asarray(g.model.getNormal(s, list(uv)), dtype=float).reshape(-1, 3)
         dots.append(np.einsum("ij,ij->i", n, sn))
