@@ -33,7 +33,8 @@ def mesh_planar_loops(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
                       point_sizes: list[np.ndarray] | None = None,
                       recombine: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`mesh_loops_in_parameter_space` with sizes per loop vertex (``point_sizes``, one (n_i,)
-    array per loop, scaled units; the size then grows from them inside up to ``size``) and,
+    array per loop, scaled units; the size then grows from them inside by `GRADING` per unit
+    distance up to ``size``, `_graded_field`) and,
     with ``recombine``, gmsh's Blossom recombination into quads (triangles may remain).
 
     Returns uv (N, 2) as there, triangles (T, 3) and quads (Q, 4), counter-clockwise in (u, v).
@@ -55,6 +56,34 @@ def mesh_planar_loops(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
         if _covers_once(loops_uv, scale, uv, tris, quads):
             return uv, tris, quads
     raise MeshError(f"{label}: the gmsh fallback's triangles overlap (their area exceeds the face's in (u, v))")
+
+
+GRADING = 0.25
+"""Growth of the fill's element size per unit distance from the loop vertices: neighbouring
+elements differ by about 1.25x. gmsh's own extension of the boundary sizes over the face
+(``Mesh.MeshSizeExtendFromBoundary``) keeps a fine boundary's size all across it: the analytic
+production die's binder, 1.7 mm boundary segments and a 72 mm size, got 318 196 quads."""
+
+
+def _graded_field(g, pt_tags: list[int], sizes: np.ndarray, ratio: float = 1.5) -> None:
+    """The background size min_i(h_i + GRADING d_i) over the loop vertices ``pt_tags`` (geo
+    points, sizes ``sizes`` (n,)), as gmsh fields: the vertices binned by size (bins ``ratio``
+    wide, each at its smallest size h_b), one Distance field d_b per bin, size h_b + GRADING d_b,
+    the Min over bins. At most 1.5x finer than the exact minimum, never coarser."""
+    fld = g.model.mesh.field
+    sizes = np.maximum(np.asarray(sizes, dtype=float), 1e-300)
+    bins = np.floor(np.log(sizes / sizes.min()) / np.log(ratio)).astype(np.int64)
+    terms = []
+    for b in np.unique(bins):
+        sel = np.flatnonzero(bins == b)
+        dist = fld.add("Distance")
+        fld.setNumbers(dist, "PointsList", [float(pt_tags[i]) for i in sel])
+        term = fld.add("MathEval")
+        fld.setString(term, "F", f"{float(sizes[sel].min())!r} + {GRADING!r} * F{dist}")
+        terms.append(term)
+    low = fld.add("Min")
+    fld.setNumbers(low, "FieldsList", [float(t) for t in terms])
+    fld.setAsBackgroundMesh(low)
 
 
 def _covers_once(loops_uv: list[np.ndarray], scale: np.ndarray, uv: np.ndarray, tris: np.ndarray,
@@ -102,7 +131,9 @@ def _mesh_planar_once(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
         sess.set("Mesh.MeshSizeMin", size if point_sizes is None else 0.0)
         sess.set("Mesh.MeshSizeMax", size)
         sess.set("Mesh.MeshSizeFromCurvature", 0)
-        sess.set("Mesh.MeshSizeExtendFromBoundary", 1)
+        sess.set("Mesh.MeshSizeExtendFromBoundary", 1 if point_sizes is None else 0)
+        if point_sizes is not None:
+            _graded_field(g, pt_tags, np.concatenate([np.asarray(h, dtype=float) for h in point_sizes]))
         # a caller's session may have set these (all-quad subdivision, no point sizes)
         sess.set("Mesh.MeshSizeFromPoints", 1)
         sess.set("Mesh.SubdivisionAlgorithm", 0)
