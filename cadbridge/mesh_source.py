@@ -10,6 +10,9 @@ the preferred representation (PREF, field 5) of those faces' 142 curves from 1 (
 space) to 2 (model space), IGES 5.3 4.32, which OCC honours: it then builds the edges from
 the model-space curves. The copy differs from the file in those digits only (same length,
 same line structure), and lives in a temporary folder for the time of the meshing.
+
+The copy also makes trim curves C1 at C0 knots beside short pieces (`cadbridge.trim_knots`):
+OCC's reader would cut the curves there, and gmsh put a node on every cut.
 """
 
 from __future__ import annotations
@@ -103,16 +106,34 @@ def prefer_model_space(text: str, faces: list[int]) -> tuple[str, list[int]]:
     return "\n".join(lines), changed
 
 
+def _needs_copy(model: Model) -> tuple[list[int], float | None]:
+    """The faces to re-read (`reread_faces`) and the length below which trim pieces are
+    smoothed at their C0 knots (`cadbridge.trim_knots`; None: no trim curve has C0 knots)."""
+    from cadbridge.trim_knots import JOIN_SHORTER, has_c0_knots
+
+    shorter = JOIN_SHORTER * model.size() if model.faces else 0.0
+    return reread_faces(model), (shorter if shorter > 0 and has_c0_knots(model) else None)
+
+
 def write_mesh_source(cad: str | Path, model: Model, folder: str | Path) -> Path:
     """The file the mesher should read for ``cad`` as ``model`` says: ``cad`` itself unless the
-    reader re-read faces, else the copy of `prefer_model_space` written into ``folder`` (same
-    file name; the caller owns the folder)."""
+    reader re-read faces or a trim curve has short C0 pieces, else a copy written into
+    ``folder`` (same file name; the caller owns the folder) with those faces preferring their
+    model-space curves (`prefer_model_space`) and those curves smoothed
+    (`cadbridge.trim_knots.smooth_short_knots`)."""
     cad = Path(cad)
-    faces = reread_faces(model)
-    if not faces:
+    faces, shorter = _needs_copy(model)
+    if not faces and shorter is None:
         return cad
-    text, changed = prefer_model_space(cad.read_bytes().decode("latin-1"), faces)
-    if not changed:
+    text = cad.read_bytes().decode("latin-1")
+    changed, joined = [], 0
+    if faces:
+        text, changed = prefer_model_space(text, faces)
+    if shorter is not None:
+        from cadbridge.trim_knots import smooth_short_knots
+
+        text, joined = smooth_short_knots(text, shorter, filename=cad.name)
+    if not changed and not joined:
         return cad
     copy = Path(folder) / cad.name
     copy.write_bytes(text.encode("latin-1"))
@@ -122,10 +143,10 @@ def write_mesh_source(cad: str | Path, model: Model, folder: str | Path) -> Path
 @contextmanager
 def mesh_source(cad: str | Path, model: Model) -> Iterator[Path]:
     """Path of the file the mesher should read for ``cad`` as ``model`` (its reading by
-    `cadbridge.read_iges`) says: ``cad`` itself unless the reader re-read faces, else a
-    temporary copy with those faces' 142s preferring their model-space curves
-    (`prefer_model_space`), removed on exit."""
-    if not reread_faces(model):
+    `cadbridge.read_iges`) says: ``cad`` itself, or a temporary copy (`write_mesh_source`),
+    removed on exit."""
+    faces, shorter = _needs_copy(model)
+    if not faces and shorter is None:
         yield Path(cad)
         return
     with tempfile.TemporaryDirectory(prefix="cadbridge-mesh-") as tmp:
