@@ -11,11 +11,12 @@ that ends on that edge).
 
 `smooth_short_knots` rewrites, for the mesher only, every parameter-space trim curve (126
 under a 142's BPTR) at its C0 knots where the curve is tangent within `CORNER_DEG` and a C0
-segment beside the knot is shorter than the threshold: the segments are reparametrized to
-equal speed there and made C1 (`_c1_composite`), one copy of the knot removed, unless that
-moves the curve by more than `MAX_MOVE`. The 126 is rewritten in its own lines, or, where
-its new numbers take more room, appended to the D and P sections with its parent's pointer
-moved to it. OCC builds the die's edges from these curves; the model-space curves stay as
+segment beside the knot is shorter than the threshold: the curve is made C1 there on its own
+parameters (`_c1_composite`) and one copy of the knot removed, unless that moves the curve by
+more than `MAX_MOVE`. Its parameters stay: OCC pairs them with the model-space curve's
+(reparametrizing the pieces to equal speeds made OCC drop a hole of the NURBS die's face 0).
+The 126 is rewritten in its own lines, or, where its new numbers take more room, appended to
+the D and P sections with its parent's pointer moved to it. OCC builds the die's edges from these curves; the model-space curves stay as
 they are (rewriting them as well made OCC's wire fixing fail on the die's face 0 in gmsh's
 import: "Could not fix wire in surface 1"). cadbridge keeps its own reading of the file
 (projection, trims, normals): only the mesher reads the copy.
@@ -85,43 +86,27 @@ def has_c0_knots(model) -> bool:
     return False
 
 
-def _speed_matched(pieces: list[NurbsCurve]) -> list[NurbsCurve]:
-    """``pieces`` restricted to their domains, each but the first with its parameter scaled
-    so |C'| at its start equals |C'| at the previous piece's end."""
-    from cadbridge.nurbs import ops
-
-    out = [ops.restrict_curve(pieces[0])]
-    for c in pieces[1:]:
-        c = ops.restrict_curve(c)
-        prev = out[-1]
-        v0 = float(np.linalg.norm(prev.derivatives(prev.domain[1], 1)[0, 1]))
-        v1 = float(np.linalg.norm(c.derivatives(c.domain[0], 1)[0, 1]))
-        if v0 > 0 and v1 > 0:
-            a, b = c.domain
-            c = ops.reparametrize_curve(c, (a, a + (b - a) * v1 / v0))
-        out.append(c)
-    return out
-
-
 def _c1_composite(pieces: list[NurbsCurve], max_move: float) -> NurbsCurve:
     """``pieces`` (meeting end to end, nearly tangent) as one curve, C1 at their joints.
 
-    `construct.composite_curve` of the speed-matched pieces, at least cubic; each joint is a
-    knot t of multiplicity p with the curve through P_k. The point beside P_k on the shorter
+    `construct.composite_curve` of the pieces, at least cubic, on their own parameters (the
+    trim curve keeps its parametrization, which OCC pairs with the model-space curve's); each
+    joint is a knot t of multiplicity p with the curve through P_k. The point beside P_k on the shorter
     piece is set so that both one-sided derivatives are the longer piece's, Q = (P_k - P_k-1)
     / (t - t_l) = (P_k+1 - P_k) / (t_r - t) (t_l, t_r the knots either side of t's group;
     Piegl & Tiller eq. 3.9; polynomial curves), so P_k lies on P_k-1 P_k+1 at
     (t - t_l) / (t_r - t_l): it is the point that inserting t into the curve without P_k
     would make, and goes with one copy of t (knot removal, exact). OCC's reader splits a
     B-spline at knots of multiplicity p, so the joints must not be such knots. Moves the
-    shorter piece by about the tangents' angle times its control leg. Raises ValueError
+    shorter piece by about the derivatives' mismatch (angle and speed) times its control
+    leg. Raises ValueError
     where the curve would move by more than ``max_move`` (in its own units; measured at 8
     points per knot span)."""
     from cadbridge.nurbs import ops
     from cadbridge.nurbs.construct import composite_curve
 
     deg = max(3, max(c.degree for c in pieces))
-    cs = _speed_matched([ops.elevate_curve(c, deg - c.degree) if c.degree < deg else c for c in pieces])
+    cs = [ops.restrict_curve(ops.elevate_curve(c, deg - c.degree) if c.degree < deg else c) for c in pieces]
     c = composite_curve(cs, tol=1e-7)
     p, kn = c.degree, np.array(c.knots, dtype=float)
     pw = c._pw.copy()
@@ -182,8 +167,8 @@ def _links(segs: list[NurbsCurve], shorter: float, gap: float, cos_max: float) -
 def smoothed_curve(c: NurbsCurve, shorter: float, max_move: float, corner_deg: float = CORNER_DEG) -> NurbsCurve | None:
     """``c`` made C1 at its short tangent C0 knots (module docs), or None where there is none
     to smooth, or smoothing would move the curve by more than ``max_move``, or ``c`` is below
-    cubic or rational (`_polynomial`: equal speeds would leave the weights' derivatives
-    apart, and the fix would move it)."""
+    cubic or rational (`_polynomial`: the fix holds for the homogeneous curve, whose
+    weights' derivatives would still jump)."""
     from cadbridge.nurbs.construct import composite_curve
 
     c = _polynomial(c)

@@ -23,13 +23,15 @@ S = 10.0  # model scale: the graph over x in [0, S]
 CUTS = [0.989, 0.9989, 0.9999]
 
 
-def _graph_chain() -> NurbsCurve:
-    """S (t, t^3 - t), t in [0, 1], as one cubic with C0 knots at CUTS, each piece then put
-    on a parameter length of 1 (the speeds jump at the knots; the point set is the graph)."""
+def _graph_chain(speeds: bool = False) -> NurbsCurve:
+    """S (t, t^3 - t), t in [0, 1], as one cubic with C0 knots at CUTS (knot insertion: the
+    same curve, C-infinity at them); ``speeds``: each piece put on a parameter length of 1
+    instead, so the speed jumps at the knots (the point set is still the graph)."""
     # power basis y = -t + t^3 -> Bezier ordinates 0, -1/3, -2/3, 0
     c = NurbsCurve(3, [0, 0, 0, 0, 1, 1, 1, 1], S * np.array([[0, 0], [1 / 3, -1 / 3], [2 / 3, -2 / 3], [1, 0]]))
     c = ops.refine_curve(c, np.repeat(CUTS, 3))
-    vals, mult = np.unique(c.knots, return_counts=True)
+    if not speeds:
+        return c
     ends = [0.0, *CUTS, 1.0]
     pieces = [ops.reparametrize_curve(ops.restrict_curve(c, a, b), (k, k + 1.0)) for k, (a, b) in enumerate(zip(ends[:-1], ends[1:]))]
     return composite_curve(pieces)
@@ -48,7 +50,7 @@ def _off_graph(x: np.ndarray) -> float:
 def test_smoothed_curve_stays_on_the_graph_and_loses_the_short_c0_knots():
     """The two knots beside the 0.022 and 0.0022 pieces go; the one between the long piece
     and the 0.22 one (both longer than 0.05) stays; every point stays on y = x^3 - x (the
-    pieces are exactly tangent at their knots: the C1 fix moves nothing beyond rounding)."""
+    curve is C1 at its knots: the fix moves nothing beyond rounding)."""
     c = _graph_chain()
     assert _c0_knots(c) == 3
     assert _off_graph(c.evaluate(np.linspace(c.domain[0], c.domain[1], 2001))) < 1e-13
@@ -58,6 +60,15 @@ def test_smoothed_curve_stays_on_the_graph_and_loses_the_short_c0_knots():
     x = s.evaluate(np.linspace(s.domain[0], s.domain[1], 20001))
     assert _off_graph(x) < 1e-13
     assert np.allclose(x[0], [0, 0], atol=1e-12) and np.allclose(x[-1], [S, 0], atol=1e-12)
+    # the parameters stay (OCC pairs them with the model-space curve's): same points at same t
+    t = np.linspace(0.0, 1.0, 2001)
+    assert s.domain == c.domain and np.abs(s.evaluate(t) - c.evaluate(t)).max() < 1e-13
+
+
+def test_a_speed_jump_stays():
+    """The same graph with the speed jumping at the knots (each piece on a parameter length
+    of 1): C1 on those parameters would move the short pieces by far more than 1e-6."""
+    assert smoothed_curve(_graph_chain(speeds=True), shorter=0.05, max_move=1e-6) is None
 
 
 def test_corner_rational_and_moving_knots_stay():
@@ -70,7 +81,8 @@ def test_corner_rational_and_moving_knots_stay():
     corner = composite_curve([cubic((0, 0, 0), (1, 0, 0)), cubic((1, 0, 0), (1, 0.001, 0))])
     assert smoothed_curve(corner, shorter=0.05, max_move=1.0) is None
     a = math.radians(1.0)
-    bent = composite_curve([cubic((0, 0, 0), (1, 0, 0)), cubic((1, 0, 0), (1 + 0.001 * math.cos(a), 0.001 * math.sin(a), 0))])
+    short = ops.reparametrize_curve(cubic((1, 0, 0), (1 + 0.001 * math.cos(a), 0.001 * math.sin(a), 0)), (0.0, 0.001))
+    bent = composite_curve([cubic((0, 0, 0), (1, 0, 0)), short])  # unit speed on both sides
     assert smoothed_curve(bent, shorter=0.05, max_move=1e-9) is None
     assert smoothed_curve(bent, shorter=0.05, max_move=1e-3) is not None
     w = NurbsCurve(bent.degree, bent.knots, bent.control_points, np.linspace(1.0, 2.0, len(bent.control_points)))
