@@ -436,19 +436,29 @@ class OccReference:
 
 def _reference(cad: Path, row: Row) -> OccReference:
     """OCC's reading of ``cad``; where cadbridge's reader re-read faces (`cadbridge.mesh_source`:
-    parameter-space trims that contradict the file's own model-space curves), OCC reads the
+    parameter-space trims that contradict the file's own model-space curves), OCC reads a
     copy whose 142s of those faces prefer their model-space curves, as the mesher does: the
-    CAD is then what the file's model-space curves say, read by OCC."""
-    import cadbridge
-    from cadbridge.mesh_source import mesh_source, reread_faces
+    CAD is then what the file's model-space curves say, read by OCC. Only that: the mesher's
+    copy also smooths short C0 trim pieces (`cadbridge.trim_knots`), which the reference
+    must not see."""
+    import tempfile
 
-    model = cadbridge.read_iges(cad)
-    with mesh_source(cad, model) as src:
-        occ = OccReference(src)
-    if src != cad:
-        des = ", ".join(str(d) for d in reread_faces(model))
-        row.message = "; ".join(x for x in (row.message, f"OCC reads the faces DE {des} from their model-space "
-                                            "curves (142 PREF 2), as the mesher does") if x)
+    import cadbridge
+    from cadbridge.mesh_source import prefer_model_space, reread_faces
+
+    faces = reread_faces(cadbridge.read_iges(cad))
+    if not faces:
+        return OccReference(cad)
+    text, changed = prefer_model_space(cad.read_bytes().decode("latin-1"), faces)
+    if not changed:
+        return OccReference(cad)
+    with tempfile.TemporaryDirectory(prefix="cadbridge-ref-") as tmp:
+        copy = Path(tmp) / cad.name
+        copy.write_bytes(text.encode("latin-1"))
+        occ = OccReference(copy)
+    des = ", ".join(str(d) for d in faces)
+    row.message = "; ".join(x for x in (row.message, f"OCC reads the faces DE {des} from their model-space "
+                                        "curves (142 PREF 2), as the mesher does") if x)
     return occ
 
 
