@@ -444,21 +444,16 @@ def _reference(cad: Path, row: Row) -> OccReference:
     import tempfile
 
     import cadbridge
-    from cadbridge.mesh_source import prefer_model_space, reread_faces
+    from cadbridge.mesh_source import reread_faces, write_mesh_source
 
-    faces = reread_faces(cadbridge.read_iges(cad))
-    if not faces:
-        return OccReference(cad)
-    text, changed = prefer_model_space(cad.read_bytes().decode("latin-1"), faces)
-    if not changed:
-        return OccReference(cad)
+    model = cadbridge.read_iges(cad)
     with tempfile.TemporaryDirectory(prefix="cadbridge-ref-") as tmp:
-        copy = Path(tmp) / cad.name
-        copy.write_bytes(text.encode("latin-1"))
-        occ = OccReference(copy)
-    des = ", ".join(str(d) for d in faces)
-    row.message = "; ".join(x for x in (row.message, f"OCC reads the faces DE {des} from their model-space "
-                                        "curves (142 PREF 2), as the mesher does") if x)
+        src = write_mesh_source(cad, model, tmp, smooth=False)
+        occ = OccReference(src)
+    if src != cad:
+        des = ", ".join(str(d) for d in reread_faces(model))
+        row.message = "; ".join(x for x in (row.message, f"OCC reads the faces DE {des} from their model-space "
+                                            "curves (142 PREF 2), as the mesher does") if x)
     return occ
 
 

@@ -106,32 +106,26 @@ def prefer_model_space(text: str, faces: list[int]) -> tuple[str, list[int]]:
     return "\n".join(lines), changed
 
 
-def _needs_copy(model: Model) -> tuple[list[int], float | None]:
-    """The faces to re-read (`reread_faces`) and the length below which trim pieces are
-    smoothed at their C0 knots (`cadbridge.trim_knots`; None: no trim curve has C0 knots)."""
-    from cadbridge.trim_knots import JOIN_SHORTER, has_c0_knots
-
-    shorter = JOIN_SHORTER * model.size() if model.faces else 0.0
-    return reread_faces(model), (shorter if shorter > 0 and has_c0_knots(model) else None)
-
-
-def write_mesh_source(cad: str | Path, model: Model, folder: str | Path) -> Path:
+def write_mesh_source(cad: str | Path, model: Model, folder: str | Path, smooth: bool = True) -> Path:
     """The file the mesher should read for ``cad`` as ``model`` says: ``cad`` itself unless the
-    reader re-read faces or a trim curve has short C0 pieces, else a copy written into
-    ``folder`` (same file name; the caller owns the folder) with those faces preferring their
-    model-space curves (`prefer_model_space`) and those curves smoothed
-    (`cadbridge.trim_knots.smooth_short_knots`)."""
+    reader re-read faces or (``smooth``) a trim curve has short C0 pieces, else a copy written
+    into ``folder`` (same file name; the caller owns the folder) with those faces preferring
+    their model-space curves (`prefer_model_space`) and those curves smoothed
+    (`cadbridge.trim_knots.smooth_short_knots`). ``smooth`` False: the re-read faces only (what
+    an independent reference of the CAD should read)."""
+    from cadbridge.trim_knots import JOIN_SHORTER, has_c0_knots, smooth_short_knots
+
     cad = Path(cad)
-    faces, shorter = _needs_copy(model)
-    if not faces and shorter is None:
+    faces = reread_faces(model)
+    shorter = JOIN_SHORTER * model.size() if smooth and model.faces else 0.0
+    smooth = shorter > 0 and has_c0_knots(model)
+    if not faces and not smooth:
         return cad
     text = cad.read_bytes().decode("latin-1")
     changed, joined = [], 0
     if faces:
         text, changed = prefer_model_space(text, faces)
-    if shorter is not None:
-        from cadbridge.trim_knots import smooth_short_knots
-
+    if smooth:
         text, joined = smooth_short_knots(text, shorter, filename=cad.name)
     if not changed and not joined:
         return cad
@@ -145,9 +139,5 @@ def mesh_source(cad: str | Path, model: Model) -> Iterator[Path]:
     """Path of the file the mesher should read for ``cad`` as ``model`` (its reading by
     `cadbridge.read_iges`) says: ``cad`` itself, or a temporary copy (`write_mesh_source`),
     removed on exit."""
-    faces, shorter = _needs_copy(model)
-    if not faces and shorter is None:
-        yield Path(cad)
-        return
     with tempfile.TemporaryDirectory(prefix="cadbridge-mesh-") as tmp:
         yield write_mesh_source(cad, model, tmp)

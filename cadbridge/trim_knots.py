@@ -78,7 +78,7 @@ def has_c0_knots(model) -> bool:
             continue
         for loop in ([t.outer] if t.outer is not None else []) + list(t.inner):
             for c in loop.curves:
-                if c.degree < 3 or _polynomial(c) is None or len(c.knots) <= 2 * (c.degree + 1):
+                if c.degree < 3 or len(c.knots) <= 2 * (c.degree + 1) or _polynomial(c) is None:
                     continue
                 _, mult = np.unique(c.knots, return_counts=True)
                 if np.any(mult[1:-1] >= c.degree):
@@ -91,17 +91,16 @@ def _c1_composite(pieces: list[NurbsCurve], max_move: float) -> NurbsCurve:
 
     `construct.composite_curve` of the pieces, at least cubic, on their own parameters (the
     trim curve keeps its parametrization, which OCC pairs with the model-space curve's); each
-    joint is a knot t of multiplicity p with the curve through P_k. The point beside P_k on the shorter
-    piece is set so that both one-sided derivatives are the longer piece's, Q = (P_k - P_k-1)
-    / (t - t_l) = (P_k+1 - P_k) / (t_r - t) (t_l, t_r the knots either side of t's group;
+    joint is a knot t of multiplicity p with the curve through P_k. The point beside P_k on
+    the shorter piece is set so that both one-sided derivatives are the longer piece's,
+    Q = (P_k - P_k-1) / (t - t_l) = (P_k+1 - P_k) / (t_r - t) (t_l, t_r the knots either side of t's group;
     Piegl & Tiller eq. 3.9; polynomial curves), so P_k lies on P_k-1 P_k+1 at
     (t - t_l) / (t_r - t_l): it is the point that inserting t into the curve without P_k
     would make, and goes with one copy of t (knot removal, exact). OCC's reader splits a
     B-spline at knots of multiplicity p, so the joints must not be such knots. Moves the
     shorter piece by about the derivatives' mismatch (angle and speed) times its control
-    leg. Raises ValueError
-    where the curve would move by more than ``max_move`` (in its own units; measured at 8
-    points per knot span)."""
+    leg. Raises ValueError where the curve would move by more than ``max_move`` (in its own
+    units; measured at 8 points per knot span)."""
     from cadbridge.nurbs import ops
     from cadbridge.nurbs.construct import composite_curve
 
@@ -313,4 +312,4 @@ def smooth_short_knots(text: str, shorter: float, filename: str = "<mesh source>
     lines = lines[: last_d + 1] + new_d + lines[last_d + 1 : last_p + 1] + new_p + lines[last_p + 1 :]
     t = t_line + len(new_d) + len(new_p)
     lines[t] = re.sub(r"D\s*\d+P\s*\d+", f"D{len(d_lines) + len(new_d):7d}P{len(p_lines) + len(new_p):7d}", lines[t], count=1)
-    return ("\n".join(lines), n) if n else (text, 0)
+    return "\n".join(lines), n
