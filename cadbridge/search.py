@@ -5,8 +5,8 @@ The index (`build_search_index`, cached on the model by `index_for`):
   at most 256 per face); the box of a sub-patch's control net contains its piece of surface
   (convex hull property, weights > 0). Only sub-patches meeting the trimmed region are
   kept: a sub-patch cell that no trim curve crosses (control-point boxes of the trim curve
-  spans) lies wholly inside or outside, decided at its centre. Boxes are grouped by size
-  (octaves of their half-diagonal R) with a KD-tree of centres per group.
+  spans) lies wholly inside or outside, decided at its centre. The boxes go into a bounding
+  volume hierarchy (`cadbridge.box_tree.BoxTree`: Morton order, compiled walk).
 - samples: the start-value grid of every surface (`surface_samples`) restricted to the
   trimmed region (`Face.contains` only in cells crossed by a trim curve), one KD-tree.
 Build cost is linear in surface spans, samples and trim-curve spans.
@@ -15,10 +15,10 @@ Projection:
 1. Bound: the nearest valid sample bounds the distance to the nearest foot; its face is
    projected first (vectorised Newton, `project_to_surface`), and a foot inside that face's
    trims tightens the bound to its distance.
-2. Candidates: (point, box) pairs from dual tree traversals (``sparse_distance_matrix``)
-   with points grouped by octave of their bound, then the exact point-box distance against
-   the bound; the faces of the surviving boxes are projected (one call per face, never a
-   loop over points). Cost ~ N log F.
+2. Candidates: (point, face) pairs from a compiled walk of the boxes' bounding volume
+   hierarchy (`cadbridge.box_tree`) with the exact point-box and point-slab distances against
+   the bound; the faces of the surviving pairs are projected (one call per face, never a
+   loop over points). Cost ~ N log B.
 3. Trims: a foot outside a face's trim loops is not valid for that face, but the nearest
    point of its trim loops is (`project_to_trims`, ON_BOUNDARY); it is computed only where
    the untrimmed foot is nearer than the best valid foot found (a lower bound).
@@ -39,6 +39,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cadbridge.box_tree import BoxTree
 from cadbridge.model import Face, Model
 from cadbridge.nurbs.project import (
     BEYOND_TOLERANCE,
@@ -334,20 +335,20 @@ class SearchIndex:
 
     box_lo, box_hi (B, 3), box_face (B,): boxes of the Bezier sub-patches that meet each
     face's trimmed region; box_slab (B, 5): a slab {x: smin <= n.x <= smax} holding each
-    sub-patch (a second, often much tighter, lower bound of the distance); groups: list of (cKDTree of centres, R max, box indices) per size
-    octave; sample_tree over valid samples of all faces, sample_face (S,); size: model size
-    (box diagonal).
+    sub-patch (a second, often much tighter, lower bound of the distance); tree: the
+    compiled bounding volume hierarchy of those boxes (`cadbridge.box_tree`); sample_tree over
+    valid samples of all faces, sample_face (S,); size: model size (box diagonal).
     """
 
     box_lo: np.ndarray
     box_hi: np.ndarray
     box_face: np.ndarray
-    groups: list
+    box_slab: np.ndarray
+    tree: BoxTree
     sample_tree: cKDTree | None
     sample_face: np.ndarray
     size: float
     n_faces: int
-    box_slab: np.ndarray | None = None  # (B, 5) slab [n, smin, smax] holding each box's sub-patch
     pack: SurfacePack | None = None  # the faces' surfaces packed for `project_to_surfaces` (built on first use)
 
     def surface_pack(self, model: Model) -> SurfacePack:
@@ -358,8 +359,8 @@ class SearchIndex:
 
 
 def build_search_index(model: Model) -> SearchIndex:
-    """Boxes, box-size groups and the sample KD-tree of ``model``; cost linear in the number
-    of surface spans, samples and trim-curve spans. Raises ValueError if the model has no
+    """Boxes, their tree and the sample KD-tree of ``model``; cost linear in the number of
+    surface spans, samples and trim-curve spans (plus one sort of the boxes). Raises ValueError if the model has no
     faces."""
     if not model.faces:
         raise ValueError("project_points: empty model (no faces to project onto)")
@@ -379,19 +380,10 @@ def build_search_index(model: Model) -> SearchIndex:
         sfid.append(np.full(int(inside.sum()) + len(cpts), k))
     lo, hi = np.concatenate(los), np.concatenate(his)
     face_of_box = np.concatenate(fids)
-    centre = 0.5 * (lo + hi)
-    rad = 0.5 * np.linalg.norm(hi - lo, axis=1)
-    size = model.size()
-    # octave of the half-diagonal (all tiny boxes in one group)
-    octave = np.floor(np.log2(np.maximum(rad, 1e-6 * max(size, 1e-300)))).astype(int)
-    groups = []
-    for o in np.unique(octave):
-        sel = np.nonzero(octave == o)[0]
-        groups.append((cKDTree(centre[sel]), float(rad[sel].max()), sel))
+    slab = np.ascontiguousarray(np.concatenate(slabs))
     allpts = np.concatenate(spts)
-    tree = cKDTree(allpts) if len(allpts) else None
-    return SearchIndex(lo, hi, face_of_box, groups, tree, np.concatenate(sfid), size, len(model.faces),
-                       np.ascontiguousarray(np.concatenate(slabs)))
+    return SearchIndex(lo, hi, face_of_box, slab, BoxTree(lo, hi, slab, face_of_box),
+                       cKDTree(allpts) if len(allpts) else None, np.concatenate(sfid), model.size(), len(model.faces))
 
 
 _INDEX_KEY = "_cadbridge_search_index"
@@ -409,35 +401,6 @@ def index_for(model: Model) -> SearchIndex:
     return idx
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
-def _pair_keys(pi, bj, pts, box_lo, box_hi, box_slab, box_face, bound, exclude, n):  # pragma: no cover - compiled
-    """Keys face * n + point of the raw (point pi, box bj) pairs whose exact distance lower
-    bound (to the box, and to the slab holding the sub-patch) is within the point's bound and
-    whose face is not the point's excluded one (-1: none); and those lower bounds."""
-    out = np.empty(pi.shape[0], dtype=np.int64)
-    low = np.empty(pi.shape[0])
-    m = 0
-    for t in range(pi.shape[0]):
-        p = pi[t]
-        b = bj[t]
-        f = box_face[b]
-        if f == exclude[p]:
-            continue
-        g2 = 0.0
-        s = 0.0
-        for c in range(3):
-            x = pts[p, c]
-            g = max(box_lo[b, c] - x, x - box_hi[b, c], 0.0)
-            g2 += g * g
-            s += box_slab[b, c] * x
-        lb = max(np.sqrt(g2), box_slab[b, 3] - s, s - box_slab[b, 4])
-        if lb <= bound[p] or not np.isfinite(bound[p]):
-            out[m] = f * n + p
-            low[m] = lb
-            m += 1
-    return out[:m], low[:m]
-
-
 def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exclude: np.ndarray | None = None,
                      *, lower: bool = False) -> tuple[np.ndarray, ...]:
     """(point, face) pairs whose boxes lie within ``bound`` (N,) of the point, without the
@@ -449,10 +412,6 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
     finite = np.isfinite(bound)
     excl = np.full(n, -1, dtype=np.int64) if exclude is None else np.asarray(exclude, dtype=np.int64)
     face_of_box = index.box_face.astype(np.int64)
-    slab = index.box_slab
-    if slab is None:  # an index made without slabs: boxes only
-        slab = np.zeros((len(face_of_box), 5))
-        slab[:, 3], slab[:, 4] = -np.inf, np.inf
     keys, lows = [], []
     if np.any(~finite):  # no bound at all (no valid samples): every face is a candidate
         pi = np.nonzero(~finite)[0]
@@ -462,22 +421,10 @@ def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exc
         keys.append(ff[keep] * n + pp[keep])
         lows.append(np.full(int(keep.sum()), -np.inf))
     if np.any(finite):
-        fb = bound[finite]
-        # octaves of the bound; bounds below 1e-3 x size in one group (the box radii dominate there)
-        lvl = np.floor(np.log2(np.maximum(fb, 1e-3 * max(index.size, 1e-300)))).astype(int)
         fidx = np.nonzero(finite)[0]
-        for o in np.unique(lvl):
-            sel = fidx[lvl == o]
-            ptree = cKDTree(pts[sel])
-            bmax = float(bound[sel].max())
-            for btree, rmax, boxes in index.groups:
-                m = ptree.sparse_distance_matrix(btree, bmax + rmax, output_type="ndarray")
-                if len(m) == 0:
-                    continue
-                k_, l_ = _pair_keys(sel[m["i"]], boxes[m["j"]], pts, index.box_lo, index.box_hi, slab,
-                                    face_of_box, bound, excl, n)
-                keys.append(k_)
-                lows.append(l_)
+        pi, f, low = index.tree.pairs(pts[fidx], bound[fidx], excl[fidx])
+        keys.append(f * n + fidx[pi])
+        lows.append(low)
     if not keys:
         z = np.zeros(0, dtype=np.int64)
         return (z, z, np.zeros(0)) if lower else (z, z)
