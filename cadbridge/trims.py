@@ -94,9 +94,107 @@ def _curve_ders_kernel(pw, knots, p, rational, t, d, out):  # pragma: no cover -
         _curve_ders_one(pw, knots, p, rational, t[i], d, ndu, left, right, a, nd, aw, out[i])
 
 
+MAP_LEN = 29  # floats of an exact trim-curve map in the kernels' form (`MappedCurve.packed_map`)
+_NO_MAP = np.zeros(MAP_LEN)  # a NURBS curve's own (u, v): no map
+_NO_MAP.setflags(write=False)
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, t0, t1, closed, pts,
-                        t, eps1, max_iter):  # pragma: no cover - compiled
+def _arc_map_one(x, start_in, sweep, start_out, n):  # pragma: no cover - compiled
+    """`cadbridge.iges.analytic.ArcMap` at one x: (f, f', f''), the same steps (n: its
+    `arc_segments`)."""
+    two_pi = 2.0 * np.pi
+    d = sweep / n
+    r = x - start_in
+    wrapped = r - two_pi * np.rint((r - 0.5 * sweep) / two_pi)
+    turn_tol = 1e-9 * max(abs(sweep), 1.0)
+    if (r < -turn_tol or r > sweep + turn_tol) and wrapped >= -turn_tol and wrapped <= sweep + turn_tol:
+        r = wrapped
+    a = min(max(r, 0.0), sweep)
+    k = min(max(np.floor(a / d), 0.0), n - 1.0)
+    tt = np.tan((a - k * d - d / 2) / 2)
+    q = 1.0 / np.tan(d / 4)
+    f0 = start_out + (k + 0.5 * (1.0 + tt * q)) * d
+    tol = 1e-12 * max(abs(sweep), 1.0)
+    f1 = 0.25 * d * q * (1.0 + tt * tt) if (r >= -tol and r <= sweep + tol) else 0.0
+    return f0, f1, f1 * tt
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _chain_one(mp, o, v0, v1, v2):  # pragma: no cover - compiled
+    """A scalar map mp[o:o+5] = (flag, start_in, sweep, start_out, segments) applied to a value
+    and its first two derivatives (Faa di Bruno; flag 0: the identity)."""
+    if mp[o] == 0.0:
+        return v0, v1, v2
+    f0, f1, f2 = _arc_map_one(v0, mp[o + 1], mp[o + 2], mp[o + 3], mp[o + 4])
+    return f0, f1 * v1, f2 * (v1 * v1) + f1 * v2
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _tcurve_ders_one(pw, knots, p, rational, mp, x, d, ndu, left, right, a, nd, aw, out):  # pragma: no cover - compiled
+    """`_curve_ders_one` of a trim curve: a 2D NURBS curve, through the exact map ``mp`` of
+    `MappedCurve` when mp[0] != 0 (y = M c + b, natural n_k = pre_k(y_k), uv_j = post_j(n_src_j),
+    derivatives by the chain rule: the steps of `MappedCurve.derivatives`). out (d+1, 2)."""
+    _curve_ders_one(pw, knots, p, rational, x, d, ndu, left, right, a, nd, aw, out)
+    if mp[0] == 0.0:
+        return
+    y00 = out[0, 0] * mp[1] + out[0, 1] * mp[2] + mp[5]
+    y01 = out[0, 0] * mp[3] + out[0, 1] * mp[4] + mp[6]
+    y10 = y11 = y20 = y21 = 0.0
+    if d >= 1:
+        y10 = out[1, 0] * mp[1] + out[1, 1] * mp[2]
+        y11 = out[1, 0] * mp[3] + out[1, 1] * mp[4]
+    if d >= 2:
+        y20 = out[2, 0] * mp[1] + out[2, 1] * mp[2]
+        y21 = out[2, 0] * mp[3] + out[2, 1] * mp[4]
+    n00, n10, n20 = _chain_one(mp, 7, y00, y10, y20)
+    n01, n11, n21 = _chain_one(mp, 12, y01, y11, y21)
+    for j in range(2):
+        o = 17 + 6 * j
+        if mp[o] == 0.0:
+            g0, g1, g2 = _chain_one(mp, o + 1, n00, n10, n20)
+        else:
+            g0, g1, g2 = _chain_one(mp, o + 1, n01, n11, n21)
+        out[0, j] = g0
+        if d >= 1:
+            out[1, j] = g1
+        if d >= 2:
+            out[2, j] = g2
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _mapped_ders_kernel(pw, knots, p, rational, mp, t, d, out):  # pragma: no cover - compiled
+    """`_tcurve_ders_one` for every t (N,) into out (N, d+1, 2)."""
+    ndu = np.empty((p + 1, p + 1))
+    left = np.empty(p + 1)
+    right = np.empty(p + 1)
+    a = np.empty((2, p + 1))
+    nd = np.empty((d + 1, p + 1))
+    aw = np.empty((d + 1, pw.shape[1]))
+    for i in range(t.shape[0]):
+        _tcurve_ders_one(pw, knots, p, rational, mp, t[i], d, ndu, left, right, a, nd, aw, out[i])
+
+
+def _kernel_form(c):
+    """(control net pw, knots, degree, rational, map (MAP_LEN,)) of a trim curve for the compiled
+    kernels: a 2D `NurbsCurve` as it is, an exactly mapped curve (``packed_map``, e.g. the
+    analytic surfaces' `MappedCurve`) as its 2D base curve and its map; None for others."""
+    if isinstance(c, NurbsCurve):
+        return c._pw, c.knots, c.degree, c.rational, _NO_MAP
+    hit = getattr(c, "__dict__", {}).get("_kernel_form")
+    if hit is not None:
+        return hit
+    base, pm = getattr(c, "base", None), getattr(c, "packed_map", None)
+    if pm is None or not isinstance(base, NurbsCurve) or base.dim != 2:
+        return None
+    form = (base._pw, base.knots, base.degree, base.rational, np.ascontiguousarray(pm(), dtype=float))
+    c.__dict__["_kernel_form"] = form
+    return form
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, cmap, t0, t1, closed,
+                        pts, t, eps1, max_iter):  # pragma: no cover - compiled
     """The Newton iterations of `project_to_trims` on one NURBS trim curve, point by point
     (same steps and stopping test as its vectorised loop): f(t) = (C - P).C', C = S(c(t)),
     f' = C'.C' + (C - P).C'', t wrapped (closed curve) or clamped; updates t (N,) in place."""
@@ -108,13 +206,13 @@ def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, 
     ca = np.empty((2, cdeg + 1))
     cnd = np.empty((3, cdeg + 1))
     caw = np.empty((3, cpw.shape[1]))
-    cd = np.empty((3, cpw.shape[1] - 1))
+    cd = np.empty((3, max(cpw.shape[1] - 1, 2)))
     c1 = np.empty(3)
     c2 = np.empty(3)
     for i in range(pts.shape[0]):
         ti = t[i]
         for _ in range(max_iter):
-            _curve_ders_one(cpw, cknots, cdeg, crat, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
+            _tcurve_ders_one(cpw, cknots, cdeg, crat, cmap, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
             uu = min(max(cd[0, 0], u0), u1)
             vv = min(max(cd[0, 1], v0), v1)
             _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
@@ -149,7 +247,14 @@ def _curve_ders(c, t, order: int) -> np.ndarray:
     """d^k c / dt^k for k <= order at t (N,): (N, order+1, dim); compiled for a `NurbsCurve`,
     its own ``derivatives`` for other curves (e.g. exactly mapped analytic trims)."""
     if not isinstance(c, NurbsCurve):
-        return c.derivatives(t, order)
+        form = _kernel_form(c) if order <= 2 else None
+        if form is None:
+            return c.derivatives(t, order)
+        t = np.ascontiguousarray(np.atleast_1d(np.asarray(t, dtype=float)).ravel())
+        out = np.empty((t.size, order + 1, 2))
+        if t.size:
+            _mapped_ders_kernel(*form[:4], form[4], t, int(order), out)
+        return out
     t = np.ascontiguousarray(np.atleast_1d(np.asarray(t, dtype=float)).ravel())
     out = np.empty((t.size, order + 1, c.dim))
     if t.size:
@@ -259,7 +364,7 @@ def _sampled_bounds(c, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.nd
     refinement (edges of at most a few 1e-4 of the loop size) makes the usual case."""
     s = np.linspace(0.0, 1.0, 7)
     t = (ta[:, None] + (tb - ta)[:, None] * s).ravel()
-    d = c.derivatives(t, 2)[:, :, :2].reshape(len(ta), len(s), 3, 2)
+    d = _curve_ders(c, t, 2)[:, :, :2].reshape(len(ta), len(s), 3, 2)
     dev = np.max(segment_distance(d[:, :, 0], pa[:, None], pb[:, None]), axis=1)
     curv = np.max(np.linalg.norm(d[:, :, 2], axis=2), axis=1) * (tb - ta) ** 2 / 8.0
     chord = pb - pa
@@ -632,21 +737,24 @@ class LoopBoundary:
         return g
 
     def _packed(self):
-        """The loop's edges and NURBS curves in flat arrays for `_contains_kernel` (built once);
-        None if a curve is not a `NurbsCurve` (exactly mapped curves: the numpy path)."""
+        """The loop's edges and curves in flat arrays for `_contains_kernel` (built once): NURBS
+        curves, and exactly mapped ones as their base curve and map (`_kernel_form`); None if
+        a curve has neither form (the numpy path)."""
         if "_pack" not in self.__dict__:
-            if not all(isinstance(c, NurbsCurve) for c in self.curves):
+            forms = [_kernel_form(c) for c in self.curves]
+            if any(f is None for f in forms):
                 self._pack = None
             else:
-                pws = [np.ascontiguousarray(c._pw, dtype=float) for c in self.curves]
-                kns = [np.ascontiguousarray(c.knots, dtype=float) for c in self.curves]
+                pws = [np.ascontiguousarray(f[0], dtype=float) for f in forms]
+                kns = [np.ascontiguousarray(f[1], dtype=float) for f in forms]
                 cpw_off = np.concatenate([[0], np.cumsum([w.size for w in pws])]).astype(np.int64)
                 k_off = np.concatenate([[0], np.cumsum([k.size for k in kns])]).astype(np.int64)
                 self._pack = (np.ascontiguousarray(self.curve, dtype=np.int64), np.ascontiguousarray(self.ta),
                               np.ascontiguousarray(self.tb), np.concatenate([w.ravel() for w in pws]), cpw_off,
                               np.array([w.shape[1] - 1 for w in pws], dtype=np.int64), np.concatenate(kns), k_off,
-                              np.array([c.degree for c in self.curves], dtype=np.int64),
-                              np.array([bool(c.rational) for c in self.curves], dtype=np.bool_))
+                              np.array([f[2] for f in forms], dtype=np.int64),
+                              np.array([bool(f[3]) for f in forms], dtype=np.bool_),
+                              np.ascontiguousarray(np.stack([f[4] for f in forms])))
         return self._pack
 
     def contains(self, uv: np.ndarray, tol: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -689,10 +797,11 @@ class LoopBoundary:
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_iter, ndu, left, right, sa, nd, aw,
+def _lens_pair(cpw, knots, deg, rat, cmap, ta, tb, ax, ay, bx, by, px, py, size, max_iter, ndu, left, right, sa, nd, aw,
                cd):  # pragma: no cover - compiled
     """`_lens` for one pair (point (px, py), edge a -> b of a NURBS curve over [ta, tb]), with
-    the same steps and tests (its docstring); scratch as `_curve_ders_one` (cd (3, >= 2)).
+    the same steps and tests (its docstring); scratch as `_curve_ders_one` (cd (3, >= 2)); cmap the curve's map
+    (`_tcurve_ders_one`).
     Returns (lens, dist)."""
     dx, dy = bx - ax, by - ay
     ln = np.sqrt(dx * dx + dy * dy)
@@ -708,7 +817,7 @@ def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_i
     eps = 1e-15 * (size + max(abs(ax), abs(ay)))
     if mid:
         for _ in range(max_iter):
-            _curve_ders_one(cpw, knots, deg, rat, t, 1, ndu, left, right, sa, nd, aw, cd)
+            _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 1, ndu, left, right, sa, nd, aw, cd)
             g = (cd[0, 0] - ax) * ex + (cd[0, 1] - ay) * ey - sp
             gp = cd[1, 0] * ex + cd[1, 1] * ey
             if g < 0:
@@ -721,12 +830,12 @@ def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_i
             if (abs(g) <= eps or hi - lo <= 4e-16 * (abs(hi) + abs(lo)) or abs(tn - t) * abs(gp) <= eps):
                 break
             t = tn
-    _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
+    _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 0, ndu, left, right, sa, nd, aw, cd)
     f = (cd[0, 0] - ax) * nx + (cd[0, 1] - ay) * ny
     lens = mid and npp * f > 0 and abs(npp) < abs(f)
     # distance to the arc: Newton on (C - p).C' from the chord's abscissa (or the near end)
     for _ in range(8):
-        _curve_ders_one(cpw, knots, deg, rat, t, 2, ndu, left, right, sa, nd, aw, cd)
+        _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 2, ndu, left, right, sa, nd, aw, cd)
         rx, ry = cd[0, 0] - px, cd[0, 1] - py
         g = rx * cd[1, 0] + ry * cd[1, 1]
         c11 = cd[1, 0] * cd[1, 0] + cd[1, 1] * cd[1, 1]
@@ -738,7 +847,7 @@ def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_i
         t = tn
         if not moved:
             break
-    _curve_ders_one(cpw, knots, deg, rat, t, 0, ndu, left, right, sa, nd, aw, cd)
+    _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 0, ndu, left, right, sa, nd, aw, cd)
     rx, ry = cd[0, 0] - px, cd[0, 1] - py
     dd = np.sqrt(rx * rx + ry * ry)
     da = np.sqrt((ax - px) ** 2 + (ay - py) ** 2)
@@ -747,9 +856,10 @@ def _lens_pair(cpw, knots, deg, rat, ta, tb, ax, ay, bx, by, px, py, size, max_i
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _lens_kernel(cpw, knots, deg, rat, ta, tb, a, b, p, size, max_iter, lens, dist):  # pragma: no cover - compiled
-    """`_lens` for a NURBS curve, pair by pair (`_lens_pair`); writes lens (K,) and dist (K,)."""
-    dim = cpw.shape[1] - 1
+def _lens_kernel(cpw, knots, deg, rat, cmap, ta, tb, a, b, p, size, max_iter, lens, dist):  # pragma: no cover - compiled
+    """`_lens` for a NURBS (or exactly mapped) curve, pair by pair (`_lens_pair`); writes lens
+    (K,) and dist (K,)."""
+    dim = max(cpw.shape[1] - 1, 2)
     ndu = np.empty((deg + 1, deg + 1))
     left = np.empty(deg + 1)
     right = np.empty(deg + 1)
@@ -758,19 +868,20 @@ def _lens_kernel(cpw, knots, deg, rat, ta, tb, a, b, p, size, max_iter, lens, di
     aw = np.empty((3, dim + 1))
     cd = np.empty((3, dim))
     for i in range(ta.shape[0]):
-        lens[i], dist[i] = _lens_pair(cpw, knots, deg, rat, ta[i], tb[i], a[i, 0], a[i, 1], b[i, 0], b[i, 1],
+        lens[i], dist[i] = _lens_pair(cpw, knots, deg, rat, cmap, ta[i], tb[i], a[i, 0], a[i, 1], b[i, 0], b[i, 1],
                                       p[i, 0], p[i, 1], size, max_iter, ndu, left, right, sa, nd, aw, cd)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _contains_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, ax, ay, bx, by, band, tol,
-                     ecurve, eta, etb, cpw, cpw_off, cdim, knots, k_off, deg, rat, size, max_iter, inside,
+                     ecurve, eta, etb, cpw, cpw_off, cdim, knots, k_off, deg, rat, maps, size, max_iter, inside,
                      on):  # pragma: no cover - compiled
     """`LoopBoundary.contains` in one pass for a loop of NURBS curves (packed: control nets
     cpw[cpw_off[c]:cpw_off[c+1]] of shape (n, cdim[c] + 1), knots[k_off[c]:k_off[c+1]]):
     the parity of `_classify_kernel`; for points near an edge, the pairs of `_pairs_kernel`,
     straight edges deciding ``on`` by their distance, curved ones flipping the parity where
-    the point lies between chord and arc (`_lens_pair`). Same tests, same results."""
+    the point lies between chord and arc (`_lens_pair`; maps[c] the exact map of an
+    analytic surface's curve, `_kernel_form`). Same tests, same results."""
     pmax = 0
     dmax = 2
     for c in range(deg.shape[0]):
@@ -813,7 +924,7 @@ def _contains_kernel(pu, pv, x0, y0, h, nx, ny, cstart, cedges, vstart, vcross, 
                 else:
                     c = ecurve[k]
                     pw = cpw[cpw_off[c] : cpw_off[c + 1]].reshape((-1, cdim[c] + 1))
-                    ln, dd = _lens_pair(pw, knots[k_off[c] : k_off[c + 1]], deg[c], rat[c], eta[k], etb[k], ax[k],
+                    ln, dd = _lens_pair(pw, knots[k_off[c] : k_off[c + 1]], deg[c], rat[c], maps[c], eta[k], etb[k], ax[k],
                                         ay[k], bx[k], by[k], x, y, size, max_iter, ndu, left, right, sa, nd, aw, cd)
                     if ln:
                         flips += 1
@@ -828,11 +939,12 @@ def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
     chord a -> b and the exact arc c([ta, tb]) (the arc is a graph over its chord: solve
     s(t) = s_p by safeguarded Newton, compare normal offsets), and the distance of p to the
     arc (Newton on (C - p).C' from there, clamped; ends included). (K,) bool, (K,) float.
-    NURBS curves go through the compiled `_lens_kernel` (same steps)."""
-    if isinstance(c, NurbsCurve):
+    NURBS and exactly mapped curves go through the compiled `_lens_kernel` (same steps)."""
+    form = _kernel_form(c)
+    if form is not None:
         lens = np.empty(len(ta), dtype=np.bool_)
         dist = np.empty(len(ta))
-        _lens_kernel(c._pw, c.knots, c.degree, c.rational, np.ascontiguousarray(ta, dtype=float),
+        _lens_kernel(*form, np.ascontiguousarray(ta, dtype=float),
                      np.ascontiguousarray(tb, dtype=float), np.ascontiguousarray(a, dtype=float),
                      np.ascontiguousarray(b, dtype=float), np.ascontiguousarray(p, dtype=float), float(size),
                      int(max_iter), lens, dist)
@@ -967,13 +1079,14 @@ def curve_newton(surf, curve, pts: np.ndarray, t: np.ndarray, closed: bool, eps:
     f' = C'.C' + (C - P).C'' (C' = Su u' + Sv v', C'' = Suu u'^2 + 2 Suv u' v' + Svv v'^2
     + Su u'' + Sv v''; C'.C' where f' <= 0), t clamped to the curve's domain (wrapped through
     the seam of a ``closed`` curve), until a step moves C by at most ``eps``. Compiled for 2D
-    NURBS curves; the same steps in numpy for others (the analytic dies' mapped curves)."""
+    NURBS curves and exactly mapped ones (`_kernel_form`); the same steps in numpy for others."""
     u0, u1, v0, v1 = surf.domain
     t0, t1 = curve.domain
-    if isinstance(curve, NurbsCurve) and curve.dim == 2:
+    form = _kernel_form(curve) if getattr(curve, "dim", 2) == 2 else None
+    if form is not None:
         _trim_newton_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
-                            u0, u1, v0, v1, curve._pw, curve.knots, curve.degree, curve.rational, float(t0),
-                            float(t1), closed, np.ascontiguousarray(pts, dtype=float), t, eps, int(max_iter))
+                            u0, u1, v0, v1, *form, float(t0), float(t1), closed,
+                            np.ascontiguousarray(pts, dtype=float), t, eps, int(max_iter))
         return
     done = np.zeros(len(t), dtype=bool)
     for _ in range(max_iter):

@@ -463,6 +463,21 @@ class MappedCurve(_TrimCurve):
     def _natural(self, t) -> np.ndarray:
         return self._natural_ders(t, 0)[:, 0]
 
+    def packed_map(self) -> np.ndarray:
+        """The map in the flat form the compiled trim kernels take (`cadbridge.trims.MAP_LEN`
+        = 29 floats): 1, M row by row, b, then pre_0 and pre_1 as (flag, start_in, sweep,
+        start_out, segments) (flag 0: identity), then post_0 and post_1 as (src, flag,
+        start_in, sweep, start_out, segments)."""
+        c = _construct()
+
+        def arc(m: ArcMap | None) -> list[float]:
+            return [0.0] * 5 if m is None else [1.0, m.start_in, m.sweep, m.start_out, float(c.arc_segments(m.sweep))]
+
+        out = [1.0, *self.m.reshape(2, 2).ravel(), *self.b.reshape(2), *arc(self.pre[0]), *arc(self.pre[1])]
+        for src, mp in self.post:
+            out += [float(src), *arc(mp)]
+        return np.array(out, dtype=float)
+
     def derivatives(self, t, order: int = 1) -> np.ndarray:
         """Derivatives of (u, v)(t) up to ``order`` (<= 2): t (N,) -> (N, order+1, 2)."""
         if order > 2:
