@@ -1068,11 +1068,6 @@ def polygon_distance(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
 # nearest point of the trim boundary in 3D
 
 
-def _box_distance(pts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Distance of (N, 3) points to the box [lo, hi], (N,)."""
-    return np.linalg.norm(np.maximum(0.0, np.maximum(lo - pts, pts - hi)), axis=1)
-
-
 def curve_newton(surf, curve, pts: np.ndarray, t: np.ndarray, closed: bool, eps: float, max_iter: int = 40) -> None:
     """Newton for the nearest point of the curve on the surface, C(t) = S(c(t)), to (M, 3)
     points, from start parameters t (M,), updated in place: f(t) = (C - P).C',
@@ -1111,6 +1106,86 @@ def curve_newton(surf, curve, pts: np.ndarray, t: np.ndarray, closed: bool, eps:
         done[act[step <= eps]] = True
 
 
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _trim_pairs_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cpw_off, cdim, cknots, k_off, cdeg, crat, cmaps,
+                       ct0, ct1, cclosed, pc, pts, t, eps1, max_iter, out_u, out_v, out_foot, out_dist,
+                       out_ok):  # pragma: no cover - compiled
+    """`project_to_trims` on (point, curve) pairs: pair i is point pts[i] on curve pc[i] (curves
+    packed as for `_contains_kernel`, domains [ct0, ct1], cclosed), from t[i]. The Newton of
+    `_trim_newton_kernel` (same steps), then at the final t: (u, v) = c(t) clamped to the
+    surface's domain, foot S(u, v), its distance, and ok: orthogonal within 1e3 x eps1
+    (|(S - P).C'| / |C'|) or at a curve end. Writes t and out_*."""
+    pmax = 0
+    dmax = 2
+    for c in range(cdeg.shape[0]):
+        pmax = max(pmax, cdeg[c])
+        dmax = max(dmax, cdim[c])
+    scratch = _ders2_scratch(p, q)
+    der = np.empty((3, 3, 3))
+    cndu = np.empty((pmax + 1, pmax + 1))
+    cl = np.empty(pmax + 1)
+    cr = np.empty(pmax + 1)
+    ca = np.empty((2, pmax + 1))
+    cnd = np.empty((3, pmax + 1))
+    caw = np.empty((3, dmax + 1))
+    cd = np.empty((3, dmax))
+    c1 = np.empty(3)
+    for i in range(pts.shape[0]):
+        c = pc[i]
+        pw = cpw[cpw_off[c] : cpw_off[c + 1]].reshape((-1, cdim[c] + 1))
+        kn = cknots[k_off[c] : k_off[c + 1]]
+        t0, t1 = ct0[c], ct1[c]
+        ti = t[i]
+        for _ in range(max_iter):
+            _tcurve_ders_one(pw, kn, cdeg[c], crat[c], cmaps[c], ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
+            uu = min(max(cd[0, 0], u0), u1)
+            vv = min(max(cd[0, 1], v0), v1)
+            _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
+            up, vp, upp, vpp = cd[1, 0], cd[1, 1], cd[2, 0], cd[2, 1]
+            f = 0.0
+            c11 = 0.0
+            rc2 = 0.0
+            for k in range(3):
+                c1k = der[1, 0, k] * up + der[0, 1, k] * vp
+                c2k = (der[2, 0, k] * (up * up) + 2.0 * der[1, 1, k] * (up * vp) + der[0, 2, k] * (vp * vp)
+                       + der[1, 0, k] * upp + der[0, 1, k] * vpp)
+                r = der[0, 0, k] - pts[i, k]
+                f += r * c1k
+                c11 += c1k * c1k
+                rc2 += r * c2k
+            fp = c11 + rc2
+            if not fp > 0:
+                fp = c11 + 1e-300
+            tn = ti - f / fp
+            if cclosed[c]:
+                tn = t0 + (tn - t0) % (t1 - t0)
+            else:
+                tn = min(max(tn, t0), t1)
+            step = abs(tn - ti) * np.sqrt(c11)
+            ti = tn
+            if step <= eps1:
+                break
+        t[i] = ti
+        _tcurve_ders_one(pw, kn, cdeg[c], crat[c], cmaps[c], ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
+        uu = min(max(cd[0, 0], u0), u1)
+        vv = min(max(cd[0, 1], v0), v1)
+        _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
+        dd = 0.0
+        rc = 0.0
+        cc = 0.0
+        for k in range(3):
+            c1[k] = der[1, 0, k] * cd[1, 0] + der[0, 1, k] * cd[1, 1]
+            r = der[0, 0, k] - pts[i, k]
+            dd += r * r
+            rc += r * c1[k]
+            cc += c1[k] * c1[k]
+            out_foot[i, k] = der[0, 0, k]
+        out_u[i], out_v[i] = uu, vv
+        out_dist[i] = np.sqrt(dd)
+        off = abs(rc) / max(np.sqrt(cc), 1e-300)
+        out_ok[i] = off <= 1e3 * eps1 or ti <= t0 or ti >= t1
+
+
 def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     """Nearest points of the trim loops (outer and holes) of ``face`` to (N, 3) points.
 
@@ -1119,9 +1194,10 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     the distance to the boundary from above (U), and a curve is kept for a point only if the
     point's distance to the curve's sample box grown by r (0.55 x its longest sample chord:
     every curve point is within r of a sample) is <= U. On the kept pairs only: start from
-    the curve's nearest sample, then Newton (`curve_newton`); the nearest over the kept curves
-    wins. Vectorised over points;
-    the loop runs over the (few) trim curves of the face.
+    the curve's nearest sample, then Newton and the orthogonality test (NURBS and exactly
+    mapped curves: one compiled call for all pairs, `_trim_pairs_kernel`; others:
+    `curve_newton` in numpy); the nearest orthogonal foot wins, at equal distance the first
+    curve in loop order.
     Returns (u (N,), v (N,), foot (N, 3), distance (N,), ok (N,) bool: orthogonal foot or
     curve end). Raises ValueError if the face has no trim loops.
     """
@@ -1165,27 +1241,105 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     upper, _ = alltree.query(pts)
     upper = upper * (1 + 1e-12) + 1e-12 * size
 
-    for curve, (ts, xs, rad, xtree, xlo, xhi) in zip(curves, samples):
-        cand = np.flatnonzero(_box_distance(pts, xlo, xhi) <= upper)
-        if not len(cand):
-            continue
-        q = pts[cand]
-        m = len(cand)
+    # (point, curve) pairs: the curves whose grown sample box lies within the point's bound
+    lo = np.array([smp[4] for smp in samples])
+    hi = np.array([smp[5] for smp in samples])
+    pts_c = np.ascontiguousarray(pts)
+    cnt = _box_pairs(pts_c, lo, hi, upper, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+    if not cnt:
+        return best
+    pi, ci = np.empty(cnt, dtype=np.int64), np.empty(cnt, dtype=np.int64)
+    _box_pairs(pts_c, lo, hi, upper, pi, ci)  # by curve, points ascending within each
+    t = np.empty(len(pi))
+    cuts = np.flatnonzero(np.diff(ci)) + 1
+    for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [len(ci)]])):
+        ts, xtree = samples[ci[a]][0], samples[ci[a]][3]
+        _, k = xtree.query(pts[pi[a:b]])  # the curve's nearest sample starts Newton
+        t[a:b] = ts[np.asarray(k)]
+    hit = face.__dict__.get("_cadbridge_trim_pack")
+    if hit is None or hit[0] != key:
+        hit = face.__dict__["_cadbridge_trim_pack"] = (key, *_pack_curves(curves, samples, size))
+    packed, renum, cargs = hit[1:]
+    m = len(pi)
+    uu, vv, foot, dist, ok = np.empty(m), np.empty(m), np.empty((m, 3)), np.empty(m), np.empty(m, dtype=np.bool_)
+    comp = np.flatnonzero(packed[ci])
+    if len(comp):  # the pairs on NURBS or exactly mapped curves: one compiled call
+        k = len(comp)
+        ru, rv, rf, rd, rk = np.empty(k), np.empty(k), np.empty((k, 3)), np.empty(k), np.empty(k, dtype=np.bool_)
+        _trim_pairs_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
+                           u0, u1, v0, v1, *cargs, renum[ci[comp]], np.ascontiguousarray(pts[pi[comp]]),
+                           np.ascontiguousarray(t[comp]), eps1, int(max_iter), ru, rv, rf, rd, rk)
+        uu[comp], vv[comp], foot[comp], dist[comp], ok[comp] = ru, rv, rf, rd, rk
+    for j in np.unique(ci[~packed[ci]]):  # other curves: the numpy steps
+        rows = np.flatnonzero(ci == j)
+        curve, q = curves[j], pts[pi[rows]]
+        tj = np.ascontiguousarray(t[rows])
         t0, t1 = curve.domain
-        # a closed curve (a hole's circle as one piece): Newton wraps through its seam instead
-        # of stopping at the end it started from
-        closed = float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size
-        _, k = xtree.query(q)
-        t = np.ascontiguousarray(ts[np.asarray(k)], dtype=float)
-        curve_newton(surf, curve, q, t, closed, eps1, max_iter)
-        uu, vv, c, d = on_surface(curve, t, 1)
+        curve_newton(surf, curve, q, tj, _closed(samples[j][1], size), eps1, max_iter)
+        u_, v_, c, d = on_surface(curve, tj, 1)
         c1 = d[:, 1, 0] * c[:, 1, 0:1] + d[:, 0, 1] * c[:, 1, 1:2]
         r = d[:, 0, 0] - q
-        dist = np.linalg.norm(r, axis=1)
         off = np.abs(np.einsum("ij,ij->i", r, c1)) / np.maximum(np.linalg.norm(c1, axis=1), 1e-300)
-        ok = (off <= 1e3 * eps1) | (t <= t0) | (t >= t1)
-        better = np.where(ok, dist, np.inf) < best[3][cand]
-        sel = cand[better]
-        best[0][sel], best[1][sel], best[2][sel] = uu[better], vv[better], d[better, 0, 0]
-        best[3][sel], best[4][sel] = dist[better], True
+        uu[rows], vv[rows], foot[rows], dist[rows] = u_, v_, d[:, 0, 0], np.linalg.norm(r, axis=1)
+        ok[rows] = (off <= 1e3 * eps1) | (tj <= t0) | (tj >= t1)
+    # per point the nearest orthogonal foot; at equal distance the first curve in loop order
+    dk = np.where(ok, dist, np.inf)
+    pick = np.lexsort((ci, dk, pi))
+    first = pick[np.concatenate([[True], pi[pick][1:] != pi[pick][:-1]])]
+    first = first[np.isfinite(dk[first])]
+    sel = pi[first]
+    best[0][sel], best[1][sel], best[2][sel] = uu[first], vv[first], foot[first]
+    best[3][sel], best[4][sel] = dist[first], True
     return best
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _box_pairs(pts, lo, hi, upper, out_p, out_c):  # pragma: no cover - compiled
+    """(point, curve) pairs with the point within upper[point] of the curve's box lo[c] ..
+    hi[c] (the distance to the box), by curve, then point. Returns their number; writes
+    them into out_p, out_c when those are long enough."""
+    m = 0
+    write = out_p.shape[0] > 0
+    for c in range(lo.shape[0]):
+        for i in range(pts.shape[0]):
+            g2 = 0.0
+            for k in range(3):
+                g = max(0.0, max(lo[c, k] - pts[i, k], pts[i, k] - hi[c, k]))
+                g2 += g * g
+            if np.sqrt(g2) <= upper[i]:
+                if write:
+                    out_p[m] = i
+                    out_c[m] = c
+                m += 1
+    return m
+
+
+def _pack_curves(curves: list, samples: list, size: float):
+    """The trim curves of a face for `_trim_pairs_kernel`: (packed (C,) bool: the curve has a
+    compiled form (`_kernel_form`), renum (C,) its index among those, the kernel's curve
+    arguments)."""
+    forms = [_kernel_form(c) if getattr(c, "dim", 2) == 2 else None for c in curves]
+    packed = np.array([f is not None for f in forms], dtype=bool)
+    idx = np.flatnonzero(packed)
+    renum = np.full(len(curves), -1, dtype=np.int64)
+    renum[idx] = np.arange(len(idx))
+    if not len(idx):
+        return packed, renum, ()
+    pws = [np.ascontiguousarray(forms[j][0], dtype=float) for j in idx]
+    kns = [np.ascontiguousarray(forms[j][1], dtype=float) for j in idx]
+    cargs = (np.concatenate([w.ravel() for w in pws]),
+             np.concatenate([[0], np.cumsum([w.size for w in pws])]).astype(np.int64),
+             np.array([w.shape[1] - 1 for w in pws], dtype=np.int64), np.concatenate(kns),
+             np.concatenate([[0], np.cumsum([k.size for k in kns])]).astype(np.int64),
+             np.array([forms[j][2] for j in idx], dtype=np.int64),
+             np.array([bool(forms[j][3]) for j in idx], dtype=np.bool_),
+             np.ascontiguousarray(np.stack([forms[j][4] for j in idx])),
+             np.array([float(curves[j].domain[0]) for j in idx]), np.array([float(curves[j].domain[1]) for j in idx]),
+             np.array([_closed(samples[j][1], size) for j in idx], dtype=np.bool_))
+    return packed, renum, cargs
+
+
+def _closed(xs: np.ndarray, size: float) -> bool:
+    """A trim curve whose samples xs (M, 3) on the surface start where they end (a hole's
+    circle as one piece): Newton wraps through its seam instead of stopping at an end."""
+    return float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size

@@ -19,12 +19,23 @@ import pytest
 
 from cadbridge.iges import read_iges
 from cadbridge.iges.analytic import MappedCurve
-from cadbridge.trims import LoopBoundary, _curve_ders
+from cadbridge.model import Face, Trim, TrimLoop
+from cadbridge.trims import LoopBoundary, _curve_ders, project_to_trims
 
 ROOT = Path(__file__).parents[1]
 FILES = [ROOT / "iges_samples" / "ushape_tools_analytic.igs",
          ROOT.parent / "shared" / "iges_real" / "occt_bug22566_SolidWorks2010.igs"]
 DIE = ROOT / "iges_samples" / "production_die_analytic.igs"
+
+
+def mapped_faces(path):
+    if not path.is_file():
+        pytest.skip(f"{path} not present")
+    out = [f for f in read_iges(path).faces if f.trims is not None and any(
+        isinstance(c, MappedCurve) for lp in ([f.trims.outer] if f.trims.outer else []) + list(f.trims.inner)
+        for c in lp.curves)]
+    assert out
+    return out
 
 
 def mapped_loops(path):
@@ -83,6 +94,9 @@ class Plain:
     def derivatives(self, t, order: int = 1) -> np.ndarray:
         return self.c.derivatives(t, order)
 
+    def sample_parameters(self, per_span: int = 16) -> np.ndarray:
+        return self.c.sample_parameters(per_span)
+
 
 def decisions_agree(loops, per_loop: int, rng) -> int:
     """Points near each loop's curves (0 .. 1e-3 of the loop size off a curve point, both
@@ -116,3 +130,26 @@ def test_compiled_trim_decisions_equal_numpy_analytic_die():
     loops = mapped_loops(DIE)
     rng = np.random.default_rng(3)
     assert decisions_agree([loops[i] for i in rng.choice(len(loops), 150, replace=False)], 200, rng) > 0
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: p.stem)
+def test_project_to_trims_compiled_equals_numpy(path):
+    """Nearest points of the trim loops: the compiled pairs kernel against the numpy steps
+    (`curve_newton` and the curves' own derivatives), points up to 5 % of the face off it."""
+    rng = np.random.default_rng(4)
+    for face in mapped_faces(path):
+        t = face.trims
+        plain = Face(surface=face.surface, de=face.de, trims=Trim(
+            TrimLoop([Plain(c) for c in t.outer.curves]) if t.outer else None,
+            [TrimLoop([Plain(c) for c in lp.curves]) for lp in t.inner]))
+        b = face.surface.bbox()
+        size = float(np.linalg.norm(b[1] - b[0]))
+        u0, u1, v0, v1 = face.surface.domain
+        uv = rng.uniform([u0, v0], [u1, v1], (60, 2))
+        pts = face.surface.evaluate(uv[:, 0], uv[:, 1]) + rng.normal(size=(60, 3)) * 0.05 * size
+        fast = project_to_trims(face, pts)
+        slow = project_to_trims(plain, pts)
+        assert np.array_equal(fast[4], slow[4])
+        ok = fast[4]
+        assert np.all(np.abs(fast[3][ok] - slow[3][ok]) <= 1e-12 * size)
+        assert np.all(np.abs(fast[2][ok] - slow[2][ok]) <= 1e-9 * size)
