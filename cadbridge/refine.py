@@ -659,17 +659,25 @@ def _mapped_border_marks(t, elems: np.ndarray, factor: np.ndarray,
     sweep, 1.6 mm across the R 3, marked for 5.0 mm, asked 1.2 mm on the R 3 sides, which
     the graded marks spread over whole mapped sides: 406 -> 5 474 nodes at t = 0.01).
     A face's elements are a structured a x b grid when they are all quads, 2 (a + b) edges
-    are on its border and a b = their number. Returns points (M, 3) and sizes (M,)."""
+    are on its border and a b = their number; the mesh may hold other blocks (the
+    production die's meshes have a block of triangles beside the quads: before, that
+    disabled these marks everywhere, and a mapped face's marked quads came back at their
+    size pass after pass). Returns points (M, 3) and sizes (M,)."""
     ef = t.element_face
-    quads = [b for b in t.mesh.cells if b.type == "quad"]
-    if ef is None or len(elems) == 0 or len(quads) != len(t.mesh.cells):
+    if ef is None or len(elems) == 0:
         return np.zeros((0, 3)), np.zeros(0)
-    conn = np.concatenate([np.asarray(b.data) for b in quads])
+    kind = np.concatenate([np.full(len(b.data), b.type == "quad") for b in t.mesh.cells])
+    quads = [np.asarray(b.data) for b in t.mesh.cells if b.type == "quad"]
+    if not quads:
+        return np.zeros((0, 3)), np.zeros(0)
+    conn = np.zeros((len(kind), 4), dtype=np.int64)  # rows by global element number
+    conn[kind] = np.concatenate(quads)
     x = t.mesh.nodes
     size = _element_sizes(t.nagata)[elems] if sizes is None else np.asarray(sizes, dtype=float)
     pts, hs = [], []
     for f in np.unique(ef[elems]):  # loop over the (few) faces with marks
-        border = _grid_border(conn[np.flatnonzero(ef == f)])
+        own = np.flatnonzero(ef == f)
+        border = _grid_border(conn[own]) if np.all(kind[own]) else None
         if border is None:
             continue  # not a structured grid: the background field takes the marks
         mid = 0.5 * (x[border[:, 0]] + x[border[:, 1]])

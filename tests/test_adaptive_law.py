@@ -193,3 +193,36 @@ def test_marks_reach_the_border_of_a_mapped_face():
         u, cnt = np.unique(e, axis=0, return_counts=True)
         mids = 0.5 * (x[u[cnt == 1, 0]] + x[u[cnt == 1, 1]])
         assert len(mids) == len(pts) and np.allclose(np.sort(mids, axis=0), np.sort(pts, axis=0))
+
+
+def test_border_marks_with_a_triangle_block_in_the_mesh():
+    """The production die's adaptive meshes hold a block of triangles beside the quads; the
+    border marks of its mapped faces must not depend on that. Reference: the marks of the
+    U-shape die's all-quad tool, against the same tool with one face's quads split into a
+    triangle block put first (its own marks: none, it is no grid any more)."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from cadbridge.refine import _mapped_border_marks, refine_mesh
+
+    r = refine_mesh(Path(__file__).parents[1] / "iges_samples" / "ushape_die_nurbs.igs", 0.05)
+    t = r.tools[0]
+    conn = np.concatenate([np.asarray(b.data) for b in t.mesh.cells])
+    ef = np.asarray(t.element_face)
+    faces = np.unique(ef)
+    split = faces[0]
+    keep = np.flatnonzero(ef != split)
+    q = conn[ef == split]
+    tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    mixed = SimpleNamespace(
+        mesh=SimpleNamespace(nodes=t.mesh.nodes, cells=[SimpleNamespace(type="triangle", data=tris),
+                                                        SimpleNamespace(type="quad", data=conn[keep])]),
+        element_face=np.concatenate([np.full(len(tris), split), ef[keep]]))
+    for f in faces[1:]:
+        el = np.flatnonzero(ef == f)[0]
+        ref = _mapped_border_marks(t, np.array([el]), np.array([0.5]), np.array([1.0]))
+        got = _mapped_border_marks(mixed, np.array([len(tris) + np.searchsorted(keep, el)]), np.array([0.5]),
+                                   np.array([1.0]))
+        assert len(ref[0]) > 0 and np.array_equal(ref[0], got[0]) and np.array_equal(ref[1], got[1])
+    el = np.array([0, 1])  # triangles of the split face
+    assert len(_mapped_border_marks(mixed, el, np.array([0.5, 0.5]), np.array([1.0, 1.0]))[0]) == 0
