@@ -226,3 +226,33 @@ def test_border_marks_with_a_triangle_block_in_the_mesh():
         assert len(ref[0]) > 0 and np.array_equal(ref[0], got[0]) and np.array_equal(ref[1], got[1])
     el = np.array([0, 1])  # triangles of the split face
     assert len(_mapped_border_marks(mixed, el, np.array([0.5, 0.5]), np.array([1.0, 1.0]))[0]) == 0
+
+
+def test_strip_marks_cover_a_narrow_unmapped_face_only():
+    """`refine.strip_marks`: a marked quad of a face narrower than STRIP_ELEMENTS element
+    sizes (width 2 A / P) marks every element of that face; a wide face gets nothing.
+    Reference: flat rectangles of 2 x 2 quads, 1 x 20 (width 2 A / P = 160 / 84) and
+    20 x 20 (width 20), whose element sizes are their edge length 2."""
+    from types import SimpleNamespace
+
+    from cadbridge.nagata import NagataMesh
+    from cadbridge.refine import STRIP_ELEMENTS, strip_marks
+
+    def plate(nu, nv):
+        gx, gy = np.meshgrid(np.arange(nu + 1) * 2.0, np.arange(nv + 1) * 2.0, indexing="ij")
+        x = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+        idx = np.arange(x.shape[0]).reshape(nu + 1, nv + 1)
+        q = np.array([[idx[i, j], idx[i + 1, j], idx[i + 1, j + 1], idx[i, j + 1]] for i in range(nu) for j in range(nv)])
+        n = np.tile([0.0, 0.0, 1.0], (len(x), 1))
+        return SimpleNamespace(mesh=SimpleNamespace(nodes=x, cells=[SimpleNamespace(type="quad", data=q)]),
+                               element_face=np.zeros(len(q), dtype=int), nagata=NagataMesh(x, q, n))
+
+    assert 160 / 84 < STRIP_ELEMENTS * 2.0 < 20
+    strip = plate(20, 1)
+    pts, hs = strip_marks(strip, np.array([7]), np.array([0.6]), np.array([2.0]))
+    assert len(pts) > 0 and np.allclose(hs, 1.2)
+    cen = strip.mesh.nodes[strip.mesh.cells[0].data].mean(axis=1)
+    d = np.linalg.norm(cen[:, None, :] - pts[None], axis=2).min(axis=1)
+    assert d.max() < 1e-9  # every element's centroid carries a mark (its ball's centre)
+    wide = plate(20, 20)
+    assert len(strip_marks(wide, np.array([7]), np.array([0.6]), np.array([2.0]))[0]) == 0
