@@ -504,9 +504,10 @@ def refine_mesh(
             marks_p.append(bp)
             marks_h.append(bh)
             _log_marks(mark_log, reason, len(elems), bh)
-            # a marked element of an unmapped strip fewer than STRIP_ELEMENTS elements wide:
-            # the whole strip is marked (a local mark only moves gmsh's skewed quads along it)
-            sp, sh = strip_marks(t, elems[free], h_new[free] / np.maximum(hs[free], 1e-300), hs[free])
+            # a marked element of an unmapped strip fewer than STRIP_ELEMENTS of the sizes asked
+            # wide: the whole strip is marked (a local mark only moves gmsh's skewed quads
+            # along it)
+            sp, sh = strip_marks(t, elems[free], h_new[free] / np.maximum(hs[free], 1e-300), h_new[free])
             if len(sp):
                 marks_p.append(sp)
                 marks_h.append(np.maximum(sh, h_min))
@@ -653,16 +654,19 @@ def _in_grid_faces(t, elems: np.ndarray) -> np.ndarray:
 
 
 STRIP_ELEMENTS = 2.5
-"""An unmapped face narrower than this many marked-element sizes is refined as a whole."""
+"""An unmapped face narrower than this many of the sizes asked at its marked elements is
+refined as a whole."""
 
 
 def strip_marks(t, elems: np.ndarray, factor: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Marks over every element of each unmapped face of tool ``t`` that holds marked
     elements ``elems`` (K,) and is a narrow strip: its width 2 A / P (A the area of its
     elements, P the length of its border edges; the width of a long strip) is below
-    `STRIP_ELEMENTS` x the largest size ``sizes`` (K,) of its marked elements. Each of its
-    elements is asked the smallest ``factor`` (K,) of the face times its own size (the
-    length of its most curved edge).
+    `STRIP_ELEMENTS` x the largest size ``sizes`` (K,) asked at its marked elements (the
+    sizes asked, not the elements' own: with those, pass 1's 14 mm elements made every
+    fillet under 35 mm a strip, and the die's pass 2 went from 111 k to 197 k nodes). Each
+    of its elements is asked the smallest ``factor`` (K,) of the face times its own size
+    (the length of its most curved edge).
 
     Why: gmsh's unstructured quads across a strip only 1-2 elements wide lie skewed
     (diamonds spanning it), and their error does not follow the size law. A mark at one of

@@ -229,8 +229,8 @@ def test_border_marks_with_a_triangle_block_in_the_mesh():
 
 
 def test_strip_marks_cover_a_narrow_unmapped_face_only():
-    """`refine.strip_marks`: a marked quad of a face narrower than STRIP_ELEMENTS element
-    sizes (width 2 A / P) marks every element of that face; a wide face gets nothing.
+    """`refine.strip_marks`: a marked quad of a face narrower than STRIP_ELEMENTS of the sizes
+    asked (width 2 A / P) marks every element of that face; a wide face gets nothing.
     Reference: flat rectangles of 2 x 2 quads, 1 x 20 (width 2 A / P = 160 / 84) and
     20 x 20 (width 20), whose element sizes are their edge length 2."""
     from types import SimpleNamespace
@@ -247,12 +247,12 @@ def test_strip_marks_cover_a_narrow_unmapped_face_only():
         return SimpleNamespace(mesh=SimpleNamespace(nodes=x, cells=[SimpleNamespace(type="quad", data=q)]),
                                element_face=np.zeros(len(q), dtype=int), nagata=NagataMesh(x, q, n))
 
-    assert 160 / 84 < STRIP_ELEMENTS * 2.0 < 20
+    assert 160 / 84 < STRIP_ELEMENTS * 1.2 < 20  # the size asked: 0.6 x 2
     strip = plate(20, 1)
-    pts, hs = strip_marks(strip, np.array([7]), np.array([0.6]), np.array([2.0]))
+    pts, hs = strip_marks(strip, np.array([7]), np.array([0.6]), np.array([1.2]))
     assert len(pts) > 0 and np.allclose(hs, 1.2)
     cen = strip.mesh.nodes[strip.mesh.cells[0].data].mean(axis=1)
     d = np.linalg.norm(cen[:, None, :] - pts[None], axis=2).min(axis=1)
     assert d.max() < 1e-9  # every element's centroid carries a mark (its ball's centre)
     wide = plate(20, 20)
-    assert len(strip_marks(wide, np.array([7]), np.array([0.6]), np.array([2.0]))[0]) == 0
+    assert len(strip_marks(wide, np.array([7]), np.array([0.6]), np.array([1.2]))[0]) == 0
