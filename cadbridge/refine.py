@@ -655,7 +655,9 @@ def _in_grid_faces(t, elems: np.ndarray) -> np.ndarray:
 
 STRIP_ELEMENTS = 2.5
 """An unmapped face narrower than this many of the sizes asked at its marked elements is
-refined as a whole."""
+refined as a whole, if it is also a long strip (`STRIP_ASPECT`)."""
+STRIP_ASPECT = 10.0
+"""Length over width (P^2 / 4 A) from which a narrow face counts as a strip."""
 
 
 def strip_marks(t, elems: np.ndarray, factor: np.ndarray, sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -664,7 +666,9 @@ def strip_marks(t, elems: np.ndarray, factor: np.ndarray, sizes: np.ndarray) -> 
     elements, P the length of its border edges; the width of a long strip) is below
     `STRIP_ELEMENTS` x the largest size ``sizes`` (K,) asked at its marked elements (the
     sizes asked, not the elements' own: with those, pass 1's 14 mm elements made every
-    fillet under 35 mm a strip, and the die's pass 2 went from 111 k to 197 k nodes). Each
+    fillet under 35 mm a strip, and the die's pass 2 went from 111 k to 197 k nodes), and
+    that is at least `STRIP_ASPECT` times as long as wide (P^2 / 4 A; without it the die's
+    pass 2 still had 186 k: small faces were whole-face marked at factor 0.3). Each
     of its elements is asked the smallest ``factor`` (K,) of the face times its own size
     (the length of its most curved edge).
 
@@ -698,8 +702,9 @@ def strip_marks(t, elems: np.ndarray, factor: np.ndarray, sizes: np.ndarray) -> 
         border = uniq[count == 1]
         perimeter = float(np.linalg.norm(x[border[:, 1]] - x[border[:, 0]], axis=1).sum())
         mine = ef[elems] == f
-        if perimeter <= 0 or 2.0 * area / perimeter >= STRIP_ELEMENTS * float(sizes[mine].max()):
-            continue
+        if (perimeter <= 0 or 2.0 * area / perimeter >= STRIP_ELEMENTS * float(sizes[mine].max())
+                or perimeter * perimeter < 4.0 * STRIP_ASPECT * area):
+            continue  # not narrow, or not long (small faces: their own marks reach across)
         bp, bh = element_marks(t.mesh, own, float(factor[mine].min()) * all_sizes[own])
         pts.append(bp)
         hs.append(bh)

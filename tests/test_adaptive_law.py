@@ -256,3 +256,5 @@ def test_strip_marks_cover_a_narrow_unmapped_face_only():
     assert d.max() < 1e-9  # every element's centroid carries a mark (its ball's centre)
     wide = plate(20, 20)
     assert len(strip_marks(wide, np.array([7]), np.array([0.6]), np.array([1.2]))[0]) == 0
+    short = plate(4, 1)  # narrow but short: 8 x 2, P^2 / 4 A = 400 / 64 < STRIP_ASPECT
+    assert len(strip_marks(short, np.array([1]), np.array([0.6]), np.array([1.2]))[0]) == 0
