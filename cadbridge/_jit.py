@@ -25,14 +25,15 @@ COMPILE_SECONDS = 40
 _listener = None
 
 
-def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_SECONDS) -> None:
+def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_SECONDS, quiet: bool = False) -> None:
     """Write "compiling numerical kernels (first run only, about N s)" to ``stream`` (stderr
-    by default) when numba starts compiling a cadbridge function, at most once per process.
-    Safe to call more than once (one listener; the last call's stream and seconds count) and
-    without numba (a no-op)."""
+    by default) when numba starts compiling a cadbridge function, at most once per process;
+    nothing while ``quiet`` (`cadbridge --quiet`: no progress lines; a later call without it
+    still announces). Safe to call more than once (one listener; the last call's stream,
+    seconds and quiet count) and without numba (a no-op)."""
     global _listener
     if _listener is not None:
-        _listener.stream, _listener.seconds = stream, seconds
+        _listener.stream, _listener.seconds, _listener.quiet = stream, seconds, quiet
         return
     try:
         from numba.core import event
@@ -43,10 +44,11 @@ def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_
         def __init__(self) -> None:
             self.stream = stream
             self.seconds = seconds
+            self.quiet = quiet
             self.said = False
 
         def on_start(self, ev) -> None:
-            if self.said:
+            if self.said or self.quiet:
                 return
             disp = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
             module = getattr(getattr(disp, "py_func", None), "__module__", "") or ""

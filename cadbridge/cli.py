@@ -499,7 +499,8 @@ def main(argv: list[str] | None = None) -> int:
     Progress.quiet = bool(getattr(args, "quiet", False))
     from cadbridge._jit import announce_compilation
 
-    announce_compilation()  # one line on the then-current stderr if numba has to compile (cold cache)
+    # one line on the then-current stderr if numba has to compile (cold cache), not with --quiet
+    announce_compilation(quiet=Progress.quiet)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -93,3 +93,30 @@ def test_notice_to_a_closed_stream_never_breaks_a_compile():
         if saved is not None:
             saved.said = True
             saved.stream = None
+
+
+def test_quiet_notice_says_nothing():
+    """`cadbridge --quiet` (announce_compilation(quiet=True)): a compile writes nothing; a later
+    call without quiet announces again (the notice was not used up). Reference: the stream."""
+    numba = pytest.importorskip("numba")
+    from cadbridge import _jit
+
+    saved = _jit._listener
+    stream = io.StringIO()
+    try:
+        if saved is not None:
+            saved.said = False
+        _jit.announce_compilation(stream, seconds=7, quiet=True)
+        ns = {"__name__": "cadbridge._probe_quiet"}
+        exec("def f(x):\n    return x - 1\n", ns)  # noqa: S102 - a fresh function in that module
+        assert numba.njit(ns["f"])(2) == 1 and stream.getvalue() == ""
+        _jit.announce_compilation(stream, seconds=7)
+        ns = {"__name__": "cadbridge._probe_loud"}
+        exec("def f(x):\n    return x - 2\n", ns)  # noqa: S102 - a fresh function in that module
+        assert numba.njit(ns["f"])(2) == 0
+        assert stream.getvalue() == "cadbridge: compiling numerical kernels (first run only, about 7 s)\n"
+    finally:
+        if saved is not None:
+            saved.said = True
+            saved.stream = None
+            saved.quiet = False
