@@ -193,11 +193,47 @@ def _kernel_form(c):
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
+def _trim_newton_one(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, cmap, t0, t1, closed, px, py,
+                     pz, ti, eps1, max_iter, scratch, der, cndu, cl, cr, ca, cnd, caw, cd):  # pragma: no cover - compiled
+    """The Newton iterations of `project_to_trims` for one point (px, py, pz) on one trim curve
+    from ti: f(t) = (C - P).C', C = S(c(t)), f' = C'.C' + (C - P).C'' (C'.C' where f' <= 0),
+    t wrapped (closed curve) or clamped, until a step moves C by at most eps1. Returns t."""
+    for _ in range(max_iter):
+        _tcurve_ders_one(cpw, cknots, cdeg, crat, cmap, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
+        uu = min(max(cd[0, 0], u0), u1)
+        vv = min(max(cd[0, 1], v0), v1)
+        _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
+        up, vp, upp, vpp = cd[1, 0], cd[1, 1], cd[2, 0], cd[2, 1]
+        f = 0.0
+        c11 = 0.0
+        rc2 = 0.0
+        for k in range(3):
+            c1k = der[1, 0, k] * up + der[0, 1, k] * vp
+            c2k = (der[2, 0, k] * (up * up) + 2.0 * der[1, 1, k] * (up * vp) + der[0, 2, k] * (vp * vp)
+                   + der[1, 0, k] * upp + der[0, 1, k] * vpp)
+            r = der[0, 0, k] - (px if k == 0 else py if k == 1 else pz)
+            f += r * c1k
+            c11 += c1k * c1k
+            rc2 += r * c2k
+        fp = c11 + rc2
+        if not fp > 0:
+            fp = c11 + 1e-300
+        tn = ti - f / fp
+        if closed:
+            tn = t0 + (tn - t0) % (t1 - t0)
+        else:
+            tn = min(max(tn, t0), t1)
+        step = abs(tn - ti) * np.sqrt(c11)
+        ti = tn
+        if step <= eps1:
+            break
+    return ti
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, cmap, t0, t1, closed,
                         pts, t, eps1, max_iter):  # pragma: no cover - compiled
-    """The Newton iterations of `project_to_trims` on one NURBS trim curve, point by point
-    (same steps and stopping test as its vectorised loop): f(t) = (C - P).C', C = S(c(t)),
-    f' = C'.C' + (C - P).C'', t wrapped (closed curve) or clamped; updates t (N,) in place."""
+    """`_trim_newton_one` for every point pts (N, 3) on one trim curve; updates t (N,) in place."""
     scratch = _ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     cndu = np.empty((cdeg + 1, cdeg + 1))
@@ -207,40 +243,10 @@ def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, 
     cnd = np.empty((3, cdeg + 1))
     caw = np.empty((3, cpw.shape[1]))
     cd = np.empty((3, max(cpw.shape[1] - 1, 2)))
-    c1 = np.empty(3)
-    c2 = np.empty(3)
     for i in range(pts.shape[0]):
-        ti = t[i]
-        for _ in range(max_iter):
-            _tcurve_ders_one(cpw, cknots, cdeg, crat, cmap, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
-            uu = min(max(cd[0, 0], u0), u1)
-            vv = min(max(cd[0, 1], v0), v1)
-            _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
-            up, vp, upp, vpp = cd[1, 0], cd[1, 1], cd[2, 0], cd[2, 1]
-            f = 0.0
-            c11 = 0.0
-            rc2 = 0.0
-            for k in range(3):
-                c1[k] = der[1, 0, k] * up + der[0, 1, k] * vp
-                c2[k] = (der[2, 0, k] * (up * up) + 2.0 * der[1, 1, k] * (up * vp) + der[0, 2, k] * (vp * vp)
-                         + der[1, 0, k] * upp + der[0, 1, k] * vpp)
-                r = der[0, 0, k] - pts[i, k]
-                f += r * c1[k]
-                c11 += c1[k] * c1[k]
-                rc2 += r * c2[k]
-            fp = c11 + rc2
-            if not fp > 0:
-                fp = c11 + 1e-300
-            tn = ti - f / fp
-            if closed:
-                tn = t0 + (tn - t0) % (t1 - t0)
-            else:
-                tn = min(max(tn, t0), t1)
-            step = abs(tn - ti) * np.sqrt(c11)
-            ti = tn
-            if step <= eps1:
-                break
-        t[i] = ti
+        t[i] = _trim_newton_one(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, cmap, t0, t1,
+                                closed, pts[i, 0], pts[i, 1], pts[i, 2], t[i], eps1, max_iter, scratch, der, cndu, cl,
+                                cr, ca, cnd, caw, cd)
 
 
 def _curve_ders(c, t, order: int) -> np.ndarray:
@@ -1111,8 +1117,8 @@ def _trim_pairs_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cpw_off, 
                        ct0, ct1, cclosed, pc, pts, t, eps1, max_iter, out_u, out_v, out_foot, out_dist,
                        out_ok):  # pragma: no cover - compiled
     """`project_to_trims` on (point, curve) pairs: pair i is point pts[i] on curve pc[i] (curves
-    packed as for `_contains_kernel`, domains [ct0, ct1], cclosed), from t[i]. The Newton of
-    `_trim_newton_kernel` (same steps), then at the final t: (u, v) = c(t) clamped to the
+    packed as for `_contains_kernel`, domains [ct0, ct1], cclosed), from t[i]: Newton
+    (`_trim_newton_one`), then at the final t: (u, v) = c(t) clamped to the
     surface's domain, foot S(u, v), its distance, and ok: orthogonal within 1e3 x eps1
     (|(S - P).C'| / |C'|) or at a curve end. Writes t and out_*."""
     pmax = 0
@@ -1135,36 +1141,9 @@ def _trim_pairs_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cpw_off, 
         pw = cpw[cpw_off[c] : cpw_off[c + 1]].reshape((-1, cdim[c] + 1))
         kn = cknots[k_off[c] : k_off[c + 1]]
         t0, t1 = ct0[c], ct1[c]
-        ti = t[i]
-        for _ in range(max_iter):
-            _tcurve_ders_one(pw, kn, cdeg[c], crat[c], cmaps[c], ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
-            uu = min(max(cd[0, 0], u0), u1)
-            vv = min(max(cd[0, 1], v0), v1)
-            _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
-            up, vp, upp, vpp = cd[1, 0], cd[1, 1], cd[2, 0], cd[2, 1]
-            f = 0.0
-            c11 = 0.0
-            rc2 = 0.0
-            for k in range(3):
-                c1k = der[1, 0, k] * up + der[0, 1, k] * vp
-                c2k = (der[2, 0, k] * (up * up) + 2.0 * der[1, 1, k] * (up * vp) + der[0, 2, k] * (vp * vp)
-                       + der[1, 0, k] * upp + der[0, 1, k] * vpp)
-                r = der[0, 0, k] - pts[i, k]
-                f += r * c1k
-                c11 += c1k * c1k
-                rc2 += r * c2k
-            fp = c11 + rc2
-            if not fp > 0:
-                fp = c11 + 1e-300
-            tn = ti - f / fp
-            if cclosed[c]:
-                tn = t0 + (tn - t0) % (t1 - t0)
-            else:
-                tn = min(max(tn, t0), t1)
-            step = abs(tn - ti) * np.sqrt(c11)
-            ti = tn
-            if step <= eps1:
-                break
+        ti = _trim_newton_one(spw, sku, skv, p, q, srat, u0, u1, v0, v1, pw, kn, cdeg[c], crat[c], cmaps[c], t0, t1,
+                              cclosed[c], pts[i, 0], pts[i, 1], pts[i, 2], t[i], eps1, max_iter, scratch, der, cndu,
+                              cl, cr, ca, cnd, caw, cd)
         t[i] = ti
         _tcurve_ders_one(pw, kn, cdeg[c], crat[c], cmaps[c], ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
         uu = min(max(cd[0, 0], u0), u1)
