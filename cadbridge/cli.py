@@ -371,7 +371,8 @@ def _add_mesh_options(p: argparse.ArgumentParser) -> None:
                    help="size and refine the mesh until the Nagata surface (exact normals) is within T of the CAD "
                         "(model units; --size is then the largest element; docs/adaptive_meshing.md)")
     p.add_argument("--min-size", type=float, default=None,
-                   help="size floor of --shape-tolerance refinement (default model size / 1000)")
+                   help="size floor of --shape-tolerance refinement (default model size / 1000, or a quarter "
+                        "of the smallest size the error law asks on the CAD where that is less)")
 
 
 def _add_normal_options(p: argparse.ArgumentParser, default: str = "cad") -> None:
