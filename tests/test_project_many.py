@@ -100,3 +100,38 @@ def test_empty_and_mismatched_input():
         assert "2 surface ids for 3 points" in str(exc)
     else:  # pragma: no cover
         raise AssertionError("mismatched input accepted")
+
+
+def test_nearest_samples_of_all_surfaces_in_one_query():
+    """`SurfacePack.nearest_samples` (one KD-tree over all surfaces' samples, the surface id as
+    a 4th coordinate) against each surface's own sample tree queried alone. Reference: the
+    per-surface cKDTree's k distances, which the returned samples of the own surface must
+    have (the samples themselves differ at ties: the sphere's pole samples coincide), for points near the
+    surfaces, points far off them (beyond the 4D gap: the per-surface fallback) and a surface
+    with fewer samples than k (only its own first columns count)."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(8)
+    flat = NurbsSurface(1, 1, [0, 0, 1, 1], [0, 0, 1, 1],
+                        [[[5, 0, 0], [5, 1, 0]], [[6, 0, 0], [6, 1, 0]]])
+    surfs = [cylinder(2.0, -1.0, 3.0), sphere(1.5), v_shape(), flat]
+    pack = SurfacePack(surfs)
+    counts = np.diff(pack.s_off)
+    k = 32  # more than the bilinear surfaces' 25 samples
+    assert counts.min() < k < counts.max()
+    n = 2000
+    sid = rng.integers(0, len(pack.samples), n)
+    p = rng.uniform(-4, 7, (n, 3))
+    p[:20] *= 1e4  # far off every surface: these take the per-surface route
+    d, i = pack.nearest_samples(sid, p, k)
+    for s in range(len(pack.samples)):
+        rows = np.flatnonzero(sid == s)
+        ks = min(k, counts[s])
+        tree = cKDTree(pack.spts[pack.s_off[s]:pack.s_off[s + 1]])
+        d_ref, i_ref = tree.query(p[rows], k=ks)
+        d_ref = np.asarray(d_ref).reshape(len(rows), ks)
+        i_ref = np.asarray(i_ref).reshape(len(rows), ks) + pack.s_off[s]
+        np.testing.assert_allclose(d[rows, :ks], d_ref, rtol=1e-14, atol=1e-14)
+        assert np.all((i[rows, :ks] >= pack.s_off[s]) & (i[rows, :ks] < pack.s_off[s + 1]))  # own samples
+        np.testing.assert_allclose(np.linalg.norm(pack.spts[i[rows, :ks]] - p[rows, None], axis=2), d_ref,
+                                   rtol=1e-14, atol=1e-14)

@@ -459,6 +459,22 @@ def _global_check(
     res.iterations[rows] += extra.iterations[extra_idx]
 
 
+_EDGES = ((0, 0, 1), (0, -1, -2), (1, 0, 1), (1, -1, -2))  # (axis, edge row, next row): u0, u1, v0, v1
+
+
+def pole_edges(samples: SurfaceSamples) -> tuple[bool, bool, bool, bool]:
+    """Which domain edges u0, u1, v0, v1 are poles: all their samples within 1e-9 x size."""
+    g = samples.points.reshape(len(samples.us), len(samples.vs), 3)
+    out = []
+    for axis, e, _ in _EDGES:
+        if g.shape[axis] < 2 or g.shape[1 - axis] < 2:
+            out.append(False)
+            continue
+        edge = g[e] if axis == 0 else g[:, e]
+        out.append(float(np.ptp(edge, axis=0).max()) <= 1e-9 * samples.size)
+    return tuple(out)
+
+
 def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray, v: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Newton restarts for feet on a degenerate edge (a pole: the whole edge is one point,
@@ -476,11 +492,8 @@ def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray,
     guv = samples.uv.reshape(len(us), len(vs), 2)
     eps = 1e-12 * (u1 - u0), 1e-12 * (v1 - v0)
     out_u, out_v, out_i = [np.zeros(0)], [np.zeros(0)], [np.zeros(0, dtype=np.int64)]
-    for axis, e, r in ((0, 0, 1), (0, -1, -2), (1, 0, 1), (1, -1, -2)):
-        if g.shape[axis] < 2 or g.shape[1 - axis] < 2:
-            continue
-        edge = g[e] if axis == 0 else g[:, e]
-        if float(np.ptp(edge, axis=0).max()) > 1e-9 * samples.size:
+    for (axis, e, r), pole in zip(_EDGES, pole_edges(samples)):
+        if not pole:
             continue
         t_edge = (u0, u1)[e] if axis == 0 else (v0, v1)[e]
         on = np.flatnonzero(np.abs((u if axis == 0 else v) - t_edge) <= eps[axis])

@@ -6,13 +6,14 @@ nearest grid sample, projected Newton with the full Jacobian, Neto 2010 app. B e
 Piegl & Tiller §6.1; then its global check from other discrete local minima of the sampled
 distance and its edge check for feet clamped to a domain edge), but each stage runs for all
 pairs of all surfaces in one compiled call (`SurfacePack`: the surfaces' control nets, knots
-and sample grids packed into flat arrays), in parallel over blocks of pairs. Only the
-sample KD-tree queries stay per surface (one k-nearest query per surface serves all three
-stages). Surfaces with internal crease knot lines are projected onto each of their smooth
-pieces (`smooth_pieces`, packed too) and the nearest is kept as in `project_to_surface`.
+and sample grids packed into flat arrays), in parallel over blocks of pairs. The sample
+KD-tree queries of all pairs are one query of a tree over every surface's samples
+(`SurfacePack.nearest_samples`). Surfaces with internal crease knot lines are projected onto
+each of their smooth pieces (`smooth_pieces`, packed too) and the nearest is kept as in
+`project_to_surface`.
 
-Cost: one Python step per surface per call (a tree query), the rest compiled; for many
-surfaces with few points each this is several times faster than a loop over
+Cost: a few Python steps per surface per call (the global-check seeds), the rest compiled;
+for many surfaces with few points each this is several times faster than a loop over
 `project_to_surface` (whose per-call numpy overhead dominated there).
 """
 
@@ -36,6 +37,7 @@ from cadbridge.nurbs.project import (
     _wrap_clamp,
     _nearest_of_pieces,
     smooth_pieces,
+    pole_edges,
     pole_starts,
     surface_samples,
 )
@@ -81,6 +83,7 @@ class SurfacePack:
         self.domain = np.array([x.domain for x in self.surfaces], dtype=float).reshape(s, 4)
         self.closed = np.array([[m.closed_u, m.closed_v] for m in self.samples], dtype=np.bool_).reshape(s, 2)
         self.size = np.array([max(m.size, 1e-300) for m in self.samples], dtype=float)
+        self.has_pole = np.array([any(pole_edges(m)) for m in self.samples], dtype=bool)
 
         def flat(arrays):
             off = np.zeros(len(arrays) + 1, dtype=np.int64)
@@ -104,6 +107,42 @@ class SurfacePack:
                           for x, m in zip(self.surfaces, self.samples)], dtype=float).reshape(s, 2)
         self.reach = np.ascontiguousarray(_SAME_FOOT * cells)
         self.no_reach = np.full((s, 2), -1.0)
+
+    def nearest_samples(self, sid: np.ndarray, p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` nearest samples of surface ``sid[i]`` to ``p[i]`` ((n,) ids, (n, 3) points):
+        distances (n, k) and global sample indices (n, k), nearest first; beyond a surface's own
+        sample count the columns hold other surfaces' samples (callers keep the first
+        min(k, samples) columns).
+
+        One KD-tree over all samples, with the surface id times a gap ``big`` as a 4th
+        coordinate, answers all pairs in one query: another surface's sample is at least
+        ``big`` away in 4D, farther than any of the point's own surface's (exactly the same
+        distances: the 4th difference is 0.0). Points too far from the samples' box for that
+        (``gap + diameter >= big``) are asked of their surface's own tree."""
+        n = len(sid)
+        if n == 0:
+            return np.zeros((0, k)), np.zeros((0, k), dtype=np.int64)
+        if getattr(self, "_tree4", None) is None:
+            from scipy.spatial import cKDTree
+
+            lo, hi = self.spts.min(axis=0), self.spts.max(axis=0)
+            diam = float(np.linalg.norm(hi - lo))
+            big = 16.0 * diam + 1.0
+            owner = np.repeat(np.arange(len(self.samples)), np.diff(self.s_off))
+            self._tree4 = (cKDTree(np.column_stack([self.spts, owner * big])), big, lo, hi, diam)
+        tree, big, lo, hi, diam = self._tree4
+        gap = np.linalg.norm(np.maximum(np.maximum(lo - p, p - hi), 0.0), axis=1)
+        far = gap + diam >= 0.5 * big
+        q = np.column_stack([p, sid * big])
+        d, i = tree.query(q, k=k, workers=_workers(n))
+        d, i = np.asarray(d, dtype=float).reshape(n, k), np.asarray(i, dtype=np.int64).reshape(n, k)
+        for r in np.flatnonzero(far):  # rare: points far off the model
+            smp = self.samples[int(sid[r])]
+            ks = min(k, len(smp.uv))
+            d_, i_ = smp.tree.query(p[r], k=ks)
+            d[r, :ks] = np.ravel(d_)
+            i[r, :ks] = np.ravel(i_) + self.s_off[int(sid[r])]
+        return d, i
 
     def kernel_args(self) -> tuple:
         return (self.pw, self.pw_off, self.ku, self.ku_off, self.kv, self.kv_off, self.deg, self.shape,
@@ -426,10 +465,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     else:
         first = pack.s_off[sid].astype(np.int64)  # global sample index (pack.suv, pack.spts)
         if start is None:
-            for a, b in zip(starts, stops):
-                s = int(sid[a])
-                _, i_ = pack.samples[s].tree.query(p[a:b], workers=_workers(b - a))
-                first[a:b] = np.asarray(i_).reshape(b - a) + pack.s_off[s]
+            first = pack.nearest_samples(sid, p, 1)[1][:, 0]
             start = pack.suv[first]
         run = _Run(pack, sid, p, tol, max_iter)
         res, _ = run(start[:, 0], start[:, 1])
@@ -444,19 +480,13 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     need = ~np.isnan(d_seed) | (res.status == ON_BOUNDARY)
     dk = np.full((n, k), np.inf)
     ik = np.repeat(first[:, None], k, axis=1)
-    kk = np.ones(n, dtype=np.int64)  # k of the surface: min(_CHECK_K, samples)
-    for a, b in zip(starts, stops):
-        s = int(sid[a])
-        smp = pack.samples[s]
-        ks = min(k, len(smp.uv))
-        kk[a:b] = ks
-        rows = a + np.flatnonzero(need[a:b])
-        if not len(rows):
-            continue
-        d_, i_ = smp.tree.query(p[rows], k=ks, workers=_workers(len(rows)))
-        dk[rows, :ks] = np.asarray(d_).reshape(len(rows), ks)
-        ik[rows, :ks] = np.asarray(i_).reshape(len(rows), ks) + pack.s_off[s]
-        ik[rows, ks:] = ik[rows, :1]
+    kk = np.minimum(k, np.diff(pack.s_off)[sid])  # k of the surface: min(_CHECK_K, samples)
+    rows = np.flatnonzero(need)
+    if len(rows):
+        d_, i_ = pack.nearest_samples(sid[rows], p[rows], k)
+        own = np.arange(k)[None, :] < kk[rows][:, None]
+        dk[rows] = np.where(own, d_, np.inf)
+        ik[rows] = np.where(own, i_, i_[:, :1])
     rows_all, seeds_all = [], []
     for a, b in zip(starts, stops):
         s = int(sid[a])
@@ -502,7 +532,8 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
             starts_u.append(uv[:, 0])
             starts_v.append(uv[:, 1])
             owners.append(r[rr])
-        for s_ in np.unique(sid[prows]):  # feet on a pole: restarts carrying the point's azimuth
+        polar = np.unique(sid[prows])
+        for s_ in polar[pack.has_pole[polar]]:  # feet on a pole: restarts carrying the point's azimuth
             r = prows[sid[prows] == s_]
             pu, pv, pi = pole_starts(pack.samples[s_], pack.surfaces[s_].domain, p[r], res.u[r], res.v[r])
             if len(pi):
