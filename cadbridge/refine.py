@@ -674,7 +674,7 @@ def _in_grid_faces(t, elems: np.ndarray) -> np.ndarray:
     return out
 
 
-STRIP_ELEMENTS = 3.0
+STRIP_ELEMENTS = 2.5
 """An unmapped face narrower than this many of the sizes asked at its marked elements is
 refined as a whole, if it is also a long strip (`STRIP_ASPECT`)."""
 STRIP_ASPECT = 10.0
