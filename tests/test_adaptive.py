@@ -142,6 +142,19 @@ def occ_max_error(result, path: Path, grid: int) -> float:
     return worst
 
 
+def occ_max_error_at_worst(result, path: Path, per: dict, grid: int, n: int = 4) -> float:
+    """OCC's max distance at the patches of the ``n`` worst elements of each tool (``per``:
+    {tool name: error per element}, as `refine.shape_check` gives it), on ``grid`` divisions."""
+    occ = OccDistance(path)
+    worst = 0.0
+    for t in result.tools:
+        g = t.nagata.sample_grid(grid)
+        pts = g.points[np.isin(g.elem, np.argsort(-per[t.name])[:n])]
+        assert len(pts)
+        worst = max(worst, float(occ(pts).max()))
+    return worst
+
+
 def test_ushape_die_holds_tolerance_checked_by_occ():
     """t = 0.01 mm on the die: the loop says met, OCC on a 17-division grid (the loop used 6,
     its check 11) agrees within the tolerance; the radius gets the divisions of the law

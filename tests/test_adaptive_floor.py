@@ -15,7 +15,6 @@ the patches of the worst elements, on a grid denser than the loop's check.
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -39,7 +38,7 @@ def test_default_floor_lets_a_small_round_of_a_big_model_meet_the_tolerance(bar)
     from cadbridge.mesh.sizing import NAGATA_ERROR_CONSTANT as C
     from cadbridge.pipeline import CadProjector
     from cadbridge.refine import FLOOR_FRACTION, refine_mesh, shape_check
-    from test_adaptive import OccDistance
+    from test_adaptive import occ_max_error_at_worst
 
     model = read_iges(bar)
     size = model.size()
@@ -52,12 +51,7 @@ def test_default_floor_lets_a_small_round_of_a_big_model_meet_the_tolerance(bar)
     assert r.met, r.summary()
     c, per = shape_check(r.tools, model, projector, 16)
     assert c["max_error"] <= TOL
-    occ = OccDistance(bar)
-    for t in r.tools:
-        worst = np.argsort(-per[t.name])[:4]
-        g = t.nagata.sample_grid(16)
-        pts = g.points[np.isin(g.elem, worst)]
-        assert float(occ(pts).max()) <= TOL
+    assert occ_max_error_at_worst(r, bar, per, 16) <= TOL
 
 
 def test_the_old_floor_stops_there(bar):

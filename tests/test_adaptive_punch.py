@@ -62,7 +62,7 @@ def test_punch_at_0_01_is_not_over_refined(punch):
     from cadbridge.iges import read_iges
     from cadbridge.pipeline import CadProjector
     from cadbridge.refine import refine_mesh, shape_check
-    from test_adaptive import OccDistance
+    from test_adaptive import occ_max_error_at_worst
 
     model = read_iges(punch)
     projector = CadProjector(model)
@@ -79,10 +79,4 @@ def test_punch_at_0_01_is_not_over_refined(punch):
     # on 16 divisions, cadbridge's measure on 16 divisions everywhere
     c, per = shape_check(r.tools, model, projector, 16)
     assert c["max_error"] <= TOL
-    occ = OccDistance(punch)
-    for t in r.tools:
-        worst = np.argsort(-per[t.name])[:4]
-        g = t.nagata.sample_grid(16)
-        pts = g.points[np.isin(g.elem, worst)]
-        assert len(pts)
-        assert float(occ(pts).max()) <= TOL
+    assert occ_max_error_at_worst(r, punch, per, 16) <= TOL

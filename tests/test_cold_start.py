@@ -7,6 +7,7 @@ the kernels it saved and raises no compile event).
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import subprocess
@@ -24,6 +25,24 @@ def _inspect(cache: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
     return subprocess.run([sys.executable, "-m", "cadbridge.cli", "inspect", str(sample)], env=env,
                           capture_output=True, text=True, timeout=600)
+
+
+@contextlib.contextmanager
+def _unannounced():
+    """The process's compile listener (if any) as if it had said nothing yet, restored after:
+    said, with no stream and not quiet."""
+    from cadbridge import _jit
+
+    saved = _jit._listener
+    try:
+        if saved is not None:
+            saved.said = False
+        yield
+    finally:
+        if saved is not None:
+            saved.said = True
+            saved.stream = None
+            saved.quiet = False
 
 
 def test_cli_says_once_when_the_cache_is_cold_and_nothing_when_warm(tmp_path):
@@ -49,11 +68,8 @@ def test_notice_only_for_cadbridge_functions_and_only_once():
     numba = pytest.importorskip("numba")
     from cadbridge import _jit
 
-    saved = _jit._listener
     stream = io.StringIO()
-    try:
-        if saved is not None:
-            saved.said = False
+    with _unannounced():
         _jit.announce_compilation(stream, seconds=7)
 
         def make(module: str):
@@ -66,9 +82,6 @@ def test_notice_only_for_cadbridge_functions_and_only_once():
         make("cadbridge._probe")(1)
         make("cadbridge._probe2")(1.0)
         assert stream.getvalue() == "cadbridge: compiling numerical kernels (first run only, about 7 s)\n"
-    finally:
-        if saved is not None:
-            saved.said = True
 
 
 def test_notice_to_a_closed_stream_never_breaks_a_compile():
@@ -79,20 +92,13 @@ def test_notice_to_a_closed_stream_never_breaks_a_compile():
     numba = pytest.importorskip("numba")
     from cadbridge import _jit
 
-    saved = _jit._listener
     stream = io.StringIO()
     stream.close()
-    try:
-        if saved is not None:
-            saved.said = False
+    with _unannounced():
         _jit.announce_compilation(stream, seconds=7)
         ns = {"__name__": "cadbridge._probe_closed"}
         exec("def f(x):\n    return x * 3\n", ns)  # noqa: S102 - a fresh function in that module
         assert numba.njit(ns["f"])(2) == 6
-    finally:
-        if saved is not None:
-            saved.said = True
-            saved.stream = None
 
 
 def test_quiet_notice_says_nothing():
@@ -101,11 +107,8 @@ def test_quiet_notice_says_nothing():
     numba = pytest.importorskip("numba")
     from cadbridge import _jit
 
-    saved = _jit._listener
     stream = io.StringIO()
-    try:
-        if saved is not None:
-            saved.said = False
+    with _unannounced():
         _jit.announce_compilation(stream, seconds=7, quiet=True)
         ns = {"__name__": "cadbridge._probe_quiet"}
         exec("def f(x):\n    return x - 1\n", ns)  # noqa: S102 - a fresh function in that module
@@ -115,8 +118,3 @@ def test_quiet_notice_says_nothing():
         exec("def f(x):\n    return x - 2\n", ns)  # noqa: S102 - a fresh function in that module
         assert numba.njit(ns["f"])(2) == 0
         assert stream.getvalue() == "cadbridge: compiling numerical kernels (first run only, about 7 s)\n"
-    finally:
-        if saved is not None:
-            saved.said = True
-            saved.stream = None
-            saved.quiet = False
