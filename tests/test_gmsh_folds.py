@@ -1,15 +1,18 @@
-"""A surface whose gmsh mesh folds over itself is meshed again with another gmsh algorithm.
+"""A surface whose gmsh mesh folds over itself is meshed again, alone, with another gmsh algorithm.
 
 The production die in quad (docs/production_die.md, "NURBS quad"): gmsh's all-quad
-subdivision pass laid a coarse triangle over its neighbours on the boss wall BOS00373 at
-(-31.1, -95.2, -85.1) (its sub-quads' normals pointing into the boss, radial -1 among +1),
-and one on the binder BND00963; the convert guard then found CAD normals reversing inside
-those elements and neighbours straddling. `mesh_cad` finds such pairs (two elements of one
-surface sharing an edge, normals more than `FOLD_DEG` apart: `_folded_surfaces`) and meshes
-again with Frontal-Delaunay for quads on those surfaces. The reproduction: the three faces
-of the die within 2.5 mm of that point, at the die's size (72.46 mm) and curvature sizing.
-Reference: OCC's normal of each element's face at the element's centroid (GeomAPI
-projection on the face's surface): every element of a face is wound the same way.
+subdivision pass, when it still meshed at 12 elements per turn on twice the size, laid a
+coarse triangle over its neighbours on the boss wall BOS00373 at (-31.1, -95.2, -85.1) (its
+sub-quads' normals pointing into the boss, radial -1 among +1), and one on the binder
+BND00963; the convert guard then found CAD normals reversing inside those elements and
+neighbours straddling. That pass now sizes by curvature at twice the size too (6 per turn,
+12 after the subdivision) and gmsh no longer folds there; the three faces of the die within
+2.5 mm of that point, at the die's size (72.46 mm) and curvature sizing, stay the check.
+`mesh_cad` finds folded pairs (two elements of one surface sharing an edge, normals more than
+`FOLD_DEG` apart: `_folded_surfaces`) and meshes those surfaces alone again with
+Frontal-Delaunay for quads. Reference: OCC's normal of each element's face at the element's
+centroid (GeomAPI projection on the face's surface): every element of a face is wound the
+same way.
 """
 
 from __future__ import annotations
@@ -89,18 +92,65 @@ def test_the_boss_wall_is_meshed_without_a_fold(boss_cutout):
 
     path, faces = boss_cutout
     mesh = mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
-    assert any("folded over itself" in n for n in mesh.notes), mesh.notes  # gmsh's default folds there
     assert _folded_surfaces(mesh) == {}
     assert _winding_against_occ(mesh, faces) == [0, 0, 0]
 
 
-def test_without_the_remesh_the_occ_check_sees_the_fold(boss_cutout, monkeypatch):
-    # the reference check itself: with the fold test switched off, gmsh's mesh of the boss
-    # wall has elements wound against the rest of their face
+def test_a_reversed_element_is_seen_by_both_checks(boss_cutout):
+    # the reference check and the fold test themselves: one element laid the other way (its
+    # corners reversed) is wound against OCC's normal and makes folded pairs on its surface
+    from cadbridge.mesh.generate import _folded_surfaces, mesh_cad
+
+    path, faces = boss_cutout
+    mesh = mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
+    quads = mesh.cells[-1].data
+    ent = np.asarray(mesh.cell_data["element_entity"])[-len(quads):]
+    k = len(quads) // 2
+    quads[k] = quads[k][::-1]
+    assert set(_folded_surfaces(mesh)) == {int(ent[k])}
+    assert sum(_winding_against_occ(mesh, faces)) == 1
+
+
+def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch):
+    # reference: the same call without the fold. A surface reported folded once (the test
+    # reports the largest as folded, with an element wound against it) is cleared and meshed
+    # again with algorithm 8; the elements of every other surface are the ones of the plain
+    # mesh, node for node. On this cut-out algorithm 8 leaves triangles there and cadbridge's
+    # (u, v) fill cannot close the face's loops, so the whole model is meshed again in the
+    # subdivision pass (`_regenerate_all`): the fallback is exercised too
     from cadbridge.mesh import generate as G
 
     path, faces = boss_cutout
-    monkeypatch.setattr(G, "FOLD_DEG", 180.0)
-    mesh = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
-    assert not any("folded over itself" in n for n in mesh.notes)
-    assert sum(_winding_against_occ(mesh, faces)) > 0
+    plain = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
+    ent = np.asarray(plain.cell_data["element_entity"])
+    big = int(np.bincount(ent).argmax())
+    real, real_wound = G._folded_surfaces, G._wound_against_surface
+    calls = []
+
+    def once(mesh):
+        calls.append(1)
+        return {big: 1} if len(calls) == 1 else real(mesh)
+
+    monkeypatch.setattr(G, "_folded_surfaces", once)
+    monkeypatch.setattr(G, "_wound_against_surface", lambda g, mesh, s: len(calls) == 1 or real_wound(g, mesh, s))
+    regenerated = []
+    real_all = G._regenerate_all
+    monkeypatch.setattr(G, "_regenerate_all", lambda *a: regenerated.append(1) or real_all(*a))
+    again = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
+    assert any(f"surface(s) {big} (1 element pairs)" in n and "algorithm 8" in n for n in again.notes), again.notes
+
+    def elements(mesh, keep):
+        e = np.asarray(mesh.cell_data["element_entity"])
+        out = []
+        for b in mesh.cells:
+            c = np.asarray(b.data)
+            sel = np.isin(e[:len(c)], keep)
+            e = e[len(c):]
+            out += [tuple(sorted(map(tuple, np.round(mesh.nodes[q], 9).tolist()))) for q in c[sel]]
+        return sorted(out)
+
+    others = [int(t) for t in np.unique(ent) if t != big]
+    assert others and elements(again, others) == elements(plain, others)
+    assert regenerated == [1]
+    assert not len(again.triangles)
+    assert _winding_against_occ(again, faces) == [0, 0, 0]

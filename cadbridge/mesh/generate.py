@@ -518,12 +518,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     if not size > 0:
         raise MeshError(f"{path}: degenerate bounding box {bb.tolist()}")
     mopts: dict[str, float | str] = {
-        "Mesh.MeshSizeMax": size,
-        # curvature sizing refines at most 20 x below the size (a pole or a sliver face
-        # of tiny radius would otherwise ask for elements without end)
-        "Mesh.MeshSizeMin": size / 20.0 if kw["curvature_elements"] else 0.0,
         "Mesh.MeshSizeFromPoints": 0,
-        "Mesh.MeshSizeFromCurvature": kw["curvature_elements"],
         "Mesh.ElementOrder": 1,
         # triangles: Frontal-Delaunay (6). Quads: Delaunay (5) then Blossom recombination
         # with extra smoothing: on the samples this keeps quad corner angles below ~150
@@ -548,14 +543,11 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         "Mesh.LcIntegrationPrecision": 1e-9 if kw["structured"] else 1e-5,
     }
     _apply(sess, mopts)
-    if kw["size_callback"] is not None:
-        # the callback alone sets the sizes inside faces (else gmsh interpolates the boundary
-        # sizes across them, filling a plane next to a small round with small elements)
+    if kw["size_callback"] is not None or kw["background_sizes"] is not None:
+        # the callback or field alone sets the sizes inside faces (else gmsh interpolates the
+        # boundary sizes across them, filling a plane next to a small round with small elements)
         sess.set("Mesh.MeshSizeExtendFromBoundary", 0)
-        g.model.mesh.setSizeCallback(kw["size_callback"])
-    if kw["background_sizes"] is not None:
-        sess.set("Mesh.MeshSizeExtendFromBoundary", 0)
-        _background_field(g, sess, kw["background_sizes"])
+    _set_sizes(g, sess, kw, size, 1.0)
     if kw["structured"]:
         faces, shapes = _classify(g, kw["fillet_max_radius"])
         counts = _structured_counts(
@@ -571,25 +563,30 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
                 if kw["element"] == "quad":
                     g.model.mesh.setRecombine(2, f.tag)
     redone: dict[int, int] = {}
-    mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, False, redone)
+    # every generate() meshes only what has no mesh yet: the faces meshed before it, and the
+    # rest of a model after `g.model.mesh.clear()`
+    sess.set("Mesh.MeshOnlyEmpty", 1)
+    hopeless = kw["element"] == "quad" and not _all_quads_possible(g, sess, surfaces)
+    if not hopeless:
+        mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, False, redone, sess)
     subdivided = False
-    if kw["element"] == "quad" and len(mesh.triangles):
+    if kw["element"] == "quad" and (hopeless or len(mesh.triangles)):
         subdivided = True
-        # recombination left triangles: gmsh's all-quad subdivision (splits every element
-        # into quads, halving the size) on a mesh made at twice the target size.
+        # recombination left triangles: gmsh's all-quad subdivision (splits every element into
+        # quads, halving the size) on a mesh made at twice the target size
         g.model.mesh.clear()
-        _apply(sess, {"Mesh.MeshSizeMax": 2 * size, "Mesh.SubdivisionAlgorithm": 1})
-        # the size field at twice its sizes too (else the subdivision halves them: 4x the elements)
-        if kw["size_callback"] is not None:
-            cb = kw["size_callback"]
-            g.model.mesh.setSizeCallback(lambda dim, tag, x, y, z, lc: 2.0 * cb(dim, tag, x, y, z, lc / 2.0))
-        if kw["background_sizes"] is not None:
-            _background_field(g, sess, kw["background_sizes"], 2.0)
+        sess.set("Mesh.SubdivisionAlgorithm", 1)
+        # one smoothing pass, not 10: the subdivision sets the quads' shape. On the production
+        # die (this pass alone) gmsh's 2D time 21.1 -> 8.9 s,
+        # quads' largest corner angle p99 158.1 -> 157.5 degrees, quads above 150: 4070 -> 4043
+        sess.set("Mesh.Smoothing", SUBDIVISION_SMOOTHING)
+        # every size at twice its value (else the subdivision halves them: 4x the elements)
+        _set_sizes(g, sess, kw, size, 2.0)
         if kw["structured"]:
             for c, n in counts.items():
                 g.model.mesh.setTransfiniteCurve(c, max(1, math.ceil(n / 2)) + 1)
         _one_segment_short_curves(g, 4.0 * MERGE_TOLERANCE * size, set(counts) if kw["structured"] else set())
-        mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, True, redone)
+        mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, True, redone, sess)
         if len(mesh.triangles):
             raise MeshError(f"{path}: gmsh left {len(mesh.triangles)} triangles in quad mode")
     # faces that pinch to a point (two boundary curves touching) and edges far below the
@@ -598,6 +595,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     # farther apart stay apart (a chain of short CAD edges, each step below the tolerance)
     from cadbridge.mesh.cleanup import merge_close_nodes
 
+    if kw["parametric"]:
+        mesh = _collect(g, surfaces, True, path)
     tol = _merge_tolerance(size, subdivided)
     mesh, merged = merge_close_nodes(mesh, tol, anchors=_vertex_nodes(g, mesh))
     mesh.notes += filled
@@ -610,6 +609,9 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         mesh.notes.append(f"mesh: {merged.summary()}")
     return mesh
 
+
+SUBDIVISION_SMOOTHING = 1
+"""gmsh's ``Mesh.Smoothing`` steps in the all-quad subdivision pass (10 before it)."""
 
 FOLD_DEG = 150.0
 """Two elements of one gmsh surface sharing an edge whose normals differ by more than this
@@ -655,46 +657,190 @@ def _folded_surfaces(mesh: Mesh) -> dict[int, int]:
 
 
 def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path, subdivided: bool,
-                       redone: dict[int, int]) -> tuple[Mesh, list[str]]:
-    """gmsh's 2D mesh (`_generate`, `_fill_empty`) collected; where it folds
-    (`_folded_surfaces`) on a surface not yet in ``redone``, the whole mesh is cleared and
-    generated once more with `_REFOLD_ALGORITHM` on those surfaces (``redone`` gets them:
-    {surface: folded pairs}). A surface that still folds after that (the production die's
-    binder BND00963 in the quad subdivision pass: every gmsh algorithm gives the same fold) is
-    cleared and meshed by cadbridge in its (u, v) on gmsh's boundary nodes
-    (`cadbridge.mesh.empty_faces`), as a surface gmsh failed on. Returns (mesh, notes of the
-    filled faces). A quad mesh that leaves triangles goes to the subdivision pass anyway: it is
-    checked there."""
+                       redone: dict[int, int], sess: GmshSession) -> tuple[Mesh, list[str]]:
+    """gmsh's 2D mesh (`_generate`, `_fill_empty`) collected, with its folds repaired.
+
+    A fold is an element gmsh laid over its neighbours: a pair more than `FOLD_DEG` apart
+    (`_folded_surfaces`) on a surface where an element is wound against the surface
+    (`_wound_against_surface`; a pair without one is the CAD's own turn, which no mesh of the
+    face changes). A surface that folds, not yet in ``redone``, is cleared and meshed once more
+    alone with `_REFOLD_ALGORITHM` (``Mesh.MeshOnlyEmpty``, set by the caller: the rest of the
+    mesh stays; ``redone`` gets it: {surface: folded pairs}). After the all-quad subdivision
+    (``subdivided``) it is meshed at the target size without it (its boundary nodes are already
+    subdivided, so their count is even and recombination may close them). A surface that still
+    folds (the production die's binder BND00963 in the quad subdivision pass: every gmsh
+    algorithm gave the same fold) or keeps triangles is cleared and meshed by cadbridge in its
+    (u, v) on gmsh's boundary nodes (`cadbridge.mesh.empty_faces`), as a surface gmsh failed
+    on; where that cannot mesh a face that only kept triangles, the whole model is meshed again
+    with the subdivision, `_REFOLD_ALGORITHM` on the redone surfaces (`_regenerate_all`).
+    Returns (mesh without the nodes' (u, v), which the caller collects once at the end; notes
+    of the filled faces). A quad mesh that leaves triangles before the subdivision is returned
+    as it is: the subdivision pass follows."""
+    failed = _generate(g, surfaces)
+    filled = _fill_empty(g, surfaces, size, kw, path, subdivided=subdivided, failed=failed)
+    _check_all_meshed(g, surfaces, path)
+    mesh = _collect(g, surfaces, False, path)
+    if kw["element"] == "quad" and not subdivided and len(mesh.triangles):
+        return mesh, filled
+    left_triangles: set[int] = set()
     while True:
-        failed = _generate(g, surfaces)
-        filled = _fill_empty(g, surfaces, size, kw, path, subdivided=subdivided, failed=failed)
-        _check_all_meshed(g, surfaces, path)
-        mesh = _collect(g, surfaces, kw["parametric"], path)
-        if kw["element"] == "quad" and not subdivided and len(mesh.triangles):
-            return mesh, filled
-        folds = _folded_surfaces(mesh)
+        folds = _folds(g, mesh)
         new = {s: k for s, k in folds.items() if s not in redone}
         if not new:
             break
         redone.update(new)
-        g.model.mesh.clear()
         for s in new:
+            g.model.mesh.clear([(2, s)])  # its curves' nodes stay
             g.model.mesh.setAlgorithm(2, s, _REFOLD_ALGORITHM[kw["element"]])
-    folds = {s: k for s, k in folds.items() if _wound_against_surface(g, mesh, s)}
+        if subdivided:
+            sess.set("Mesh.SubdivisionAlgorithm", 0)
+            _set_sizes(g, sess, kw, size, 1.0)
+        try:
+            failed = _generate(g, sorted(new))  # those alone: Mesh.MeshOnlyEmpty
+        finally:
+            if subdivided:
+                sess.set("Mesh.SubdivisionAlgorithm", 1)
+                _set_sizes(g, sess, kw, size, 2.0)
+        filled += _fill_empty(g, sorted(new), size, kw, path, subdivided=subdivided, failed=failed)
+        _check_all_meshed(g, surfaces, path)
+        mesh = _collect(g, surfaces, False, path)
+        if subdivided:
+            left_triangles |= _surfaces_with_triangles(mesh, new)
+    for s in left_triangles - set(folds):
+        folds[s] = redone[s]
     if not folds:
         return mesh, filled
+    try:
+        mesh, more = _fill_folds(g, surfaces, folds, left_triangles, size, kw, path, subdivided)
+        return mesh, filled + more
+    except MeshError:
+        if not subdivided or not left_triangles:
+            raise
+    mesh, more = _regenerate_all(g, surfaces, size, kw, path)
+    filled += more
+    folds = _folds(g, mesh)
+    if folds:
+        mesh, more = _fill_folds(g, surfaces, folds, set(), size, kw, path, True)
+        filled += more
+    return mesh, filled
+
+
+def _folds(g, mesh: Mesh) -> dict[int, int]:
+    """{surface: pairs} of `_folded_surfaces` where an element is wound against the surface."""
+    return {s: k for s, k in _folded_surfaces(mesh).items() if _wound_against_surface(g, mesh, s)}
+
+
+def _fill_folds(g, surfaces: list[int], folds: dict[int, int], left_triangles: set[int], size: float, kw: dict,
+                path: Path, subdivided: bool) -> tuple[Mesh, list[str]]:
+    """Clear the surfaces ``folds`` {surface: pairs} and mesh them in their (u, v)
+    (`cadbridge.mesh.empty_faces`): (mesh, one note per face)."""
     from cadbridge.mesh.empty_faces import fill_empty_faces
 
     for s in folds:
         g.model.mesh.clear([(2, s)])  # the surface's own nodes and elements; its curves' nodes stay
     why = {s: f"its mesh folded over itself ({k} element pairs more than {FOLD_DEG:g} degrees apart) with gmsh "
-              f"algorithms {_algorithm(kw)} and {_REFOLD_ALGORITHM[kw['element']]}" for s, k in folds.items()}
+              f"algorithm {_algorithm(kw)}" + (
+                  f", and algorithm {_REFOLD_ALGORITHM[kw['element']]} left triangles" if s in left_triangles else
+                  f" and {_REFOLD_ALGORITHM[kw['element']]}") for s, k in folds.items()}
     notes = fill_empty_faces(g, sorted(folds), size=size, curvature_elements=kw["curvature_elements"],
                              element=kw["element"], subdivided=subdivided, label=str(path), failed=why,
                              merge_tolerance=_merge_tolerance(size, subdivided))
-    filled += [n.replace(") and left ", ") on ", 1).replace(" without elements;", ";", 1) for n in notes]
-    mesh = _collect(g, surfaces, kw["parametric"], path)
-    return mesh, filled
+    return _collect(g, surfaces, False, path), [
+        n.replace(") and left ", ") on ", 1).replace(" without elements;", ";", 1) for n in notes]
+
+
+def _regenerate_all(g, surfaces: list[int], size: float, kw: dict, path: Path) -> tuple[Mesh, list[str]]:
+    """The whole model meshed again in the subdivision pass (its options set), each surface
+    with the algorithm it has now: (mesh, notes of the faces `_fill_empty` meshed)."""
+    g.model.mesh.clear()
+    failed = _generate(g, surfaces)
+    filled = _fill_empty(g, surfaces, size, kw, path, subdivided=True, failed=failed)
+    _check_all_meshed(g, surfaces, path)
+    return _collect(g, surfaces, False, path), filled
+
+
+def _surfaces_with_triangles(mesh: Mesh, surfaces) -> set[int]:
+    """The surfaces of ``surfaces`` holding a triangle of ``mesh``."""
+    tri = [b for b in mesh.cells if b.type == "triangle"]
+    if not tri:
+        return set()
+    ent = np.asarray(mesh.cell_data["element_entity"])[:len(tri[0].data)]  # triangles come first
+    return set(np.unique(ent).tolist()) & set(surfaces)
+
+
+ALL_QUAD_PROBES = (0.02, 0.1)
+"""`_all_quads_possible` meshes these growing shares of the faces, fewest boundary nodes first."""
+
+
+def _all_quads_possible(g, sess: GmshSession, surfaces: list[int]) -> bool:
+    """Whether gmsh's quad mesh at the target size (recombined triangles) may close without
+    triangles on every face, tried cheaply before the whole model is meshed. Blossom cannot pair
+    the triangles of a face with an odd number of boundary nodes, and on real CAD it leaves a
+    few on other faces too (5 of the 7 corpus files and the production die, where 105 of its
+    892 smallest faces kept some: each then needs the all-quad subdivision, so that first mesh
+    was wasted, 43 s of the die's quad ``convert``). The 1D mesh is made and checked for odd
+    faces; then the faces are meshed in the shares `ALL_QUAD_PROBES` of their number, those
+    with the fewest boundary nodes first (gmsh's time per face is mostly a fixed cost, ~6 ms),
+    the others hidden (``Mesh.MeshOnlyVisible``), stopping at the first share that keeps a
+    triangle. False then or if a face is odd; the probed faces' elements stay (with
+    ``Mesh.MeshOnlyEmpty`` the next generate meshes the rest)."""
+    g.model.mesh.generate(1)
+    b = _boundary_nodes(g, surfaces)
+    if np.any(b % 2):
+        return False
+    order = np.argsort(b, kind="stable")
+    done = 0
+    for share in ALL_QUAD_PROBES:
+        k = max(1, math.ceil(share * len(surfaces)))
+        if k <= done:
+            continue
+        probe = [surfaces[i] for i in order[done:k]]
+        hidden = [(2, surfaces[i]) for i in np.concatenate([order[:done], order[k:]])]
+        g.model.setVisibility(hidden, 0)
+        sess.set("Mesh.MeshOnlyVisible", 1)
+        try:
+            _generate(g, probe)
+        finally:
+            sess.set("Mesh.MeshOnlyVisible", 0)
+            g.model.setVisibility(hidden, 1)
+        if any(2 in g.model.mesh.getElements(2, s)[0] for s in probe):
+            return False
+        done = k
+    return True
+
+
+def _boundary_nodes(g, surfaces: list[int]) -> np.ndarray:
+    """Number of 1D mesh nodes on each surface's boundary (S,) (gmsh's 1D mesh made). A
+    triangulation of a face has as many triangles, mod 2, as boundary nodes (Euler:
+    T = 2 V - B - 2 + 2 holes), so Blossom cannot pair all of them into quads where it is odd.
+    A seam curve counts twice: gmsh lists it twice among the face's boundary curves."""
+    out = np.zeros(len(surfaces), dtype=np.int64)
+    for i, s in enumerate(surfaces):
+        for _, c in g.model.getBoundary([(2, s)], combined=False, oriented=False):
+            _, tags, _ = g.model.mesh.getElements(1, abs(c))
+            out[i] += sum(len(t) for t in tags)
+    return out
+
+
+def _set_sizes(g, sess: GmshSession, kw: dict, size: float, scale: float) -> None:
+    """gmsh's sizes for ``mesh_cad``: the largest element ``size``, the curvature rule, the
+    size callback and the background field, every size times ``scale`` (2 before the all-quad
+    subdivision, which halves them)."""
+    n = kw["curvature_elements"]
+    _apply(sess, {
+        "Mesh.MeshSizeMax": scale * size,
+        # curvature sizing refines at most 20 x below the size (a pole or a sliver face
+        # of tiny radius would otherwise ask for elements without end)
+        "Mesh.MeshSizeMin": scale * size / 20.0 if n else 0.0,
+        # elements per 2 pi of the normal's turn: size 2 pi R / n
+        "Mesh.MeshSizeFromCurvature": math.ceil(n / scale) if n else 0,
+    })
+    if kw["size_callback"] is not None:
+        cb = kw["size_callback"]
+        g.model.mesh.setSizeCallback(cb if scale == 1.0 else
+                                     (lambda dim, tag, x, y, z, lc: scale * cb(dim, tag, x, y, z, lc / scale)))
+    if kw["background_sizes"] is not None:
+        _background_field(g, sess, kw["background_sizes"], scale)
 
 
 def _wound_against_surface(g, mesh: Mesh, s: int) -> bool:
