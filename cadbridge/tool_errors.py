@@ -172,8 +172,10 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
         rep, inv = _unique_points(points[batch], quantum, key=face[batch])
         feet = _expand(project_to_surfaces(index_for(model).surface_pack(model), face[batch][rep],
                                            points[batch][rep]), inv)
-    for f in np.unique(face[face >= 0]):  # loop over faces, vectorised over points
-        sel = np.flatnonzero(face == f)
+    on = np.flatnonzero(face >= 0)
+    order = on[np.argsort(face[on], kind="stable")]  # points grouped by face, each group ascending
+    faces, first = np.unique(face[order], return_index=True)
+    for f, sel in zip(faces.tolist(), np.split(order, first[1:])):  # loop over faces, vectorised over points
         s = model.faces[f].surface
         if f in folded:
             # on a folded face the sheets lie close: Newton from the nearest grid sample alone
@@ -315,8 +317,10 @@ def own_face_nearest(model: Model, pts: np.ndarray, face: np.ndarray, uv: np.nda
         return ok[inv], dist[inv]
     ok = (face >= 0) & np.all(np.isfinite(uv), axis=1)
     dist = np.full(len(pts), np.nan)
-    for f in np.unique(face[ok]):  # loop over faces, vectorised over points
-        sel = np.flatnonzero(ok & (face == f))
+    on = np.flatnonzero(ok)
+    order = on[np.argsort(face[on], kind="stable")]  # points grouped by face, each group ascending
+    faces, first = np.unique(face[order], return_index=True)
+    for f, sel in zip(faces.tolist(), np.split(order, first[1:])):  # loop over faces, vectorised over points
         fc = model.faces[int(f)]
         if len(_crease_pieces(fc.surface)) > 1:
             ok[sel] = False

@@ -37,10 +37,9 @@ from cadbridge.nagata.edge import (
 from cadbridge.nagata.patch import (
     QUAD_EDGES,
     TRI_EDGES,
+    eval_rows,
     quad_coefficients,
-    quad_eval,
     tri_coefficients,
-    tri_eval,
     unit,
 )
 
@@ -415,12 +414,10 @@ class NagataMesh:
         out = tuple(np.empty((elem.size, 3)) for _ in range(nout))
         kind = self.element_kind[elem]
         loc = self.element_local[elem]
-        for k, cf, fn in ((3, self.tri_coefficients, tri_eval), (4, self.quad_coefficients, quad_eval)):
+        for k, cf in ((3, self.tri_coefficients), (4, self.quad_coefficients)):
             m = np.flatnonzero(kind == k)
             if m.size:
-                res = fn(cf[loc[m]], eta[m], zeta[m], order)
-                for o, r in zip(out, res):
-                    o[m] = r
+                eval_rows(cf, loc, eta, zeta, m, out)
         return out
 
     def evaluate(self, elem: ArrayLike, eta: ArrayLike, zeta: ArrayLike) -> tuple[NDArray, NDArray]:
