@@ -533,7 +533,13 @@ def _flip_needed(g, s: int, tri_t: np.ndarray, quad_t: np.ndarray, uv: np.ndarra
 
     ours = directed([tri_t, quad_t])
     mx = int(max(ours.max(), 1)) + 1
-    key = ours[:, 0] * mx + ours[:, 1]
+    key = np.sort(ours[:, 0] * mx + ours[:, 1])
+
+    def count_in_key(k: np.ndarray) -> int:
+        if not len(key) or not len(k):
+            return 0
+        at = np.minimum(np.searchsorted(key, k), len(key) - 1)
+        return int(np.sum(key[at] == k))
     # only the face's boundary nodes can be shared, and only with the surfaces on its curves
     # (not every node against every surface: the die's binder, 10^5 elements, took minutes)
     curves = {abs(t) for d, t in g.model.getBoundary([(2, s)], combined=False, oriented=False) if d == 1}
@@ -545,11 +551,15 @@ def _flip_needed(g, s: int, tri_t: np.ndarray, quad_t: np.ndarray, uv: np.ndarra
         et, _, en = g.model.mesh.getElements(2, t)
         conns = [np.asarray(n, dtype=np.int64).reshape(-1, 3 if typ == 2 else 4) for typ, n in zip(et, en)
                  if typ in (2, 3)]
-        conns = [c[np.isin(c, bnd).sum(axis=1) >= 2] for c in conns]
+        if not conns or not len(bnd):
+            continue
+        on_bnd = np.zeros(max(int(bnd.max()), max(int(c.max(initial=0)) for c in conns)) + 1, dtype=bool)
+        on_bnd[bnd] = True  # a lookup by node tag: the neighbours can hold 10^5 elements
+        conns = [c[on_bnd[c].sum(axis=1) >= 2] for c in conns]
         e = directed(conns)
         e = e[(e < mx).all(axis=1)]
-        same += int(np.isin(e[:, 0] * mx + e[:, 1], key).sum())
-        opposite += int(np.isin(e[:, 1] * mx + e[:, 0], key).sum())
+        same += count_in_key(e[:, 0] * mx + e[:, 1])
+        opposite += count_in_key(e[:, 1] * mx + e[:, 0])
     if same or opposite:
         return same > opposite
     # no meshed neighbour: compare with gmsh's normal of the face at the element centroids
