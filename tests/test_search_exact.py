@@ -43,8 +43,25 @@ import pytest
 
 REAL = Path(__file__).parents[1].parent / "shared" / "iges_real"
 FILES = sorted(REAL.glob("*.ig*")) if REAL.is_dir() else []
+# the production dies (git-ignored, `iges_samples/make_samples.py --production`; slow: ~45 s
+# each). Both fail today (issue 8, exactness), strict xfails so that a fix shows:
+DIE_FAILURES = {
+    # 1 of 200 points: a foot on a knot line of FTR00037 where the v speed jumps from 1.0656 to
+    # 1.0000; Newton (tol 1e-12) halts 2.9e-5 mm short of OCC's foot (1.0e-10 mm farther), so
+    # the normal is 1.0e-5 rad off; tol 1e-14 converges to OCC's foot
+    "production_die_nurbs.igs": "a foot on a knot line with a jump in parametric speed stops short (normal 1e-5 rad off)",
+    # 66 of 200 points: 220 faces over surfaces of revolution (PKT, EMB, PWL) are read on the
+    # wrong angular range ([SA, TA] fixed, the trim loops a non-whole turn away): feet up to
+    # 1.6 mm off OCC's shape (docs/projection.md, last section)
+    "production_die_analytic.igs": "faces over 120 surfaces of revolution read on the wrong angular range",
+}
+DIES = [p for p in sorted((Path(__file__).parents[1] / "iges_samples").glob("production_die_*.igs"))]
+CASES = [pytest.param(p, id=p.name) for p in FILES] + [
+    pytest.param(p, id=p.name, marks=[pytest.mark.slow] + (
+        [pytest.mark.xfail(strict=True, reason=DIE_FAILURES[p.name])] if p.name in DIE_FAILURES else []))
+    for p in DIES]
 
-pytestmark = pytest.mark.skipif(not FILES, reason=f"{REAL} not present")
+pytestmark = pytest.mark.skipif(not CASES, reason=f"{REAL} not present and no production die generated")
 
 N_POINTS = 200  # per file (half pushed off interior nodes, half off boundary nodes)
 REL = 1e-9  # distance tolerance away from trim edges, x model size
@@ -169,7 +186,7 @@ def _dss(a, b):
     return d
 
 
-@pytest.mark.parametrize("path", FILES, ids=[p.name for p in FILES])
+@pytest.mark.parametrize("path", CASES)
 def test_project_points_exact_vs_occ(path: Path):
     pytest.importorskip("OCP")
     from OCP.BRep import BRep_Tool
@@ -261,6 +278,7 @@ def test_project_points_exact_vs_occ(path: Path):
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(not FILES, reason=f"{REAL} not present")
 def test_bearing_100k_points_never_fail_and_never_farther_than_occ():
     """100 000 points within 0.5 % of the model size of the bearing's trimmed faces (the
     benchmark's set, benchmarks/bench_projection.py): none FAILED (two did, a Newton step cut
