@@ -50,10 +50,10 @@ DIE_FAILURES = {
     # 1.0000; Newton (tol 1e-12) halts 2.9e-5 mm short of OCC's foot (1.0e-10 mm farther), so
     # the normal is 1.0e-5 rad off; tol 1e-14 converges to OCC's foot
     "production_die_nurbs.igs": "a foot on a knot line with a jump in parametric speed stops short (normal 1e-5 rad off)",
-    # 66 of 200 points: 220 faces over surfaces of revolution (PKT, EMB, PWL) are read on the
-    # wrong angular range ([SA, TA] fixed, the trim loops a non-whole turn away): feet up to
-    # 1.6 mm off OCC's shape (docs/projection.md, last section)
-    "production_die_analytic.igs": "faces over 120 surfaces of revolution read on the wrong angular range",
+    # 66 of 200 points: 220 faces over surfaces of revolution (PKT, EMB, PWL) cover another
+    # part of the revolution than OCC's (their pcurve angles are within [SA, TA]; the angle's
+    # zero or sense differs): feet up to 1.6 mm off OCC's shape (docs/projection.md, last section)
+    "production_die_analytic.igs": "faces over 120 surfaces of revolution cover another part of the revolution than OCC's",
 }
 DIES = [p for p in sorted((Path(__file__).parents[1] / "iges_samples").glob("production_die_*.igs"))]
 CASES = [pytest.param(p, id=p.name) for p in FILES] + [
