@@ -111,6 +111,15 @@ samples (on a 2-division grid 2 of a triangle's 6 samples are its own), so each 
 is projected once (`_unique_points`)."""
 
 
+def _by_face(face: np.ndarray, mask: np.ndarray):
+    """(face, indices) for each face of the points ``mask`` (M,) selects, ``face`` (M,) their
+    face: one stable sort, so each face's indices ascend as with ``np.flatnonzero``."""
+    on = np.flatnonzero(mask)
+    order = on[np.argsort(face[on], kind="stable")]
+    faces, first = np.unique(face[order], return_index=True)
+    return zip(faces.tolist(), np.split(order, first[1:]))
+
+
 def _unique_points(points: np.ndarray, quantum: float, key: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Representatives of the points (M, 3) that fall into one cell of width ``quantum``
@@ -172,10 +181,7 @@ def _on_faces(model: Model, points: np.ndarray, face: np.ndarray, elem: np.ndarr
         rep, inv = _unique_points(points[batch], quantum, key=face[batch])
         feet = _expand(project_to_surfaces(index_for(model).surface_pack(model), face[batch][rep],
                                            points[batch][rep]), inv)
-    on = np.flatnonzero(face >= 0)
-    order = on[np.argsort(face[on], kind="stable")]  # points grouped by face, each group ascending
-    faces, first = np.unique(face[order], return_index=True)
-    for f, sel in zip(faces.tolist(), np.split(order, first[1:])):  # loop over faces, vectorised over points
+    for f, sel in _by_face(face, face >= 0):  # loop over faces, vectorised over points
         s = model.faces[f].surface
         if f in folded:
             # on a folded face the sheets lie close: Newton from the nearest grid sample alone
@@ -317,11 +323,8 @@ def own_face_nearest(model: Model, pts: np.ndarray, face: np.ndarray, uv: np.nda
         return ok[inv], dist[inv]
     ok = (face >= 0) & np.all(np.isfinite(uv), axis=1)
     dist = np.full(len(pts), np.nan)
-    on = np.flatnonzero(ok)
-    order = on[np.argsort(face[on], kind="stable")]  # points grouped by face, each group ascending
-    faces, first = np.unique(face[order], return_index=True)
-    for f, sel in zip(faces.tolist(), np.split(order, first[1:])):  # loop over faces, vectorised over points
-        fc = model.faces[int(f)]
+    for f, sel in _by_face(face, ok):  # loop over faces, vectorised over points
+        fc = model.faces[f]
         if len(_crease_pieces(fc.surface)) > 1:
             ok[sel] = False
             continue

@@ -41,20 +41,12 @@ def test_every_face_lies_on_occs_face(path: Path):
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
     from OCP.BRepExtrema import BRepExtrema_DistShapeShape
     from OCP.gp import gp_Pnt
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
 
     from cadbridge.iges import read_iges
-    from cadbridge.occ.reference import occ_read_shape
+    from cadbridge.occ.reference import occ_read
 
     model = read_iges(path)
-    shape = occ_read_shape(path)
-    faces = []
-    ex = TopExp_Explorer(shape, TopAbs_FACE)
-    while ex.More():  # loop over the die's 1 102 faces
-        faces.append(TopoDS.Face_s(ex.Current()))
-        ex.Next()
+    faces = [f.face for f in occ_read(path)]
     assert len(faces) == len(model.faces)  # paired by order (tests/test_iges_real.py)
     bad = []
     for k, f in enumerate(model.faces):  # loop over the faces: a few points each

@@ -814,11 +814,14 @@ def _boundary_nodes(g, surfaces: list[int]) -> np.ndarray:
     triangulation of a face has as many triangles, mod 2, as boundary nodes (Euler:
     T = 2 V - B - 2 + 2 holes), so Blossom cannot pair all of them into quads where it is odd.
     A seam curve counts twice: gmsh lists it twice among the face's boundary curves."""
+    segments: dict[int, int] = {}  # curve -> its 1D elements, asked once (two faces share most curves)
     out = np.zeros(len(surfaces), dtype=np.int64)
     for i, s in enumerate(surfaces):
         for _, c in g.model.getBoundary([(2, s)], combined=False, oriented=False):
-            _, tags, _ = g.model.mesh.getElements(1, abs(c))
-            out[i] += sum(len(t) for t in tags)
+            c = abs(c)
+            if c not in segments:
+                segments[c] = sum(len(t) for t in g.model.mesh.getElements(1, c)[1])
+            out[i] += segments[c]
     return out
 
 
