@@ -272,6 +272,11 @@ def smooth_pieces(surface: NurbsSurface) -> list[NurbsSurface]:
 
     Newton cannot converge onto a crease inside one surface (the distance is not
     differentiable there); on the smooth pieces the crease is an edge, handled by clamping.
+    Each piece is cut out exactly with its own clamped knot vectors (`restrict_surface`), so
+    that derivatives at a piece's upper end come from that piece's side of the crease. With
+    the whole knot vector and a smaller domain they came from the span above: the lower
+    piece of FTR00037 (production NURBS die, a 1e-5 rad crease) then saw the upper side's
+    zero gradient at the knot, stopped there and FAILED, and the foot went to the crease.
     """
     hit = _PIECES.get(surface)
     if hit is None:
@@ -282,7 +287,9 @@ def smooth_pieces(surface: NurbsSurface) -> list[NurbsSurface]:
         if len(eu) == 2 and len(ev) == 2:
             hit = [surface]
         else:
-            hit = [surface.with_domain((a, b, c, d)) for a, b in zip(eu[:-1], eu[1:]) for c, d in zip(ev[:-1], ev[1:])]
+            from cadbridge.nurbs.ops import restrict_surface
+
+            hit = [restrict_surface(surface, (a, b, c, d)) for a, b in zip(eu[:-1], eu[1:]) for c, d in zip(ev[:-1], ev[1:])]
         _PIECES[surface] = hit
     return hit
 
