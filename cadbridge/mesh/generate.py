@@ -172,16 +172,16 @@ class FaceInfo:
     fillets, the index (0 -> curves 0 and 2, 1 -> curves 1 and 3) of the arc pair and of the
     other pair; radius: arc radius (model units) for fillets. A "chained" face has four
     corners but sides made of several curves (e.g. OCC splits a torus' tube arc at its
-    equator): corners are its four corner point tags, pairs the (curve, opposite curve)
-    pairs that must get equal counts (opposite sides with as many curves, paired in order).
-    Faces whose single curve faces several (the production die's draw beads against the
-    binder's pieces) stay unstructured: mapping them with summed counts broke the die's
-    second pass (159-192 mm elements on the beads, 1.6 mm error), so they go to gmsh's
-    MeshAdapt fallback, slower but right.
+    equator, or a neighbour's vertices split a fillet strip's long side): corners are its
+    four corner point tags, pairs the (curve, opposite curve) pairs that must get equal
+    counts (opposite sides with as many curves, paired in order), sums the (side, opposite
+    side) curve lists whose counts must add up to the same (opposite sides with different
+    numbers of curves: `_settle_sums`). A chained face whose sums cannot be settled by
+    raising counts goes back to "other".
     """
 
     __slots__ = ("tag", "surface_type", "curves", "kind", "radius_pair", "length_pair", "radius", "corners",
-                 "pairs")
+                 "pairs", "sums")
 
     def __init__(self, tag: int, surface_type: str, curves: list[int]) -> None:
         self.tag = tag
@@ -192,6 +192,7 @@ class FaceInfo:
         self.length_pair: int | None = None
         self.corners: list[int] = []
         self.pairs: list[tuple[int, int]] = []
+        self.sums: list[tuple[list[int], list[int]]] = []
         self.radius: float | None = None
 
     def __repr__(self) -> str:
@@ -216,9 +217,10 @@ def _curve_shape(gmsh, c: int) -> tuple[str, float, float]:
 def _chained_sides(gmsh, loop: list[int], corner_deg: float = 20.0):
     """Four corners of a face whose single boundary ``loop`` (signed curve tags in order) has
     more than four curves: the points where the boundary turns by more than ``corner_deg``.
-    Returns (corner point tags (4,), [(curve, opposite curve), ...]) when there are exactly
-    four corners and opposite sides have as many curves (paired in order, the opposite side
-    walked backwards), else None."""
+    Returns (corner point tags (4,), [(curve, opposite curve), ...], [(side, opposite side),
+    ...]) when there are exactly four corners: opposite sides with as many curves are paired
+    in order (the opposite side walked backwards), the others give a sum constraint; else
+    None."""
     ends = []
     for c in loop:  # loop over the (few) boundary curves
         (_, p0), (_, p1) = gmsh.model.getBoundary([(1, abs(c))], combined=False, oriented=True)
@@ -241,13 +243,16 @@ def _chained_sides(gmsh, loop: list[int], corner_deg: float = 20.0):
         return None
     sides = [[abs(loop[j % n]) for j in range(corners[k], corners[k + 1] if k < 3 else corners[0] + n)]
              for k in range(4)]
-    pairs = []
+    pairs, sums = [], []
     for k in (0, 1):
         a, b = sides[k], sides[k + 2][::-1]
-        if len(a) != len(b):
-            return None
-        pairs += list(zip(a, b))
-    return [ends[i][0] for i in corners], pairs
+        if len(a) == len(b):
+            pairs += list(zip(a, b))
+        elif set(a) & set(b):
+            return None  # one curve on both sides: no count can balance them
+        else:
+            sums.append((a, b))
+    return [ends[i][0] for i in corners], pairs, sums
 
 
 def _classify(gmsh, fillet_max_radius: float | None) -> tuple[list[FaceInfo], dict[int, tuple[str, float, float]]]:
@@ -260,7 +265,7 @@ def _classify(gmsh, fillet_max_radius: float | None) -> tuple[list[FaceInfo], di
         if fi.kind == "other" and len(curves) > 4 and len(set(curves)) == len(curves):
             chain = _chained_sides(gmsh, [t for d, t in loops if d == 1])
             if chain is not None:
-                fi.kind, fi.corners, fi.pairs = "chained", chain[0], chain[1]
+                fi.kind, fi.corners, fi.pairs, fi.sums = "chained", chain[0], chain[1], chain[2]
         for c in curves:
             if c not in shapes:
                 shapes[c] = _curve_shape(gmsh, c)
@@ -296,10 +301,14 @@ def _structured_counts(
     radius_divisions: int,
     length_divisions: int | None,
     curve_count=None,
+    even: bool = False,
 ) -> dict[int, int]:
     """Curve tag -> number of elements (segments), one count per union-find class.
     ``curve_count(tag) -> float`` (elements a curve needs, e.g. from a size field) gives
-    every class the largest need of its curves instead of rules 1-4 of the module docs."""
+    every class the largest need of its curves instead of rules 1-4 of the module docs.
+    Chained faces' sum constraints are then met by raising counts (`_settle_sums`); with
+    ``even`` (quad meshes, which the all-quad subdivision may halve) the classes in a sum
+    get even counts, so that halving keeps the sums equal."""
     parent: dict[int, int] = {}
 
     def find(a: int) -> int:
@@ -320,6 +329,9 @@ def _structured_counts(
         elif f.kind == "chained":
             for a, b in f.pairs:
                 union(a, b)
+            for a, b in f.sums:
+                for c in a + b:
+                    find(c)
     role: dict[int, set[str]] = {}
     for f in faces:
         if f.kind == "fillet":
@@ -349,9 +361,57 @@ def _structured_counts(
             n = divisions
         else:
             n = max(1, math.ceil(max(shapes[c][2] for c in cs) / size - 1e-9))
-        for c in cs:
-            counts[c] = int(n)
-    return counts
+        counts[root] = int(n)
+    length = {root: max(shapes[c][2] for c in cs) for root, cs in members.items()}
+    _settle_sums(faces, find, counts, length, 2 if even else 1)
+    return {c: counts[find(c)] for c in parent}
+
+
+SUM_ROUNDS = 100
+"""Sweeps of `_settle_sums` over the chained faces before the unsettled ones give up."""
+
+
+def _settle_sums(faces: list[FaceInfo], find, n: dict[int, int], length: dict[int, float], step: int) -> None:
+    """Raise class counts ``n`` (class root -> elements, in place) until on every chained face
+    the curves of each side add up to those of the opposite side (`FaceInfo.sums`). Counts
+    are only raised, never lowered, so every curve keeps at least its own need; the class
+    raised is the one of the shorter side with the longest elements (length / count).
+    ``step`` 2 keeps the classes in a sum even. A face whose sides cannot be balanced (the
+    only classes that would raise its shorter side raise the other side as much) or do not
+    settle within `SUM_ROUNDS` sweeps goes back to "other" (unstructured)."""
+    active = [f for f in faces if f.kind == "chained" and f.sums]
+    if step == 2:
+        for r in {find(c) for f in active for a, b in f.sums for c in a + b}:
+            n[r] += n[r] % 2
+    for _ in range(SUM_ROUNDS):
+        changed = False
+        for f in active:  # loop over the (few hundred) chained faces
+            if f.kind != "chained":
+                continue
+            for a, b in f.sums:
+                ra, rb = [find(c) for c in a], [find(c) for c in b]
+                sa, sb = sum(n[r] for r in ra), sum(n[r] for r in rb)
+                if sa == sb:
+                    continue
+                low, high = (ra, rb) if sa < sb else (rb, ra)
+                deficit = abs(sa - sb)
+                gain = {r: (low.count(r) - high.count(r)) * step for r in set(low)}
+                while deficit > 0:
+                    cands = [r for r, g in gain.items() if 0 < g <= deficit]
+                    if not cands:
+                        break
+                    r = max(cands, key=lambda r: length[r] / n[r])
+                    n[r] += step
+                    deficit -= gain[r]
+                    changed = True
+                if deficit:
+                    f.kind = "other"
+                    break
+        if not changed:
+            return
+    for f in active:
+        if f.kind == "chained" and any(sum(n[find(c)] for c in a) != sum(n[find(c)] for c in b) for a, b in f.sums):
+            f.kind = "other"
 
 
 MERGE_TOLERANCE = 1e-4
@@ -554,6 +614,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
             faces, shapes, size=size, divisions=kw["divisions"],
             radius_divisions=kw["radius_divisions"], length_divisions=kw["length_divisions"],
             curve_count=None if kw["curve_size"] is None else (lambda c: _curve_need(g, c, kw["curve_size"])),
+            even=kw["element"] == "quad",
         )
         for c, n in counts.items():
             g.model.mesh.setTransfiniteCurve(c, n + 1)
