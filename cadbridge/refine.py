@@ -395,7 +395,12 @@ def refine_mesh(
     # radii below the fold radius are no tool radius (`cadbridge.folds`): they size nothing
     real = kmax < 1.0 / (FOLD_RADIUS * size)
     h_min = float(min_size) if min_size is not None else default_floor(size, h_law[real])
-    field_ = SizeField(pts[real], h_law[real], h_min, h_max, gradation)
+    law_pts, law_h, law_face = pts[real], h_law[real], frames.face[real]
+    law = SizeField(law_pts, law_h, h_min, h_max, gradation)  # the law alone: what face scales refer to
+    # the law's sizes of each face, scaled down where its unmapped elements stayed above the
+    # tolerance (`scale_face_law`)
+    face_scale = np.ones(len(model.faces))
+    field_ = SizeField(law_pts, law_h, h_min, h_max, gradation)
     marks = SizeField(np.zeros((0, 3)), np.zeros(0), h_min, h_max, gradation)  # refinement requests only
     structured = (element == "quad") if structured is None else bool(structured)
 
@@ -482,11 +487,13 @@ def refine_mesh(
         n_above = n_inadm = 0
         floor_p: list[FloorElement] = []
 
-        def mark(t, elems, e, factor_cap, order, reason):
+        def mark(t, elems, e, factor_cap, order, reason, scale_faces=True):
             """Refinement marks over balls about the elements; floor elements noted.
             ``order`` (K,): the rate at which each element's error falls with its size (4 for
             the surface error, 2 where the boundary error of a chord along a curved border
-            dominates); ``reason`` names them in the pass's log of marks."""
+            dominates); ``reason`` names them in the pass's log of marks. ``scale_faces``:
+            unmapped elements above by their surface error scale their face's law too
+            (`scale_face_law`)."""
             nonlocal floor_p
             hs = _element_sizes(t.nagata)[elems]
             cen = _centroids(t.mesh)[elems]
@@ -497,6 +504,9 @@ def refine_mesh(
             f = np.clip(0.9 * (t_loop / np.maximum(e, 1e-300)) ** (1.0 / order), 0.3, factor_cap)
             free = ~_in_grid_faces(t, elems)
             h_new = np.maximum(next_sizes(hs, f, marks(cen), np.where(free, field_(cen), np.inf)), h_min)
+            if scale_faces and t.element_face is not None:
+                surf = free & (np.asarray(order) == 4.0)
+                scale_face_law(pass_scale, t.element_face[elems[surf]], h_new[surf], law(cen[surf]))
             at_floor = hs <= 1.3 * h_min
             for k in np.flatnonzero(at_floor):  # loop over the (few) floor elements
                 floor_p.append(FloorElement(t.name, int(elems[k]) + 1, float(e[k]), float(hs[k]),
@@ -527,6 +537,7 @@ def refine_mesh(
                 marks_h.append(np.maximum(bh, h_min))
                 _log_marks(mark_log, reason + ", on mapped faces' borders", 0, marks_h[-1])
 
+        pass_scale = np.ones(len(model.faces))
         n_turned = 0
         worst: list[str] = []
         for t in tools:
@@ -551,7 +562,7 @@ def refine_mesh(
             n_turned += len(turned)
             if len(turned):
                 mark(t, turned, np.full(len(turned), t_loop * 16.0), 0.5, np.full(len(turned), 4.0),
-                     "normal turn")
+                     "normal turn", scale_faces=False)
         if worst:
             actions.append(f"pass {p}: worst elements above {t_loop:.3g}: " + "; ".join(worst[:6]))
         if n_turned:
@@ -605,8 +616,19 @@ def refine_mesh(
         h_all = np.concatenate(marks_h)
         if floor_p and len(floor_p) >= len(above_all) and np.all(h_all <= h_min * 1.0001):
             break  # every element above the tolerance is at the floor: nothing left to refine
-        field_.add(np.concatenate(marks_p), h_all)
         marks.add(np.concatenate(marks_p), h_all)
+        # at most half the face's scale per pass (one element's mark is a local estimate)
+        new_scale = np.maximum(np.minimum(face_scale, pass_scale), 0.5 * face_scale)
+        changed = np.flatnonzero(new_scale < face_scale * 0.999)
+        if len(changed):
+            actions.append(f"pass {p}: the error law's sizes scaled on {len(changed)} face(s) whose unmapped elements "
+                           "stayed above: " + ", ".join(
+                               f"{model.faces[i].name or i} x{new_scale[i]:.2f}" for i in changed[:12]) +
+                           (f" and {len(changed) - 12} more" if len(changed) > 12 else ""))
+        face_scale = new_scale
+        scaled = np.where(law_h < h_max, law_h * face_scale[law_face], law_h)  # flat samples stay at h_max
+        field_ = SizeField(np.vstack([law_pts, marks.points]), np.concatenate([scaled, marks.sizes]),
+                           h_min, h_max, gradation)
     tmp.cleanup()
     score, mesh, tools, above_all, floor, check_best = best
     if check_best is None:  # the best pass was never checked on the dense grid: check it now
@@ -617,6 +639,23 @@ def refine_mesh(
     met = not above_all
     return AdaptiveResult(mesh, tools, passes, tolerance, met, check_best, floor, actions, above_all, h_min,
                           time.perf_counter() - t_start)
+
+
+def scale_face_law(scale: np.ndarray, faces: np.ndarray, asked: np.ndarray, law_sizes: np.ndarray) -> None:
+    """Lower ``scale`` (F,), the factor on each CAD face's error-law sizes, in place to the
+    ratio asked / law_sizes of its elements above the tolerance (``faces`` (K,) their CAD
+    face, -1 for none; ``asked`` (K,) the size the next pass asks there; ``law_sizes`` (K,)
+    the unscaled law there).
+
+    An unmapped element's error depends on its shape as much as its size: gmsh's quads on a
+    closed ring of the production die (BOS00666: corners 50-120 degrees, sides 0.42-1.37 mm)
+    were 9x the arc law at their size. A mark refines where the bad quad was, and the next
+    mesh puts another one elsewhere on the same face: the worst element moved from ring to
+    ring for eight passes at t = 0.002. The ratio is that face's constant of the law, so
+    all its law sizes take it."""
+    ok = faces >= 0
+    if np.any(ok):
+        np.minimum.at(scale, faces[ok], np.minimum(asked[ok] / np.maximum(law_sizes[ok], 1e-300), 1.0))
 
 
 FLOOR_FRACTION = 0.25

@@ -10,7 +10,7 @@ neighbours straddling. That pass now sizes by curvature at twice the size too (6
 2.5 mm of that point, at the die's size (72.46 mm) and curvature sizing, stay the check.
 `mesh_cad` finds folded pairs (two elements of one surface sharing an edge, normals more than
 `FOLD_DEG` apart: `_folded_surfaces`) and meshes those surfaces alone again with
-Frontal-Delaunay for quads. Reference: OCC's normal of each element's face at the element's
+Frontal-Delaunay, then Frontal-Delaunay for quads where that still folds. Reference: OCC's normal of each element's face at the element's
 centroid (GeomAPI projection on the face's surface): every element of a face is wound the
 same way.
 """
@@ -111,15 +111,20 @@ def test_a_reversed_element_is_seen_by_both_checks(boss_cutout):
     assert sum(_winding_against_occ(mesh, faces)) == 1
 
 
-def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch):
+@pytest.mark.parametrize("algorithms", [None, (8,)])
+def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algorithms):
     # reference: the same call without the fold. A surface reported folded once (the test
     # reports the largest as folded, with an element wound against it) is cleared and meshed
-    # again with algorithm 8; the elements of every other surface are the ones of the plain
-    # mesh, node for node. On this cut-out algorithm 8 leaves triangles there and cadbridge's
-    # (u, v) fill cannot close the face's loops, so the whole model is meshed again in the
-    # subdivision pass (`_regenerate_all`): the fallback is exercised too
+    # again with the first refold algorithm (6); the elements of every other surface are the
+    # ones of the plain mesh, node for node. With algorithm 8 alone (the refold before 6 was
+    # tried first) this cut-out keeps triangles there and cadbridge's (u, v) fill cannot close
+    # the face's loops, so the whole model is meshed again in the subdivision pass
+    # (`_regenerate_all`): that fallback is exercised too
     from cadbridge.mesh import generate as G
 
+    if algorithms is not None:
+        monkeypatch.setitem(G._REFOLD_ALGORITHMS, "quad", algorithms)
+    first = G._REFOLD_ALGORITHMS["quad"][0]
     path, faces = boss_cutout
     plain = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
     ent = np.asarray(plain.cell_data["element_entity"])
@@ -137,7 +142,8 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch):
     real_all = G._regenerate_all
     monkeypatch.setattr(G, "_regenerate_all", lambda *a: regenerated.append(1) or real_all(*a))
     again = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
-    assert any(f"surface(s) {big} (1 element pairs)" in n and "algorithm 8" in n for n in again.notes), again.notes
+    assert any(f"surface(s) {big} (1 element pairs)" in n and f"algorithm {first} on {big}" in n
+               for n in again.notes), again.notes
 
     def elements(mesh, keep):
         e = np.asarray(mesh.cell_data["element_entity"])
@@ -151,6 +157,6 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch):
 
     others = [int(t) for t in np.unique(ent) if t != big]
     assert others and elements(again, others) == elements(plain, others)
-    assert regenerated == [1]
+    assert regenerated == ([1] if algorithms == (8,) else [])
     assert not len(again.triangles)
     assert _winding_against_occ(again, faces) == [0, 0, 0]

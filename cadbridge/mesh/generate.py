@@ -623,7 +623,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
                 g.model.mesh.setTransfiniteSurface(f.tag, cornerTags=f.corners)
                 if kw["element"] == "quad":
                     g.model.mesh.setRecombine(2, f.tag)
-    redone: dict[int, int] = {}
+    redone: dict[int, tuple[int, list[int]]] = {}  # {surface: (folded pairs, refold algorithms tried)}
     # every generate() meshes only what has no mesh yet: the faces meshed before it, and the
     # rest of a model after `g.model.mesh.clear()`
     sess.set("Mesh.MeshOnlyEmpty", 1)
@@ -663,9 +663,9 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     mesh.notes += filled
     if redone:
         mesh.notes.append(f"mesh: gmsh's mesh folded over itself on surface(s) "
-                          f"{', '.join(f'{t} ({k} element pairs)' for t, k in sorted(redone.items()))} (neighbouring "
-                          f"elements more than {FOLD_DEG:g} degrees apart); meshed again with gmsh algorithm "
-                          f"{_REFOLD_ALGORITHM[kw['element']]} there")
+                          f"{', '.join(f'{t} ({k} element pairs)' for t, (k, _) in sorted(redone.items()))} "
+                          f"(neighbouring elements more than {FOLD_DEG:g} degrees apart); meshed again with gmsh "
+                          f"algorithm " + ", ".join(f"{' then '.join(map(str, a))} on {t}" for t, (_, a) in sorted(redone.items())))
     if merged:
         mesh.notes.append(f"mesh: {merged.summary()}")
     return mesh
@@ -678,9 +678,13 @@ FOLD_DEG = 150.0
 """Two elements of one gmsh surface sharing an edge whose normals differ by more than this
 are a fold of gmsh's mesh."""
 
-_REFOLD_ALGORITHM = {"quad": 8, "tri": 1}
-"""gmsh's 2D algorithm for a surface whose mesh folded: Frontal-Delaunay for quads (8),
-MeshAdapt (1) for triangles."""
+_REFOLD_ALGORITHMS = {"quad": (6, 8), "tri": (1,)}
+"""gmsh's 2D algorithms for a surface whose mesh folded, in turn while it still folds:
+Frontal-Delaunay (6) then Frontal-Delaunay for quads (8) for quads, MeshAdapt (1) for
+triangles. 8 meshes the production die's boss wall BOS00373 without its fold, but does not
+follow a background size field: on the pilot ring of the die (seam face, t = 0.002) its quads
+were 1.32x the sizes asked at the median and 4.5x at p90 (414 quads where 6 makes 1 882, at
+0.82x like every other face), so the ring's error grew 10x in the pass it refolded."""
 
 
 def _polygon_normals(x: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -724,16 +728,16 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
     A fold is an element gmsh laid over its neighbours: a pair more than `FOLD_DEG` apart
     (`_folded_surfaces`) on a surface where an element is wound against the surface
     (`_wound_against_surface`; a pair without one is the CAD's own turn, which no mesh of the
-    face changes). A surface that folds, not yet in ``redone``, is cleared and meshed once more
-    alone with `_REFOLD_ALGORITHM` (``Mesh.MeshOnlyEmpty``, set by the caller: the rest of the
-    mesh stays; ``redone`` gets it: {surface: folded pairs}). After the all-quad subdivision
+    face changes). A surface that folds is cleared and meshed once more alone with the next of
+    `_REFOLD_ALGORITHMS` it has not tried (``Mesh.MeshOnlyEmpty``, set by the caller: the rest of
+    the mesh stays; ``redone`` gets it: {surface: (folded pairs, algorithms tried)}). After the all-quad subdivision
     (``subdivided``) it is meshed at the target size without it (its boundary nodes are already
     subdivided, so their count is even and recombination may close them). A surface that still
     folds (the production die's binder BND00963 in the quad subdivision pass: every gmsh
     algorithm gave the same fold) or keeps triangles is cleared and meshed by cadbridge in its
     (u, v) on gmsh's boundary nodes (`cadbridge.mesh.empty_faces`), as a surface gmsh failed
     on; where that cannot mesh a face that only kept triangles, the whole model is meshed again
-    with the subdivision, `_REFOLD_ALGORITHM` on the redone surfaces (`_regenerate_all`).
+    with the subdivision, the last refold algorithm on the redone surfaces (`_regenerate_all`).
     Returns (mesh without the nodes' (u, v), which the caller collects once at the end; notes
     of the filled faces). A quad mesh that leaves triangles before the subdivision is returned
     as it is: the subdivision pass follows."""
@@ -746,13 +750,15 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
     left_triangles: set[int] = set()
     while True:
         folds = _folds(g, mesh)
-        new = {s: k for s, k in folds.items() if s not in redone}
+        algorithms = _REFOLD_ALGORITHMS[kw["element"]]
+        new = {s: k for s, k in folds.items() if len(redone.get(s, (0, ()))[1]) < len(algorithms)}
         if not new:
             break
-        redone.update(new)
-        for s in new:
+        for s, k in new.items():
+            pairs, tried = redone.get(s, (k, []))
+            redone[s] = (pairs, tried + [algorithms[len(tried)]])
             g.model.mesh.clear([(2, s)])  # its curves' nodes stay
-            g.model.mesh.setAlgorithm(2, s, _REFOLD_ALGORITHM[kw["element"]])
+            g.model.mesh.setAlgorithm(2, s, redone[s][1][-1])
         if subdivided:
             sess.set("Mesh.SubdivisionAlgorithm", 0)
             _set_sizes(g, sess, kw, size, 1.0)
@@ -768,7 +774,7 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
         if subdivided:
             left_triangles |= _surfaces_with_triangles(mesh, new)
     for s in left_triangles - set(folds):
-        folds[s] = redone[s]
+        folds[s] = redone[s][0]
     if not folds:
         return mesh, filled
     try:
@@ -801,13 +807,18 @@ def _fill_folds(g, surfaces: list[int], folds: dict[int, int], left_triangles: s
         g.model.mesh.clear([(2, s)])  # the surface's own nodes and elements; its curves' nodes stay
     why = {s: f"its mesh folded over itself ({k} element pairs more than {FOLD_DEG:g} degrees apart) with gmsh "
               f"algorithm {_algorithm(kw)}" + (
-                  f", and algorithm {_REFOLD_ALGORITHM[kw['element']]} left triangles" if s in left_triangles else
-                  f" and {_REFOLD_ALGORITHM[kw['element']]}") for s, k in folds.items()}
+                  f", and algorithm {_refolds(kw)} left triangles" if s in left_triangles else
+                  f" and {_refolds(kw)}") for s, k in folds.items()}
     notes = fill_empty_faces(g, sorted(folds), size=size, curvature_elements=kw["curvature_elements"],
                              element=kw["element"], subdivided=subdivided, label=str(path), failed=why,
                              merge_tolerance=_merge_tolerance(size, subdivided))
     return _collect(g, surfaces, False, path), [
         n.replace(") and left ", ") on ", 1).replace(" without elements;", ";", 1) for n in notes]
+
+
+def _refolds(kw: dict) -> str:
+    """The refold algorithms of ``kw["element"]`` as words: "6, then 8"."""
+    return ", then ".join(map(str, _REFOLD_ALGORITHMS[kw["element"]]))
 
 
 def _regenerate_all(g, surfaces: list[int], size: float, kw: dict, path: Path) -> tuple[Mesh, list[str]]:

@@ -95,7 +95,7 @@ def curvature_samples(model, per_span: int = 4, min_per_side: int = 9, max_per_s
     Each face's underlying surface is sampled on a (u, v) grid with ``per_span`` points per
     knot span (at least ``min_per_side`` per side), so curvature changes inside spans are
     seen. Returns points (M, 3), k_max (M,) [1/length] (NaN at degenerate points are
-    dropped) and face index (M,) (or the `CurvatureFrames`)."""
+    dropped) and face index (M,) (or the `CurvatureFrames`, whose ``face`` holds it)."""
     from cadbridge.nurbs.curvature import principal_curvatures
 
     pts, ks, fs, fr = [], [], [], []
@@ -123,7 +123,7 @@ def curvature_samples(model, per_span: int = 4, min_per_side: int = 9, max_per_s
     P, K = np.concatenate(pts), np.concatenate(ks)
     if frames:
         k1, k2, d1, d2 = (np.concatenate([f[m] for f in fr]) for m in range(4))
-        return P, K, CurvatureFrames(P, k1, k2, d1, d2)
+        return P, K, CurvatureFrames(P, k1, k2, d1, d2, face=np.concatenate(fs))
     return P, K, np.concatenate(fs)
 
 
@@ -156,10 +156,11 @@ class CurvatureFrames:
     curvature: k_eff = |k|.
     """
 
-    def __init__(self, points, k1, k2, d1, d2, neighbours: int = 8) -> None:
+    def __init__(self, points, k1, k2, d1, d2, neighbours: int = 8, face=None) -> None:
         from scipy.spatial import cKDTree
 
         self.points = np.asarray(points, dtype=float).reshape(-1, 3)
+        self.face = None if face is None else np.asarray(face, dtype=np.int64)  # (M,) face index of each sample
         self.k1, self.k2 = np.asarray(k1, dtype=float), np.asarray(k2, dtype=float)
         self.d1, self.d2 = np.asarray(d1, dtype=float), np.asarray(d2, dtype=float)
         self.neighbours = int(min(neighbours, max(len(self.points), 1)))
