@@ -445,16 +445,25 @@ def refine_mesh(
         progress.stage(f"pass {p}: meshing {cad.name} with the Nagata size field")
         mesh_kw["background_sizes"] = field_.background(prev_nodes)
         try:
-            mesh = mesh_cad(geometry, embed_curves=embed, **mesh_kw)
-        except MeshError:
-            if inflections and len(embed) > len(crease_lines(model)):
-                # gmsh could not fragment the faces with the inflection curves: keep node moving only
-                embed = [c.curve for c in crease_lines(model)]
-                actions.append("inflection lines could not be inserted as mesh edges (gmsh fragment failed): "
-                               "nodes are moved onto them instead")
+            try:
                 mesh = mesh_cad(geometry, embed_curves=embed, **mesh_kw)
-            else:
+            except MeshError:
+                if inflections and len(embed) > len(crease_lines(model)):
+                    # gmsh could not fragment the faces with the inflection curves: keep node moving only
+                    embed = [c.curve for c in crease_lines(model)]
+                    actions.append("inflection lines could not be inserted as mesh edges (gmsh fragment failed): "
+                                   "nodes are moved onto them instead")
+                    mesh = mesh_cad(geometry, embed_curves=embed, **mesh_kw)
+                else:
+                    raise
+        except MeshError as exc:
+            if best is None:
                 raise
+            # a later pass's sizes that gmsh and the (u, v) fill cannot mesh: the passes
+            # before it stand, the best of them is the result
+            actions.append(f"pass {p}: meshing failed, the loop stops at its best pass: {str(exc)[:400]}")
+            progress.stage(f"pass {p}: meshing failed ({str(exc)[:160]}); keeping the best pass")
+            break
         mesh.name = cad.stem
         prev_nodes = mesh.nodes
         moved = 0

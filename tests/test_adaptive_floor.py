@@ -15,6 +15,7 @@ the patches of the worst elements, on a grid denser than the loop's check.
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -64,3 +65,30 @@ def test_the_old_floor_stops_there(bar):
     r = refine_mesh(bar, TOL, model=model, min_size=model.size() / 1000, max_passes=4)
     assert not r.met
     assert r.floor
+
+
+def test_a_pass_gmsh_cannot_mesh_keeps_the_passes_before_it(monkeypatch):
+    # reference: the same run stopped after pass 1 (max_passes=1). When pass 2's meshing
+    # fails (here forced; on the production die at t = 0.002 a pilot wall that folded with
+    # every gmsh algorithm and that the (u, v) fill could not walk), the result is pass 1's
+    # mesh, node for node, not met, and its actions say why the loop stopped
+    import cadbridge.mesh.generate as G
+    from cadbridge.mesh.mesh import MeshError
+    from cadbridge.refine import refine_mesh
+
+    path = Path(__file__).parents[1] / "iges_samples" / "torus_patch.igs"
+    one = refine_mesh(path, 0.002, max_passes=1)
+    assert not one.met
+    real, calls = G.mesh_cad, []
+
+    def second_fails(*a, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise MeshError("forced: gmsh cannot mesh this pass")
+        return real(*a, **kw)
+
+    monkeypatch.setattr(G, "mesh_cad", second_fails)
+    r = refine_mesh(path, 0.002, max_passes=4)
+    assert len(r.passes) == 1 and not r.met
+    assert np.array_equal(r.mesh.nodes, one.mesh.nodes)
+    assert any("pass 2: meshing failed" in a and "forced" in a for a in r.actions), r.actions

@@ -168,6 +168,41 @@ def _surface_distance(face, pts: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
+@pytest.mark.parametrize("occurrence", [0, 1])
+def test_a_loop_that_starts_on_the_seam_closes_in_uv(monkeypatch, occurrence):
+    # reference: the analytic cylinder r = 3, h = 10 in gmsh's (u, v) = (angle, height): the
+    # lateral face's one loop encloses exactly the rectangle 2 pi x h. Its boundary is
+    # rotated to start on the seam, at either of its two passes (the production die's pilot
+    # wall PIL01059 does: OCC's wire order), where there is no previous curve to pick the
+    # seam's pcurve by
+    from cadbridge.mesh.empty_faces import _face_loops
+    from cadbridge.mesh.generate import GmshSession
+
+    pytest.importorskip("gmsh")
+    r, h = 3.0, 10.0
+    with GmshSession() as sess:
+        g = sess.gmsh
+        g.model.occ.addCylinder(0, 0, 0, 0, 0, h, r)
+        g.model.occ.synchronize()
+        sess.set("Mesh.MeshSizeMax", 1.0)
+        g.model.mesh.generate(1)
+        lateral = next(t for _, t in g.model.getEntities(2) if g.model.getType(2, t) == "Cylinder")
+        real = g.model.getBoundary
+        plain = real([(2, lateral)], combined=False, oriented=True, recursive=False)
+        seam = [k for k, (_, c) in enumerate(plain) if sum(abs(b) == abs(c) for _, b in plain) == 2][occurrence]
+        rotated = plain[seam:] + plain[:seam]
+
+        def boundary(dimtags, **kw):
+            return rotated if list(dimtags) == [(2, lateral)] else real(dimtags, **kw)
+
+        monkeypatch.setattr(g.model, "getBoundary", boundary)
+        loops = _face_loops(g, lateral)
+    assert len(loops) == 1
+    uv = loops[0][2]
+    area = 0.5 * abs(float(np.sum(uv[:, 0] * np.roll(uv[:, 1], -1) - np.roll(uv[:, 0], -1) * uv[:, 1])))
+    assert area == pytest.approx(2.0 * math.pi * h, rel=1e-9)
+
+
 @pytest.mark.skipif(not SPRING.is_file(), reason="corpus not present")
 @pytest.mark.parametrize("element", ["tri", "quad"])
 def test_the_spring_meshes_every_face_on_occ_geometry(element):

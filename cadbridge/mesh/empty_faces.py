@@ -169,7 +169,7 @@ def _face_loops(g, s: int) -> list[tuple]:
         count[abs(ct)] = count.get(abs(ct), 0) + 1
     loops, cur, first_tag = [], None, None
     prev_uv = None
-    for ct in oriented:  # loop over the (few) boundary curves of the face
+    for i, ct in enumerate(oriented):  # loop over the (few) boundary curves of the face
         c = abs(ct)
         ends = [t for _, t in g.model.getBoundary([(1, c)], combined=False, oriented=False)]
         p0, p1 = (ends[0], ends[-1]) if ends else (None, None)
@@ -188,11 +188,21 @@ def _face_loops(g, s: int) -> list[tuple]:
             xyz.insert(at, np.asarray(vx, dtype=float)[:3])
         t = [lo] + t + [hi]
         uv = _pcurve(g, c, t, s, 0, ct < 0)
-        if count[c] > 1 and prev_uv is not None:
-            # a seam (the curve twice in the loop): the pcurve that continues the previous curve
+        if count[c] > 1:
+            # a seam (the curve twice in the loop): the pcurve that continues the previous
+            # curve, or where a loop starts on the seam, the one the next curve continues
+            # (the production die's pilot wall PIL01059, its loop from the seam: pcurve 0 at
+            # u = 0 where the next curve starts at u = 2 pi, so the loop ended a period away)
             uv1 = _pcurve(g, c, t, s, 1, ct < 0)
-            if np.linalg.norm(uv1[0] - prev_uv) < np.linalg.norm(uv[0] - prev_uv):
-                uv = uv1
+            if prev_uv is not None:
+                if np.linalg.norm(uv1[0] - prev_uv) < np.linalg.norm(uv[0] - prev_uv):
+                    uv = uv1
+            elif i + 1 < len(oriented) and count[abs(oriented[i + 1])] == 1:
+                nxt = oriented[i + 1]
+                lo_n, hi_n = (float(a[0]) for a in g.model.getParametrizationBounds(1, abs(nxt)))
+                start = _pcurve(g, abs(nxt), [lo_n, hi_n], s, 0, nxt < 0)[0]
+                if np.linalg.norm(uv1[-1] - start) < np.linalg.norm(uv[-1] - start):
+                    uv = uv1
         if ct < 0:
             tags, xyz = tags[::-1], xyz[::-1]
         n = len(tags) - 1  # segments of this curve
