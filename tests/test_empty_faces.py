@@ -168,6 +168,34 @@ def _surface_distance(face, pts: np.ndarray) -> np.ndarray:
     return np.asarray(out)
 
 
+@pytest.mark.parametrize("element", ["tri", "quad"])
+def test_a_filled_face_follows_the_callers_size_field(element):
+    # reference: the analytic lateral area 2 pi r h of the cylinder r = 3, h = 10. gmsh's
+    # boundary is spaced 1.0; the caller's field asks 0.4 everywhere, so the fill must make
+    # about area / 0.4^2 quads (or twice as many triangles), not the ~area / 1.0^2 its
+    # boundary spacing alone gives
+    from cadbridge.mesh.empty_faces import fill_empty_faces
+    from cadbridge.mesh.generate import GmshSession
+
+    pytest.importorskip("gmsh")
+    r, h, want = 3.0, 10.0, 0.4
+    with GmshSession() as sess:
+        g = sess.gmsh
+        g.model.occ.addCylinder(0, 0, 0, 0, 0, h, r)
+        g.model.occ.synchronize()
+        sess.set("Mesh.MeshSizeMax", 1.0)
+        g.model.mesh.generate(2)
+        lateral = next(t for _, t in g.model.getEntities(2) if g.model.getType(2, t) == "Cylinder")
+        g.model.mesh.clear([(2, lateral)])
+        fill_empty_faces(g, [lateral], size=1.0, curvature_elements=0, element=element, subdivided=False,
+                         label="cylinder", size_at=lambda x: np.full(len(np.reshape(x, (-1, 3))), want))
+        et, _, en = g.model.mesh.getElements(2, lateral)
+        count = {int(t): len(n) // (3 if t == 2 else 4) for t, n in zip(et, en)}
+    per_quad = count.get(3, 0) + count.get(2, 0) / 2.0  # quads, or triangles in pairs
+    expect = 2.0 * math.pi * r * h / want ** 2
+    assert 0.6 * expect <= per_quad <= 1.6 * expect, (count, expect)
+
+
 @pytest.mark.parametrize("occurrence", [0, 1])
 def test_a_loop_that_starts_on_the_seam_closes_in_uv(monkeypatch, occurrence):
     # reference: the analytic cylinder r = 3, h = 10 in gmsh's (u, v) = (angle, height): the

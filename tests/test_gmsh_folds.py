@@ -111,19 +111,25 @@ def test_a_reversed_element_is_seen_by_both_checks(boss_cutout):
     assert sum(_winding_against_occ(mesh, faces)) == 1
 
 
-@pytest.mark.parametrize("algorithms", [None, (8,)])
-def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algorithms):
+@pytest.mark.parametrize("algorithms, fill_fails", [(None, False), ((8,), False), ((8,), True)])
+def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algorithms, fill_fails):
     # reference: the same call without the fold. A surface reported folded once (the test
     # reports the largest as folded, with an element wound against it) is cleared and meshed
     # again with the first refold algorithm (6); the elements of every other surface are the
     # ones of the plain mesh, node for node. With algorithm 8 alone (the refold before 6 was
-    # tried first) this cut-out keeps triangles there and cadbridge's (u, v) fill cannot close
-    # the face's loops, so the whole model is meshed again in the subdivision pass
-    # (`_regenerate_all`): that fallback is exercised too
+    # tried first) this cut-out keeps triangles there, and cadbridge's (u, v) fill meshes the
+    # face (its loop holds the seam twice). Where the fill fails too (forced), the whole model
+    # is meshed again in the subdivision pass (`_regenerate_all`): that fallback is exercised
     from cadbridge.mesh import generate as G
+    from cadbridge.mesh.mesh import MeshError
 
     if algorithms is not None:
         monkeypatch.setitem(G._REFOLD_ALGORITHMS, "quad", algorithms)
+    if fill_fails:
+        def no_fill(*a, **kw):
+            raise MeshError("forced: the (u, v) fill cannot mesh it")
+
+        monkeypatch.setattr(G, "_fill_folds", no_fill)
     first = G._REFOLD_ALGORITHMS["quad"][0]
     path, faces = boss_cutout
     plain = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
@@ -157,7 +163,9 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algori
 
     others = [int(t) for t in np.unique(ent) if t != big]
     assert others and elements(again, others) == elements(plain, others)
-    assert regenerated == ([1] if algorithms == (8,) else [])
+    assert regenerated == ([1] if fill_fails else [])
+    if algorithms == (8,) and not fill_fails:
+        assert any(f"surface {big}" in n and "meshed in its (u, v)" in n for n in again.notes), again.notes
     assert not len(again.triangles)
     assert _winding_against_occ(again, faces) == [0, 0, 0]
 

@@ -811,7 +811,7 @@ def _fill_folds(g, surfaces: list[int], folds: dict[int, int], left_triangles: s
                   f" and {_refolds(kw)}") for s, k in folds.items()}
     notes = fill_empty_faces(g, sorted(folds), size=size, curvature_elements=kw["curvature_elements"],
                              element=kw["element"], subdivided=subdivided, label=str(path), failed=why,
-                             merge_tolerance=_merge_tolerance(size, subdivided))
+                             merge_tolerance=_merge_tolerance(size, subdivided), size_at=_size_at(kw))
     return _collect(g, surfaces, False, path), [
         n.replace(") and left ", ") on ", 1).replace(" without elements;", ";", 1) for n in notes]
 
@@ -1030,7 +1030,21 @@ def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdi
         loop_cuts.clear(g, cuts)
     return fill_empty_faces(g, surfaces, size=size, curvature_elements=kw["curvature_elements"],
                             element=kw["element"], subdivided=subdivided, label=str(path), cuts=cuts,
-                            failed=failed, merge_tolerance=_merge_tolerance(size, subdivided))
+                            failed=failed, merge_tolerance=_merge_tolerance(size, subdivided),
+                            size_at=_size_at(kw))
+
+
+def _size_at(kw: dict):
+    """``size_at(xyz (N, 3)) -> (N,)``: the target size of ``kw["background_sizes"]`` at
+    points, as gmsh reads that field (the size of the nearest carrier), for the faces
+    cadbridge fills itself; None without a background field."""
+    if kw.get("background_sizes") is None:
+        return None
+    from scipy.spatial import cKDTree
+
+    bp, bh = (np.asarray(a, dtype=float) for a in kw["background_sizes"])
+    tree, bh = cKDTree(bp.reshape(-1, 3)), bh.ravel()
+    return lambda x: bh[tree.query(np.asarray(x, dtype=float).reshape(-1, 3))[1]]
 
 
 def _merge_tolerance(size: float, subdivided: bool) -> float:

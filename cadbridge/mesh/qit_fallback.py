@@ -31,10 +31,13 @@ def mesh_loops_in_parameter_space(loops_uv: list[np.ndarray], scale: np.ndarray,
 
 def mesh_planar_loops(loops_uv: list[np.ndarray], scale: np.ndarray, size: float, label: str, *,
                       point_sizes: list[np.ndarray] | None = None,
-                      recombine: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      recombine: bool = False,
+                      interior_sizes: tuple[np.ndarray, np.ndarray] | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """`mesh_loops_in_parameter_space` with sizes per loop vertex (``point_sizes``, one (n_i,)
     array per loop, scaled units; the size then grows from them inside by `GRADING` per unit
-    distance up to ``size``, `_graded_field`) and,
+    distance up to ``size``, `_graded_field`), at most ``interior_sizes`` inside (points (K, 2)
+    in scaled (u, v), sizes (K,): each point's size over its nearest-point cell) and,
     with ``recombine``, gmsh's Blossom recombination into quads (triangles may remain).
 
     Returns uv (N, 2) as there, triangles (T, 3) and quads (Q, 4), counter-clockwise in (u, v).
@@ -52,7 +55,7 @@ def mesh_planar_loops(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
     tries = [(True, 1), (True, 0), (False, 1)] if recombine else [(False, 1)]
     for rec, algorithm in tries:
         uv, tris, quads = _mesh_planar_once(loops_uv, scale, size, label, point_sizes=point_sizes,
-                                            recombine=rec, recombination=algorithm)
+                                            recombine=rec, recombination=algorithm, interior_sizes=interior_sizes)
         if _covers_once(loops_uv, scale, uv, tris, quads):
             return uv, tris, quads
     raise MeshError(f"{label}: the gmsh fallback's triangles overlap (their area exceeds the face's in (u, v))")
@@ -65,11 +68,15 @@ elements differ by about 1.25x. gmsh's own extension of the boundary sizes over 
 production die's binder, 1.7 mm boundary segments and a 72 mm size, got 318 196 quads."""
 
 
-def _graded_field(g, pt_tags: list[int], sizes: np.ndarray, ratio: float = 1.5) -> None:
+def _graded_field(g, pt_tags: list[int], sizes: np.ndarray, ratio: float = 1.5, sess=None,
+                  interior_sizes: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """The background size min_i(h_i + GRADING d_i) over the loop vertices ``pt_tags`` (geo
     points, sizes ``sizes`` (n,)), as gmsh fields: the vertices binned by size (bins ``ratio``
     wide, each at its smallest size h_b), one Distance field d_b per bin, size h_b + GRADING d_b,
-    the Min over bins. At most 1.5x finer than the exact minimum, never coarser."""
+    the Min over bins. At most 1.5x finer than the exact minimum, never coarser. With
+    ``interior_sizes`` (points (K, 2), sizes (K,)) also the Min with their nearest-point
+    field (a list-based view behind a PostView field, as `mesh.generate._background_field`;
+    ``sess`` keeps the view for removal)."""
     fld = g.model.mesh.field
     sizes = np.maximum(np.asarray(sizes, dtype=float), 1e-300)
     bins = np.floor(np.log(sizes / sizes.min()) / np.log(ratio)).astype(np.int64)
@@ -81,6 +88,16 @@ def _graded_field(g, pt_tags: list[int], sizes: np.ndarray, ratio: float = 1.5) 
         term = fld.add("MathEval")
         fld.setString(term, "F", f"{float(sizes[sel].min())!r} + {GRADING!r} * F{dist}")
         terms.append(term)
+    if interior_sizes is not None:
+        ip, ih = (np.asarray(a, dtype=float) for a in interior_sizes)
+        view = g.view.add("cadbridge-fill-sizes")
+        if sess is not None:
+            sess.views.append(view)
+        xyz = np.column_stack([ip.reshape(-1, 2), np.zeros(len(ih))])
+        g.view.addListData(view, "SP", len(ih), np.column_stack([xyz, ih.ravel()]).ravel().tolist())
+        pv = fld.add("PostView")
+        fld.setNumber(pv, "ViewTag", view)
+        terms.append(pv)
     low = fld.add("Min")
     fld.setNumbers(low, "FieldsList", [float(t) for t in terms])
     fld.setAsBackgroundMesh(low)
@@ -104,7 +121,7 @@ def _covers_once(loops_uv: list[np.ndarray], scale: np.ndarray, uv: np.ndarray, 
 
 def _mesh_planar_once(loops_uv: list[np.ndarray], scale: np.ndarray, size: float, label: str, *,
                       point_sizes: list[np.ndarray] | None, recombine: bool,
-                      recombination: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                      recombination: int, interior_sizes=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One gmsh run of `mesh_planar_loops` with ``Mesh.RecombinationAlgorithm`` ``recombination``."""
     from cadbridge.mesh.generate import GmshSession
     from cadbridge.mesh.mesh import MeshError
@@ -133,7 +150,8 @@ def _mesh_planar_once(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
         sess.set("Mesh.MeshSizeFromCurvature", 0)
         sess.set("Mesh.MeshSizeExtendFromBoundary", 1 if point_sizes is None else 0)
         if point_sizes is not None:
-            _graded_field(g, pt_tags, np.concatenate([np.asarray(h, dtype=float) for h in point_sizes]))
+            _graded_field(g, pt_tags, np.concatenate([np.asarray(h, dtype=float) for h in point_sizes]), sess=sess,
+                          interior_sizes=interior_sizes)
         # a caller's session may have set these (all-quad subdivision, no point sizes)
         sess.set("Mesh.MeshSizeFromPoints", 1)
         sess.set("Mesh.SubdivisionAlgorithm", 0)
