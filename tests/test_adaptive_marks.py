@@ -149,3 +149,26 @@ def test_the_die_boss_ring_meets_0002_with_its_face_law_scaled(tmp_path):
     assert res.met and res.check["max_error"] <= 0.002, res.summary()
     assert len(res.passes) <= 3, res.summary()
     assert any("law's sizes scaled" in a and "BOS00666" in a for a in res.actions), res.actions
+
+
+def test_the_background_carriers_stay_from_pass_to_pass(monkeypatch):
+    """The field gmsh reads in pass 3 holds every carrier of pass 2 at the same place, marks
+    only added (the thesis' S surface at t = 0.0001: 3 passes). gmsh meshes a face whose
+    field and boundary did not change node for node, so faces that held the tolerance keep
+    their mesh; with the previous pass's nodes as carriers every carrier moved, and on the
+    production die at t = 0.002 each pass gave misshapen quads to a few faces without any mark."""
+    import cadbridge.mesh.generate as G
+    from cadbridge.refine import refine_mesh
+
+    real, fields = G.mesh_cad, []
+
+    def recording(*a, **kw):
+        fields.append(kw["background_sizes"])
+        return real(*a, **kw)
+
+    monkeypatch.setattr(G, "mesh_cad", recording)
+    r = refine_mesh(Path(__file__).parents[1] / "iges_samples" / "thesis_appendix_a.igs", 0.0001)
+    assert len(fields) >= 3, r.summary()
+    p2, p3 = (np.unique(np.round(f[0], 12), axis=0) for f in fields[1:3])
+    both = np.concatenate([p2, p3])
+    assert len(np.unique(both, axis=0)) == len(p3) > len(p2)  # pass 2's carriers all in pass 3, and more
