@@ -311,15 +311,22 @@ def _inflection_curves(model, progress) -> tuple[list, list[str]]:
 
     curves, notes = [], []
     for i, f in enumerate(model.faces):  # loop over faces
+        label = f"face {i}{' ' + f.name if f.name else ''}"
         for d in ("u", "v"):
+            other = []  # the lines that are no iso-line: one note for all of them
             for line in inflection_lines(f.surface, d):
                 if line.iso:
                     curves.append(isocurve(f.surface, d, line.value))
-                    notes.append(f"face {i}{' ' + f.name if f.name else ''}: inflection line {d} = {line.value:.6g} "
+                    notes.append(f"{label}: inflection line {d} = {line.value:.6g} "
                                  f"(normal curvature along {d} changes sign) inserted as a mesh edge")
                 else:
-                    notes.append(f"face {i}{' ' + f.name if f.name else ''}: inflection line across {d} (not an "
-                                 f"iso-line, {len(line.uv)} points): nodes of edges across it are moved onto it")
+                    other.append(len(line.uv))
+            if len(other) == 1:
+                notes.append(f"{label}: inflection line across {d} (not an iso-line, {other[0]} points): nodes of "
+                             f"edges across it are moved onto it")
+            elif other:
+                notes.append(f"{label}: {len(other)} inflection lines across {d} (not iso-lines, {sum(other)} points): "
+                             f"nodes of edges across them are moved onto them")
     return curves, notes
 
 
