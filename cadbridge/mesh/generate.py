@@ -444,9 +444,9 @@ def mesh_cad(
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
     path : CAD file read by ``gmsh.model.occ.importShapes``.
-    element : "tri" (Frontal-Delaunay, gmsh algorithm 6) or "quad" (Frontal-Delaunay for
-        quads, algorithm 8, recombined with Blossom; remaining triangles, if any, are
-        removed by falling back to gmsh's all-quad subdivision at twice the size).
+    element : "tri" (Frontal-Delaunay, gmsh algorithm 6) or "quad" (Delaunay, algorithm 5,
+        recombined with Blossom; remaining triangles, if any, are removed by falling back to
+        gmsh's all-quad subdivision at twice the size).
     size : target element size in model units (``Mesh.MeshSizeMax``); default bounding-box
         diagonal / 20.
     structured : transfinite (mapped) meshes on four-sided faces (see module docs).

@@ -284,7 +284,7 @@ class SizeField:
         without a Python call per query.
 
         Carriers are the field's samples and marks plus ``extra`` points (K, 3) (e.g. the
-        nodes of the previous mesh, dense where the sizes are small). A query point x takes
+        nodes of the first mesh, dense where the sizes are small). A query point x takes
         the size of its nearest carrier c, so each carrier gets the smallest size the field
         reaches halfway to its ``neighbours`` nearest carriers j, min(h(c), h(j) + g |c - j| / 2)
         (the border of its Voronoi cell towards them): where the field falls from c towards a
