@@ -110,7 +110,7 @@ class AdaptiveResult:
             more = f" and {len(els) - 8} more" if len(els) > 8 else ""
             parts.append(f"{t}: elements {names}{more}")
         return (f"shape tolerance {self.tolerance:g} not met above the size floor {self.size_floor:.3g} after "
-                f"{len(self.passes)} passes (best max shape error {self.check.get('max_error', math.nan):.3g}): "
+                f"{len(self.passes)} passes (best max shape error {_num(self.check.get('max_error'), '.3g')}): "
                 + "; ".join(parts) + " (1-based element numbers of the tool files; the best mesh was written)")
 
     def summary(self) -> str:
@@ -121,11 +121,11 @@ class AdaptiveResult:
         for p in self.passes:
             lines.append(f"  {p.index:>4}{p.nodes:>8}{p.elements:>8}{p.max_error:>11.3e}{p.rms_error:>11.3e}"
                          f"{p.max_normal_error:>10.4f}°{p.rms_normal_error:>10.4f}°{p.above:>7}{p.inadmissible:>7}"
-                         f"{p.moved:>7}{p.checked_max_error:>11.3e}")
+                         f"{p.moved:>7}{_num(p.checked_max_error, '.3e'):>11}")  # '-': no check in that pass
         c = self.check
         lines.append(f"  check on {c.get('grid')} divisions per patch ({c.get('samples')} points): max shape error "
-                     f"{c.get('max_error', math.nan):.3e}, RMS {c.get('rms_error', math.nan):.3e}, max normal error "
-                     f"{c.get('max_normal_error', math.nan):.4f}°, RMS {c.get('rms_normal_error', math.nan):.4f}°")
+                     f"{_num(c.get('max_error'), '.3e')}, RMS {_num(c.get('rms_error'), '.3e')}, max normal error "
+                     f"{_num(c.get('max_normal_error'), '.4f')}°, RMS {_num(c.get('rms_normal_error'), '.4f')}°")
         lines += [f"  {a}" for a in self.actions[:20]]
         if len(self.actions) > 20:
             lines.append(f"  ... {len(self.actions) - 20} more actions (adaptive_report.json)")
@@ -168,6 +168,12 @@ class AdaptiveResult:
                            edges=np.stack([x[e2[:, 0]], x[e2[:, 1]]], axis=1))
             files.append(f"{t.name}_shape_error.png")
         return files
+
+
+def _num(x, fmt: str) -> str:
+    """``x`` formatted by ``fmt``, or "-" where it is missing or not finite (a pass without the
+    dense check): the report's text files hold no "nan"."""
+    return format(x, fmt) if isinstance(x, (int, float)) and math.isfinite(x) else "-"
 
 
 def _finite_json(obj):
