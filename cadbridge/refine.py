@@ -413,7 +413,7 @@ def refine_mesh(
     # the law's sizes of each face, scaled down where its unmapped elements stayed above the
     # tolerance (`scale_face_law`)
     face_scale = np.ones(len(model.faces))
-    field_ = SizeField(law_pts, law_h, h_min, h_max, gradation)
+    field_ = law  # the field gmsh gets: rebuilt with the scales and marks after every pass
     marks = SizeField(np.zeros((0, 3)), np.zeros(0), h_min, h_max, gradation)  # refinement requests only
     structured = (element == "quad") if structured is None else bool(structured)
 

@@ -193,8 +193,9 @@ def _face_loops(g, s: int) -> list[tuple]:
         if count[c] > 1:
             # a seam (the curve twice in the loop): the pcurve that continues the previous
             # curve, or where a loop starts on the seam, the one the next curve continues
-            # (the production die's pilot wall PIL01059, its loop from the seam: pcurve 0 at
-            # u = 0 where the next curve starts at u = 2 pi, so the loop ended a period away)
+            # (gmsh surface 546 of the production die, a ring whose loop starts on its seam:
+            # pcurve 0 at u = 0 where the next curve starts at u = 2 pi, so the loop ended a
+            # period away)
             uv1 = _pcurve(g, c, t, s, 1, ct < 0)
             if prev_uv is not None:
                 if np.linalg.norm(uv1[0] - prev_uv) < np.linalg.norm(uv[0] - prev_uv):
@@ -391,10 +392,10 @@ def _interior_sizes(g, s: int, box: np.ndarray, scale: np.ndarray, h: float, siz
         return None
     ext = (box[1] - box[0]) * scale
     nu, nv = (int(np.clip(math.ceil(e / lo) + 1, 17, INTERIOR_SAMPLES)) for e in ext)
+    from scipy.ndimage import minimum_filter
+
     uv, hs = grid(nu, nv)
-    pad = np.pad(hs, 1, mode="edge")
-    hs = np.min([pad[i:i + nu, j:j + nv] for i in range(3) for j in range(3)], axis=0)
-    return uv * scale, np.minimum(hs.ravel(), h)
+    return uv * scale, np.minimum(minimum_filter(hs, size=3, mode="nearest").ravel(), h)
 
 
 def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,

@@ -1037,14 +1037,21 @@ def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdi
 def _size_at(kw: dict):
     """``size_at(xyz (N, 3)) -> (N,)``: the target size of ``kw["background_sizes"]`` at
     points, as gmsh reads that field (the size of the nearest carrier), for the faces
-    cadbridge fills itself; None without a background field."""
+    cadbridge fills itself; None without a background field. The carriers' tree is built on
+    the first call only (most meshes fill no face; the die's field has ~10^6 carriers)."""
     if kw.get("background_sizes") is None:
         return None
     from scipy.spatial import cKDTree
 
     bp, bh = (np.asarray(a, dtype=float) for a in kw["background_sizes"])
-    tree, bh = cKDTree(bp.reshape(-1, 3)), bh.ravel()
-    return lambda x: bh[tree.query(np.asarray(x, dtype=float).reshape(-1, 3))[1]]
+    tree: list = []
+
+    def size_at(x):
+        if not tree:
+            tree.append(cKDTree(bp.reshape(-1, 3)))
+        return bh.ravel()[tree[0].query(np.asarray(x, dtype=float).reshape(-1, 3))[1]]
+
+    return size_at
 
 
 def _merge_tolerance(size: float, subdivided: bool) -> float:
