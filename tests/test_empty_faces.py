@@ -76,6 +76,16 @@ def _area(x: np.ndarray, conn: np.ndarray) -> float:
     return float(0.5 * np.linalg.norm(np.cross(p[:, 2] - p[:, 0], p[:, 3] - p[:, 1]), axis=1).sum())
 
 
+def _cylinder(sess, r: float, h: float) -> int:
+    """A gmsh OCC cylinder of radius r, height h on the z axis in ``sess``, mesh size 1.0;
+    returns its lateral surface's tag (not meshed yet)."""
+    g = sess.gmsh
+    g.model.occ.addCylinder(0, 0, 0, 0, 0, h, r)
+    g.model.occ.synchronize()
+    sess.set("Mesh.MeshSizeMax", 1.0)
+    return next(t for _, t in g.model.getEntities(2) if g.model.getType(2, t) == "Cylinder")
+
+
 @pytest.mark.parametrize("element", ["tri", "quad"])
 def test_a_cleared_cylinder_face_is_filled_on_the_surface_and_conformal(element):
     gmsh = pytest.importorskip("gmsh")
@@ -85,14 +95,11 @@ def test_a_cleared_cylinder_face_is_filled_on_the_surface_and_conformal(element)
     r, h = 3.0, 10.0
     with GmshSession() as sess:
         g = sess.gmsh
-        g.model.occ.addCylinder(0, 0, 0, 0, 0, h, r)
-        g.model.occ.synchronize()
-        sess.set("Mesh.MeshSizeMax", 1.0)
+        lateral = _cylinder(sess, r, h)
         if element == "quad":  # gmsh's all-quad subdivision: boundary curves split in two
             sess.set("Mesh.RecombineAll", 1)
             sess.set("Mesh.SubdivisionAlgorithm", 1)
         g.model.mesh.generate(2)
-        lateral = next(t for _, t in g.model.getEntities(2) if g.model.getType(2, t) == "Cylinder")
         g.model.mesh.clear([(2, lateral)])
         assert not any(len(t) for t in g.model.mesh.getElements(2, lateral)[1])
         n_circle = len(g.model.mesh.getNodes(1, next(c for _, c in g.model.getBoundary([(2, lateral)])
@@ -181,11 +188,8 @@ def test_a_filled_face_follows_the_callers_size_field(element):
     r, h, want = 3.0, 10.0, 0.4
     with GmshSession() as sess:
         g = sess.gmsh
-        g.model.occ.addCylinder(0, 0, 0, 0, 0, h, r)
-        g.model.occ.synchronize()
-        sess.set("Mesh.MeshSizeMax", 1.0)
+        lateral = _cylinder(sess, r, h)
         g.model.mesh.generate(2)
-        lateral = next(t for _, t in g.model.getEntities(2) if g.model.getType(2, t) == "Cylinder")
         g.model.mesh.clear([(2, lateral)])
         fill_empty_faces(g, [lateral], size=1.0, curvature_elements=0, element=element, subdivided=False,
                          label="cylinder", size_at=lambda x: np.full(len(np.reshape(x, (-1, 3))), want))
@@ -200,8 +204,8 @@ def test_a_filled_face_follows_the_callers_size_field(element):
 def test_a_loop_that_starts_on_the_seam_closes_in_uv(monkeypatch, occurrence):
     # reference: the analytic cylinder r = 3, h = 10 in gmsh's (u, v) = (angle, height): the
     # lateral face's one loop encloses exactly the rectangle 2 pi x h. Its boundary is
-    # rotated to start on the seam, at either of its two passes (the production die's pilot
-    # wall PIL01059 does: OCC's wire order), where there is no previous curve to pick the
+    # rotated to start on the seam, at either of its two passes (gmsh surface 546 of the
+    # production die does: OCC's wire order), where there is no previous curve to pick the
     # seam's pcurve by
     from cadbridge.mesh.empty_faces import _face_loops
     from cadbridge.mesh.generate import GmshSession
@@ -210,11 +214,8 @@ def test_a_loop_that_starts_on_the_seam_closes_in_uv(monkeypatch, occurrence):
     r, h = 3.0, 10.0
     with GmshSession() as sess:
         g = sess.gmsh
-        g.model.occ.addCylinder(0, 0, 0, 0, 0, h, r)
-        g.model.occ.synchronize()
-        sess.set("Mesh.MeshSizeMax", 1.0)
+        lateral = _cylinder(sess, r, h)
         g.model.mesh.generate(1)
-        lateral = next(t for _, t in g.model.getEntities(2) if g.model.getType(2, t) == "Cylinder")
         real = g.model.getBoundary
         plain = real([(2, lateral)], combined=False, oriented=True, recursive=False)
         seam = [k for k, (_, c) in enumerate(plain) if sum(abs(b) == abs(c) for _, b in plain) == 2][occurrence]

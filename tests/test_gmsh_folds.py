@@ -87,6 +87,20 @@ def _winding_against_occ(mesh, faces) -> list[int]:
     return [int(min(np.sum(np.array(s) > 0), np.sum(np.array(s) < 0))) for s in sign.values()]
 
 
+def _folds_once(monkeypatch, G, surface: int) -> None:
+    """Make `mesh_cad`'s first fold check report ``surface`` folded (one pair, an element
+    wound against it); every later check is the real one."""
+    real, real_wound = G._folded_surfaces, G._wound_against_surface
+    calls = []
+
+    def once(mesh):
+        calls.append(1)
+        return {surface: 1} if len(calls) == 1 else real(mesh)
+
+    monkeypatch.setattr(G, "_folded_surfaces", once)
+    monkeypatch.setattr(G, "_wound_against_surface", lambda g, mesh, s: len(calls) == 1 or real_wound(g, mesh, s))
+
+
 def test_the_boss_wall_is_meshed_without_a_fold(boss_cutout):
     from cadbridge.mesh.generate import _folded_surfaces, mesh_cad
 
@@ -135,15 +149,7 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algori
     plain = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
     ent = np.asarray(plain.cell_data["element_entity"])
     big = int(np.bincount(ent).argmax())
-    real, real_wound = G._folded_surfaces, G._wound_against_surface
-    calls = []
-
-    def once(mesh):
-        calls.append(1)
-        return {big: 1} if len(calls) == 1 else real(mesh)
-
-    monkeypatch.setattr(G, "_folded_surfaces", once)
-    monkeypatch.setattr(G, "_wound_against_surface", lambda g, mesh, s: len(calls) == 1 or real_wound(g, mesh, s))
+    _folds_once(monkeypatch, G, big)
     regenerated = []
     real_all = G._regenerate_all
     monkeypatch.setattr(G, "_regenerate_all", lambda *a: regenerated.append(1) or real_all(*a))
@@ -190,15 +196,7 @@ def test_a_refolded_surface_follows_the_size_field(monkeypatch):
     plain = mesh_cad(path, **kw)
     ent = np.asarray(plain.cell_data["element_entity"])
     big = int(np.bincount(ent).argmax())
-    real, real_wound = G._folded_surfaces, G._wound_against_surface
-    calls = []
-
-    def once(mesh):
-        calls.append(1)
-        return {big: 1} if len(calls) == 1 else real(mesh)
-
-    monkeypatch.setattr(G, "_folded_surfaces", once)
-    monkeypatch.setattr(G, "_wound_against_surface", lambda g, mesh, s: len(calls) == 1 or real_wound(g, mesh, s))
+    _folds_once(monkeypatch, G, big)
     again = mesh_cad(path, **kw)
     assert any(f"algorithm 6 on {big}" in n for n in again.notes), again.notes
     n_plain = int(np.sum(ent == big))
