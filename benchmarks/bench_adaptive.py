@@ -1,6 +1,6 @@
 """Adaptive Nagata meshing (issue 12) against uniform gmsh meshes, in the same run.
 
-For each sample and shape tolerance t: `cadbridge.refine.refine_mesh` gives a mesh whose
+For each sample and shape tolerance t: `cadbridge.tool.refine.refine_mesh` gives a mesh whose
 max shape error E_a is measured on its dense check grid (11 divisions per patch). Uniform
 gmsh meshes (`mesh_cad`, quads, one size everywhere, no curvature sizing) of shrinking size
 h (x 0.8 per step) are measured on 6 divisions per patch (fewer samples: their errors can
@@ -65,10 +65,10 @@ def make_punch(path: Path) -> None:
 
 
 def measure(path: Path, mesh, model, projector, grid: int) -> tuple[float, float]:
-    from cadbridge.pipeline import NoProgress, _tools_from_mesh
-    from cadbridge.refine import shape_check
+    from cadbridge.tool.build import NoProgress, tools_from_mesh
+    from cadbridge.tool.refine import shape_check
 
-    tools = _tools_from_mesh(mesh, model, "cad", None, 2, None, False, False, projector, NoProgress(),
+    tools = tools_from_mesh(mesh, model, "cad", None, 2, None, False, False, projector, NoProgress(),
                              orient=True, meshed_per_face=True)
     c, _ = shape_check(tools, model, projector, grid)
     return c["max_error"], c["max_normal_error"]
@@ -77,8 +77,8 @@ def measure(path: Path, mesh, model, projector, grid: int) -> tuple[float, float
 def run(path: Path, tols, rows: list, max_steps: int) -> None:
     from cadbridge.iges import read_iges
     from cadbridge.mesh.generate import mesh_cad
-    from cadbridge.pipeline import CadProjector
-    from cadbridge.refine import refine_mesh
+    from cadbridge.tool.build import CadProjector
+    from cadbridge.tool.refine import refine_mesh
 
     model = read_iges(path)
     projector = CadProjector(model)
@@ -124,8 +124,8 @@ def run_production(path: Path, tols, sizes, rows: list) -> None:
     max error gives the ratio. Progress goes to stdout with times."""
     from cadbridge.iges import read_iges
     from cadbridge.mesh.generate import mesh_cad
-    from cadbridge.pipeline import CadProjector
-    from cadbridge.refine import refine_mesh
+    from cadbridge.tool.build import CadProjector
+    from cadbridge.tool.refine import refine_mesh
 
     t_all = time.perf_counter()
 
@@ -209,8 +209,8 @@ def main(argv=None) -> int:
         # speed: adaptive U-shape tools at 0.002 mm vs one plain mesh + Nagata + measurement
         from cadbridge.iges import read_iges
         from cadbridge.mesh.generate import mesh_cad
-        from cadbridge.pipeline import CadProjector
-        from cadbridge.refine import refine_mesh
+        from cadbridge.tool.build import CadProjector
+        from cadbridge.tool.refine import refine_mesh
 
         u = ROOT / "iges_samples" / "ushape_tools_nurbs.igs"
         model = read_iges(u)
@@ -258,7 +258,7 @@ def _write(out: str, rows: list, speed: list, production: bool = False) -> int:
         lines.append(f"| {name} | {met} | {npass} | {n} | {e:.3e} | {ta:.1f} | {tp:.1f} | {ta / tp:.2f}x |")
     text = "\n".join(lines) + "\n"
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    from cadbridge.io.atomic import atomic_write
+    from cadbridge.common.atomic import atomic_write
 
     with atomic_write(out) as fh:
         fh.write(text)

@@ -6,7 +6,7 @@
    the grid points from each surface (each point projected by cadbridge's point inversion; the
    same measure for all three) and the time ratio.
 2. Scattered data: scan-like points of the U-shape die (noise, outliers, a hole), the whole
-   `cadbridge.fitting.fit_points` job: points/s.
+   `cadbridge.fitting.surface_fit.fit_points` job: points/s.
 3. Scale: --scale N points of the same kind (default 1 000 000): wall time and peak memory.
 
     python benchmarks/bench_fit.py                 # all three
@@ -112,7 +112,7 @@ def grid_bench(n: int, occ_tol: float) -> None:
 def scattered_bench(n: int) -> None:
     from test_fit_points import die_scan
 
-    from cadbridge.fitting import fit_points
+    from cadbridge.fitting.surface_fit import fit_points
 
     model, _, x, _ = die_scan(n)
     fit_points(x[:5000], base=model, tolerance=0.01)  # compile outside the timing
@@ -148,7 +148,7 @@ def _reset_peak() -> bool:
 def timed_scale_fit(model, x):
     """The timed scale fit (``trim=True``, tolerance 0.01 mm on the die base): (report, {wall,
     cpu [s], load0, load1 (load average before / after), peak, before (RSS [MB]), peak_over})."""
-    from cadbridge.fitting import fit_points
+    from cadbridge.fitting.surface_fit import fit_points
 
     reset = _reset_peak()
     before = _rss_mb("VmRSS")
@@ -166,7 +166,7 @@ def scale_bench(n: int, repeat: int = 1) -> None:
 
     from test_fit_points import die_scan
 
-    from cadbridge.fitting import fit_points
+    from cadbridge.fitting.surface_fit import fit_points
 
     model, _, x, _ = die_scan(n)
     # compile (or load from numba's cache) outside the timing, the large-input path included
@@ -185,7 +185,7 @@ def scale_bench(n: int, repeat: int = 1) -> None:
 
 def cad_error(rep, model) -> float:
     """Max distance of dense samples of the fit (inside its trim, feet inside the CAD) to the die CAD."""
-    from cadbridge.search import project_points
+    from cadbridge.cad.search import project_points
 
     s = rep.face.surface
     u, v = s.grid(500, 60)

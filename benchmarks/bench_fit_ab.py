@@ -34,7 +34,7 @@ import cadbridge
 assert Path(cadbridge.__file__).resolve().is_relative_to(Path(sys.argv[1]).resolve()), cadbridge.__file__
 from test_fit_points import die_scan
 from bench_fit import cad_error, timed_scale_fit
-from cadbridge.fitting import fit_points
+from cadbridge.fitting.surface_fit import fit_points
 n = int(sys.argv[3])
 model, _, x, _ = die_scan(n)
 fit_points(x[:120000], base=model, tolerance=0.01)

@@ -85,7 +85,7 @@ def fmt_time(t: float) -> str:
 # ---------------------------------------------------------------------------- peers
 def to_occ(s: NurbsSurface):
     """OCC Geom_BSplineSurface of the same data (the peer evaluator)."""
-    from cadbridge.occ.reference import occ_bspline_surface
+    from cadbridge.verify.reference import occ_bspline_surface
 
     return occ_bspline_surface(s)
 

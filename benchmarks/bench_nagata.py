@@ -8,11 +8,14 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
 from cadbridge.nagata import NagataMesh
-from cadbridge.nagata.shapes import sphere_triangles_fine
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # shared test geometry
+from nagata_shapes import sphere_triangles_fine  # noqa: E402
 
 
 def best_of(fn, repeat: int = 3) -> float:

@@ -46,7 +46,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from bench_projection import points_on_faces  # noqa: E402
 
 from cadbridge.iges import read_iges  # noqa: E402
-from cadbridge.search import index_for, project_points  # noqa: E402
+from cadbridge.cad.search import index_for, project_points  # noqa: E402
 
 BEARING = ROOT.parent / "shared" / "iges_real" / "occt_bearing_EuclidQuantum.iges"
 DIES = [ROOT / "iges_samples" / "production_die_nurbs.igs", ROOT / "iges_samples" / "production_die_analytic.igs"]
@@ -79,7 +79,7 @@ def projection_case(path: Path, n: int, n_occ: int, seed: int = 3) -> dict:
     from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
     from OCP.gp import gp_Pnt
 
-    from cadbridge.occ.reference import occ_read
+    from cadbridge.verify.reference import occ_read
 
     model = read_iges(path)
     clk = Clock()
@@ -198,7 +198,7 @@ def normals_case(path: Path, nodes: int, mesh_file: Path | None) -> list[tuple[s
     rows.append(("search index build (fresh model)", f"{t_idx:.2f} s (CPU {c_idx:.2f} s)"))
     import numba
 
-    from cadbridge.search import _concurrent_kernels
+    from cadbridge.cad.search import _concurrent_kernels
 
     rows.append(("threads", f"{numba.config.NUMBA_NUM_THREADS} numba threads ({numba.threading_layer()} layer); "
                             f"cad_normals runs the mesh topology on a second thread during the node projection"

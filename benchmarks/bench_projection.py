@@ -28,9 +28,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from test_project import cylinder, random_surface, sphere, to_occ, torus  # noqa: E402
 
-from cadbridge.model import Face, Model  # noqa: E402
+from cadbridge.cad.model import Face, Model  # noqa: E402
 from cadbridge.nurbs.project import FAILED, ON_BOUNDARY, project_to_surface, surface_samples  # noqa: E402
-from cadbridge.search import build_search_index, project_points  # noqa: E402
+from cadbridge.cad.search import build_search_index, project_points  # noqa: E402
 
 
 def points_near(rng, s, n, spread, beyond=0.0):
@@ -243,8 +243,8 @@ def bench_real(path: Path, n: int, n_occ: int, seed: int = 3) -> None:
     from OCP.gp import gp_Pnt
 
     from cadbridge.iges import read_iges
-    from cadbridge.occ.reference import occ_read
-    from cadbridge.search import index_for
+    from cadbridge.verify.reference import occ_read
+    from cadbridge.cad.search import index_for
 
     t0 = time.perf_counter()
     model = read_iges(path)

@@ -1,4 +1,4 @@
-"""QIT (cadbridge.mesh.qit) side by side with gmsh on the same CAD, same target size.
+"""QIT (cadbridge.mesh.qit.mesher) side by side with gmsh on the same CAD, same target size.
 
 Cases: the appendix D surfaces of Herrero Adan & Cardoso (2020) (Ex. 7.1 at R = 12 and 5,
 Ex. 7.2 at R = 5), the plate with a hole (trimmed), and the U-shape die and punch (NURBS).
@@ -9,7 +9,7 @@ For each case and mesher:
 * time to mesh (QIT: whole algorithm, best of 2 runs; gmsh: import + 2D mesh of the
   algorithm reported);
 * QIT two ways: as shipped and the paper's construction alone (``strip_opt=False``);
-* Nagata shape error with exact CAD normals (cadbridge.pipeline.build_tool): max |distance|
+* Nagata shape error with exact CAD normals (cadbridge.tool.pipeline.build_tool): max |distance|
   of the Nagata surface to the CAD, at equal node count (gmsh's size is rescaled until its
   node count is within 3 % of QIT's).
 
@@ -31,13 +31,14 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tests"))  # shared test geometry (qit_examples, nagata_shapes)
 
 from cadbridge.iges import read_iges, write_iges  # noqa: E402
 from cadbridge.mesh.mesh import CellBlock, Mesh  # noqa: E402
-from cadbridge.mesh.qit import QitOptions, qit_mesh  # noqa: E402
-from cadbridge.mesh.qit_examples import example_71, example_72  # noqa: E402
+from cadbridge.mesh.qit.mesher import QitOptions, qit_mesh  # noqa: E402
+from qit_examples import example_71, example_72  # noqa: E402
 from cadbridge.mesh.quality import mesh_quality  # noqa: E402
-from cadbridge.model import Face  # noqa: E402
+from cadbridge.cad.model import Face  # noqa: E402
 
 GMSH_ALGOS = {1: "MeshAdapt", 5: "Delaunay", 6: "Frontal-Delaunay"}
 # QIT as shipped (with the strip step, docs/qit.md choice 19) and the paper's construction alone
@@ -82,9 +83,9 @@ def gmsh_mesh(path: Path, size: float, algo: int) -> tuple[Mesh, float]:
 def nagata_error(mesh: Mesh, model) -> float:
     """Max |distance| of the Nagata surface (exact CAD normals) to the CAD (mm)."""
     from cadbridge.normals.cad import cad_normals
-    from cadbridge.pipeline import _consistently_oriented, build_tool
+    from cadbridge.tool.build import consistently_oriented, build_tool
 
-    mesh = _consistently_oriented(mesh, True)
+    mesh = consistently_oriented(mesh, True)
     cn = cad_normals(mesh, model)
     tool = build_tool("t", mesh, cn.normals, cn.corner_normals, "cad", model=model, grid=6,
                       node_face=cn.face, node_distance=cn.distance)

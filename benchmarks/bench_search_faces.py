@@ -37,10 +37,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_projection import points_on_faces  # noqa: E402
 
 from cadbridge.iges import read_iges  # noqa: E402
-from cadbridge.model import Model, Trim, TrimLoop  # noqa: E402
+from cadbridge.cad.model import Model, Trim, TrimLoop  # noqa: E402
 from cadbridge.nurbs.curve import NurbsCurve  # noqa: E402
 from cadbridge.nurbs.surface import NurbsSurface  # noqa: E402
-from cadbridge.search import index_for, project_points  # noqa: E402
+from cadbridge.cad.search import index_for, project_points  # noqa: E402
 
 REPEAT = 3
 
@@ -108,7 +108,7 @@ def main() -> None:
     from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
     from OCP.gp import gp_Pnt
 
-    from cadbridge.occ.reference import occ_read
+    from cadbridge.verify.reference import occ_read
 
     occ = [f.surface for f in occ_read(path)]
     m = min(a.occ_points, len(pts))

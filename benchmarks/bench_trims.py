@@ -1,5 +1,5 @@
 """Trim classification on the real IGES files (../shared/iges_real): old polygon-band rule vs
-the exact-curve rule (cadbridge.trims), timing and agreement with OCC's BRepClass_FaceClassifier.
+the exact-curve rule (cadbridge.cad.trims), timing and agreement with OCC's BRepClass_FaceClassifier.
 
 Per file: build time of the loop boundaries (polygon + chord bounds + edge grid); N (u, v)
 points over the trimmed B-spline faces, half uniform in each face's loop box, half near the
@@ -117,7 +117,7 @@ def occ_on(face, uv):
 
 
 def main(n_total: int, files: list[Path]) -> None:
-    from cadbridge.occ.reference import occ_eval, occ_inside, occ_read
+    from cadbridge.verify.reference import occ_eval, occ_inside, occ_read
 
     rng = np.random.default_rng(8)
     print(f"{'file':42s} {'faces':>5s} {'build s':>8s} {'pts':>7s} {'new s':>7s} {'old s':>7s} {'new=OCC':>8s} {'old=OCC':>8s} {'near!ON new':>12s} {'near!ON old':>12s} {'new!=old':>8s}")

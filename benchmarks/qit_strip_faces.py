@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from cadbridge.iges import read_iges  # noqa: E402
-from cadbridge.mesh.qit import QitError, QitOptions, qit_mesh  # noqa: E402
+from cadbridge.mesh.qit.mesher import QitError, QitOptions, qit_mesh  # noqa: E402
 from cadbridge.mesh.quality import mesh_quality  # noqa: E402
 
 

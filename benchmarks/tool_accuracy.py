@@ -13,7 +13,7 @@ For every file of iges_samples/*.igs and ../shared/iges_real/*, in tri and in qu
    file's COEFFICIENTS and the flat element point (triangle x00 + (x10-x00) eta +
    (x11-x10) zeta, quad bilinear) at the same (eta, zeta);
 3. measure both against OpenCASCADE: the IGES read by ``IGESControl_Reader``
-   (``cadbridge.occ.reference.occ_read``: OCC's reader and surfaces, none of cadbridge's
+   (``cadbridge.verify.reference.occ_read``: OCC's reader and surfaces, none of cadbridge's
    geometry); each element goes to the OCC face nearest its flat centroid
    (``BRepExtrema_DistShapeShape`` vertex vs a compound of all faces, ``SupportOnShape2``; when the
    support is an edge or a vertex, the adjacent face whose surface is nearest the centroid),
@@ -173,7 +173,7 @@ class OccReference:
         from OCP.TopLoc import TopLoc_Location
         from OCP.TopoDS import TopoDS
 
-        from cadbridge.occ.reference import occ_read_shape
+        from cadbridge.verify.reference import occ_read_shape
 
         self.shape = occ_read_shape(cad)
         fmap = TopTools_IndexedMapOfShape()
@@ -210,7 +210,7 @@ class OccReference:
     def _projector(self, k: int):
         from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
 
-        from cadbridge.occ.reference import _finite_bounds
+        from cadbridge.verify.reference import _finite_bounds
 
         if k not in self._proj:
             s = self.surfaces[k]
@@ -234,7 +234,7 @@ class OccReference:
         from OCP.GeomLProp import GeomLProp_SLProps
         from OCP.gp import gp_Pnt
 
-        from cadbridge.occ.reference import _finite_bounds
+        from cadbridge.verify.reference import _finite_bounds
 
         p = self._projector(k)
         out = np.full(len(x), np.inf)
@@ -287,7 +287,7 @@ class OccReference:
         from OCP.BRepExtrema import BRepExtrema_DistShapeShape
         from OCP.gp import gp_Pnt
 
-        from cadbridge.occ.reference import _finite_bounds
+        from cadbridge.verify.reference import _finite_bounds
 
         cache = self.__dict__.setdefault("_surface_faces", {})
         if k not in cache:
@@ -435,16 +435,16 @@ class OccReference:
 
 
 def _reference(cad: Path, row: Row) -> OccReference:
-    """OCC's reading of ``cad``; where cadbridge's reader re-read faces (`cadbridge.mesh_source`:
+    """OCC's reading of ``cad``; where cadbridge's reader re-read faces (`cadbridge.heal.mesh_source`:
     parameter-space trims that contradict the file's own model-space curves), OCC reads a
     copy whose 142s of those faces prefer their model-space curves, as the mesher does: the
     CAD is then what the file's model-space curves say, read by OCC. Only that: the mesher's
-    copy also smooths short C0 trim pieces (`cadbridge.trim_knots`), which the reference
+    copy also smooths short C0 trim pieces (`cadbridge.heal.trim_knots`), which the reference
     must not see."""
     import tempfile
 
     import cadbridge
-    from cadbridge.mesh_source import reread_faces, write_mesh_source
+    from cadbridge.heal.mesh_source import reread_faces, write_mesh_source
 
     model = cadbridge.read_iges(cad)
     with tempfile.TemporaryDirectory(prefix="cadbridge-ref-") as tmp:

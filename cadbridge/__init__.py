@@ -1,20 +1,24 @@
 """cadbridge: IGES/NURBS CAD to Nagata-patch tool files for sheet metal forming simulation.
 
-The chain (see ARCHITECTURE.md): ``read_iges`` -> ``Model`` of exact NURBS faces; a mesh
-(``mesh_cad`` with gmsh, or ``read_mesh``); ``project_points`` / ``cad_normals`` for exact
-node normals (or ``estimate_normals``); ``NagataMesh`` patches; tool files and reports
-(``cadbridge.io``, ``cadbridge.pipeline``).
+The product in one call: ``convert("die.igs", "out/")`` (mesh, exact normals, Nagata
+patches, tool files and report; ``nagata_from_mesh`` from a mesh of your own), and beside
+it ``map_results`` (simulation results on the exact CAD), ``fit_points`` (a NURBS surface
+from points), ``read_toolfile`` / ``write_toolfile``.
+
+The chain underneath (ARCHITECTURE.md): ``read_iges`` -> ``Model`` of exact NURBS faces; a
+mesh (``mesh_cad`` with gmsh, or ``read_mesh``); ``project_points`` / ``cad_normals`` for
+exact node normals (or ``estimate_normals``); ``NagataMesh`` patches.
 """
 
 from cadbridge.iges import IgesError, read_iges, read_iges_string, write_iges
 from cadbridge.mesh import CellBlock, Mesh, MeshError, read_mesh, write_mesh
-from cadbridge.model import Diagnostic, Face, Model, Trim, TrimLoop, Units
+from cadbridge.cad.model import Diagnostic, Face, Model, Trim, TrimLoop, Units
 from cadbridge.nagata import NagataMesh
 from cadbridge.normals.estimators import METHODS, estimate_normals
 from cadbridge.nurbs import NurbsCurve, NurbsSurface
-from cadbridge.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
+from cadbridge.cad.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, project_points
 
-__version__ = "0.1.0"
+from cadbridge._version import __version__
 
 __all__ = [
     "BEYOND_TOLERANCE",
@@ -37,6 +41,13 @@ __all__ = [
     "TrimLoop",
     "Units",
     "cad_normals",
+    "convert",
+    "fit_points",
+    "map_results",
+    "mesh_cad",
+    "nagata_from_mesh",
+    "read_toolfile",
+    "write_toolfile",
     "estimate_normals",
     "project_points",
     "read_iges",
@@ -47,13 +58,27 @@ __all__ = [
 ]
 
 
+# heavy parts (the projection stack, gmsh, the pipeline) load on first use, so that
+# `import cadbridge` stays light: name -> module that defines it
+_LAZY = {
+    "cad_normals": "cadbridge.normals.cad",
+    "convert": "cadbridge.tool.pipeline",
+    "fit_points": "cadbridge.fitting.surface_fit",
+    "map_results": "cadbridge.results.mapping",
+    "mesh_cad": "cadbridge.mesh.generate",
+    "nagata_from_mesh": "cadbridge.tool.pipeline",
+    "read_toolfile": "cadbridge.io.toolfile",
+    "write_toolfile": "cadbridge.io.toolfile",
+}
+
+
 def __getattr__(name: str):
-    if name == "cad_normals":  # imports the projection stack; keep `import cadbridge` light
-        from cadbridge.normals.cad import cad_normals
+    if name in _LAZY:
+        import importlib
 
-        return cad_normals
-    if name == "mesh_cad":
-        from cadbridge.mesh.generate import mesh_cad
-
-        return mesh_cad
+        return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'cadbridge' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

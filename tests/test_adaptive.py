@@ -1,4 +1,4 @@
-"""Nagata-aware meshing to a shape tolerance (issue 12): `cadbridge.refine`, the CLI options.
+"""Nagata-aware meshing to a shape tolerance (issue 12): `cadbridge.tool.refine`, the CLI options.
 
 The tolerance is checked independently of the loop's own measurement: the Nagata patches
 are sampled on a grid denser than the loop's, and every sample's distance to the CAD is
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from cadbridge.cli import PROGRESS_LINE, main
-from cadbridge.refine import refine_mesh
+from cadbridge.tool.refine import refine_mesh
 
 SAMPLES = Path(__file__).parents[1] / "iges_samples"
 
@@ -32,7 +32,7 @@ class OccDistance:
         from OCP.TopLoc import TopLoc_Location
         from OCP.TopoDS import TopoDS, TopoDS_Compound
 
-        from cadbridge.occ.reference import _finite_bounds, occ_read_shape
+        from cadbridge.verify.reference import _finite_bounds, occ_read_shape
 
         shape = occ_read_shape(path)
         b, self.faces = BRep_Builder(), TopoDS_Compound()
@@ -80,7 +80,7 @@ class OccTrimmedDistance:
         from OCP.TopExp import TopExp_Explorer
         from OCP.TopoDS import TopoDS_Compound
 
-        from cadbridge.occ.reference import occ_read_shape
+        from cadbridge.verify.reference import occ_read_shape
 
         shape = occ_read_shape(path)
         b = BRep_Builder()
@@ -220,7 +220,7 @@ def test_unreachable_tolerance_exit_1_names_elements_and_writes_best_mesh(tmp_pa
     err = capsys.readouterr().err
     assert code == 1
     assert "shape tolerance 1e-06 not met" in err and "elements" in err and "best mesh was written" in err
-    # one error line; the one-off compile notice of a fresh checkout (cadbridge._jit) is not an error
+    # one error line; the one-off compile notice of a fresh checkout (cadbridge.common.jit) is not an error
     assert len([ln for ln in err.strip().splitlines()
                 if 'compiling numerical kernels' not in ln and not re.match(PROGRESS_LINE, ln)]) == 1
     assert (out / "die.nagata").is_file() and (out / "adaptive_report.md").is_file()

@@ -37,8 +37,8 @@ def bar(tmp_path_factory):
 def test_default_floor_lets_a_small_round_of_a_big_model_meet_the_tolerance(bar):
     from cadbridge.iges import read_iges
     from cadbridge.mesh.sizing import NAGATA_ERROR_CONSTANT as C
-    from cadbridge.pipeline import CadProjector
-    from cadbridge.refine import FLOOR_FRACTION, refine_mesh, shape_check
+    from cadbridge.tool.build import CadProjector
+    from cadbridge.tool.refine import FLOOR_FRACTION, refine_mesh, shape_check
     from test_adaptive import occ_max_error_at_worst
 
     model = read_iges(bar)
@@ -59,7 +59,7 @@ def test_the_old_floor_stops_there(bar):
     """The same bar with the floor set to the old default, model size / 1000: not met, and the
     round's elements are reported at the floor (so the test above can fail)."""
     from cadbridge.iges import read_iges
-    from cadbridge.refine import refine_mesh
+    from cadbridge.tool.refine import refine_mesh
 
     model = read_iges(bar)
     r = refine_mesh(bar, TOL, model=model, min_size=model.size() / 1000, max_passes=4)
@@ -74,7 +74,7 @@ def test_a_pass_gmsh_cannot_mesh_keeps_the_passes_before_it(monkeypatch):
     # mesh, node for node, not met, and its actions say why the loop stopped
     import cadbridge.mesh.generate as G
     from cadbridge.mesh.mesh import MeshError
-    from cadbridge.refine import refine_mesh
+    from cadbridge.tool.refine import refine_mesh
 
     path = Path(__file__).parents[1] / "iges_samples" / "torus_patch.igs"
     one = refine_mesh(path, 0.002, max_passes=1)

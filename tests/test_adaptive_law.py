@@ -159,7 +159,7 @@ def test_turn_cap():
 
 def test_normal_turn_of_elements():
     """`refine._normal_turn`: the largest angle between an element's corner normals."""
-    from cadbridge.refine import _normal_turn
+    from cadbridge.tool.refine import _normal_turn
 
     x = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0.0]])
     ang = np.radians([0.0, 70.0, 10.0, 0.0])
@@ -175,7 +175,7 @@ def test_marks_reach_the_border_of_a_mapped_face():
     shoulder (2 x n quads), its border found independently as the edges of one element."""
     from pathlib import Path
 
-    from cadbridge.refine import _mapped_border_marks, refine_mesh
+    from cadbridge.tool.refine import _mapped_border_marks, refine_mesh
 
     r = refine_mesh(Path(__file__).parents[1] / "iges_samples" / "ushape_die_nurbs.igs", 0.05)
     t = r.tools[0]
@@ -203,7 +203,7 @@ def test_border_marks_with_a_triangle_block_in_the_mesh():
     from pathlib import Path
     from types import SimpleNamespace
 
-    from cadbridge.refine import _mapped_border_marks, refine_mesh
+    from cadbridge.tool.refine import _mapped_border_marks, refine_mesh
 
     r = refine_mesh(Path(__file__).parents[1] / "iges_samples" / "ushape_die_nurbs.igs", 0.05)
     t = r.tools[0]
@@ -236,7 +236,7 @@ def test_strip_marks_cover_a_narrow_unmapped_face_only():
     from types import SimpleNamespace
 
     from cadbridge.nagata import NagataMesh
-    from cadbridge.refine import STRIP_ELEMENTS, strip_marks
+    from cadbridge.tool.refine import STRIP_ELEMENTS, strip_marks
 
     def plate(nu, nv):
         gx, gy = np.meshgrid(np.arange(nu + 1) * 2.0, np.arange(nv + 1) * 2.0, indexing="ij")

@@ -19,7 +19,7 @@ import pytest
 
 from cadbridge.mesh.generate import mesh_cad
 from cadbridge.mesh.sizing import SizeField, ball_marks
-from cadbridge.refine import element_marks
+from cadbridge.tool.refine import element_marks
 
 PLATE = Path(__file__).resolve().parents[1] / "iges_samples" / "trimmed_hole.igs"
 H = 10.0  # uniform size on the 100 x 60 plate
@@ -93,7 +93,7 @@ def test_next_sizes_go_below_the_field():
     = 5.46 mm, above the field: min(field, mark) was the field and the same element came back.
     The next size must be below what gmsh was given; inside a mapped face (field inf) the
     element's size and the marks decide."""
-    from cadbridge.refine import next_sizes
+    from cadbridge.tool.refine import next_sizes
 
     h = next_sizes(np.array([7.28, 7.28, 7.28]), np.array([0.75, 0.75, 0.75]), np.array([5.62, 5.62, np.inf]),
                    np.array([3.63, np.inf, np.inf]))
@@ -106,7 +106,7 @@ def test_face_law_scale_is_the_smallest_ratio_asked_and_never_above_one():
     law (0.6 / 1.2 = 0.5 beats 0.9 / 1.0), face 2 one ratio (0.3 / 0.5 = 0.6), face 1
     none, and an element asking more than the law (face 3: 2.0 / 1.0) or on no face (-1)
     lowers nothing."""
-    from cadbridge.refine import scale_face_law
+    from cadbridge.tool.refine import scale_face_law
 
     scale = np.ones(4)
     scale_face_law(scale, np.array([0, 0, 2, 3, -1]), np.array([0.9, 0.6, 0.3, 2.0, 0.1]),
@@ -133,7 +133,7 @@ def test_the_die_boss_ring_meets_0002_with_its_face_law_scaled(tmp_path):
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
-    from cadbridge.refine import refine_mesh
+    from cadbridge.tool.refine import refine_mesh
     from cadbridge.ushape.geometry import export_iges
 
     r = IGESControl_Reader()
@@ -158,7 +158,7 @@ def test_the_background_carriers_stay_from_pass_to_pass(monkeypatch):
     their mesh; with the previous pass's nodes as carriers every carrier moved, and on the
     production die at t = 0.002 each pass gave misshapen quads to a few faces without any mark."""
     import cadbridge.mesh.generate as G
-    from cadbridge.refine import refine_mesh
+    from cadbridge.tool.refine import refine_mesh
 
     real, fields = G.mesh_cad, []
 

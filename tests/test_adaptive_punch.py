@@ -60,8 +60,8 @@ def punch(tmp_path_factory):
 
 def test_punch_at_0_01_is_not_over_refined(punch):
     from cadbridge.iges import read_iges
-    from cadbridge.pipeline import CadProjector
-    from cadbridge.refine import refine_mesh, shape_check
+    from cadbridge.tool.build import CadProjector
+    from cadbridge.tool.refine import refine_mesh, shape_check
     from test_adaptive import occ_max_error_at_worst
 
     model = read_iges(punch)

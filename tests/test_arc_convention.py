@@ -1,5 +1,5 @@
 """Parameter-space trims over a 120 whose arc generatrix is measured from its start
-(`cadbridge.iges.arc_convention`) and the mesher's copy of such a file (`cadbridge.mesh_source`).
+(`cadbridge.iges.arc_convention`) and the mesher's copy of such a file (`cadbridge.heal.mesh_source`).
 
 The synthetic files are written here, field by field: a sphere of radius R about the y
 axis as IGES 120 (generatrix: the 100 arc from (0, R) through (-R, 0) to (0, -R), start
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 import cadbridge
-from cadbridge.mesh_source import mesh_source, prefer_model_space, reread_faces
+from cadbridge.heal.mesh_source import mesh_source, prefer_model_space, reread_faces
 
 R = 10.0
 HALF_PI = math.pi / 2
@@ -214,7 +214,7 @@ def test_solidworks_caps_close_the_tube():
         assert len(x) > 50
         assert x[:, 1].max() <= -114.99 and x[:, 1].min() < -121.9, f.de
     pytest.importorskip("OCP")
-    from cadbridge.occ.reference import occ_read
+    from cadbridge.verify.reference import occ_read
 
     with mesh_source(REAL, m) as copy:
         occ = occ_read(str(copy))
@@ -257,7 +257,7 @@ def test_solidworks_converts(tmp_path, element):
     # was exit 1 in both (elements across the knife edges of the misread caps); the OCC measure
     # of the written tools is benchmarks/tool_accuracy.py --only SolidWorks (0.036 / 0.035)
     pytest.importorskip("gmsh")
-    from cadbridge.pipeline import convert
+    from cadbridge.tool.pipeline import convert
 
     r = convert(str(REAL), str(tmp_path / "out"), element=element)
     assert r.tools

@@ -1,5 +1,5 @@
 """Outputs of big tools (issue 8, production die): the per-patch listings only up to
-`pipeline.LISTING_MAX_ELEMENTS` elements unless ``full_report``.
+`cadbridge.tool.outputs.LISTING_MAX_ELEMENTS` elements unless ``full_report``.
 
 References: the tool file read back (its COEFFICIENTS equal the listing's), the file list of
 a run with the listings.
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-import cadbridge.pipeline as P
+import cadbridge.tool.pipeline as P
 from cadbridge.io.csvgrid import read_coefficients_listing
 from cadbridge.io.toolfile import read_toolfile
 

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 import cadbridge
-from cadbridge.boundary_curves import boundary_loop, coons_base, read_boundary_curves
+from cadbridge.fitting.boundary_curves import boundary_loop, coons_base, read_boundary_curves
 from cadbridge.cli import PROGRESS_LINE, main
-from cadbridge.fitting import FitInputError
+from cadbridge.fitting.surface_fit import FitInputError
 
 OCP = pytest.importorskip("OCP")
 

@@ -1,4 +1,4 @@
-"""Free boundary edges that follow the trim curves (cadbridge.boundary_edges, EDGE_NORMALS).
+"""Free boundary edges that follow the trim curves (cadbridge.nagata.boundary_edges, EDGE_NORMALS).
 
 References: the analytic circle (a planar annulus), the minimum-norm least-squares solution
 by SVD (numpy.linalg.pinv) of the documented orthogonality conditions, and OpenCASCADE's
@@ -144,7 +144,7 @@ def _occ_boundary_distance(igs: Path, pts: np.ndarray) -> np.ndarray:
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS_Compound
 
-    from cadbridge.occ.reference import occ_read_shape
+    from cadbridge.verify.reference import occ_read_shape
 
     shape = occ_read_shape(igs)
     comp = TopoDS_Compound()
@@ -170,7 +170,7 @@ def test_convert_boundary_edges_lie_on_the_cad_boundary(tmp_path, name, element)
     in 12 edges, 0.006 mm against the chords' 0.34 mm, the analytic values of
     test_hole_edge_follows_the_circle_not_the_chord)."""
     pytest.importorskip("OCP")
-    from cadbridge.pipeline import convert
+    from cadbridge.tool.pipeline import convert
 
     out = tmp_path / "out"
     convert(str(SAMPLES / name), str(out), element=element)

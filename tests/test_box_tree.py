@@ -1,11 +1,11 @@
-"""`cadbridge.box_tree.BoxTree.pairs` against a brute-force reference: every (point, box)
+"""`cadbridge.cad.box_tree.BoxTree.pairs` against a brute-force reference: every (point, box)
 pair's lower bound (distance to the box, and to the slab) computed for all pairs in numpy,
 kept where it is within the point's bound, reduced to the least bound per (point, face)."""
 
 import numpy as np
 import pytest
 
-from cadbridge.box_tree import BoxTree
+from cadbridge.cad.box_tree import BoxTree
 
 
 def brute(pts, bound, excl, lo, hi, slab, face):

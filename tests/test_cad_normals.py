@@ -22,10 +22,10 @@ import pytest
 
 from cadbridge.iges import read_iges
 from cadbridge.mesh import CellBlock, Mesh, MeshError, MeshWarning
-from cadbridge.model import Model
+from cadbridge.cad.model import Model
 from cadbridge.normals.cad import ProjectionError, cad_normals
 from cadbridge.nurbs.project import BEYOND_TOLERANCE
-from cadbridge.search import project_points
+from cadbridge.cad.search import project_points
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
 

@@ -76,7 +76,7 @@ def test_corner_normals_at_c0_knot_improve_the_nagata_surface(grid_mesh):
     normals; with one normal per node (the old behaviour) they are far off near the kink.
     Reference normal at a grid point: the surface normal at its projection, one-sided from
     the side of the knot its element lies on."""
-    from cadbridge.search import project_points
+    from cadbridge.cad.search import project_points
 
     model, s, mesh, us, vs = grid_mesh
     cn = cad_normals(mesh, model)

@@ -342,7 +342,7 @@ def test_progress_on_a_terminal_draws_stages():
 
 
 def test_progress_follows_convert_stages(tmp_path):
-    from cadbridge.pipeline import convert
+    from cadbridge.tool.pipeline import convert
 
     buf = io.StringIO()
     with Progress("convert", enabled=True, stream=buf) as p:
@@ -382,7 +382,7 @@ def test_nagata_inconsistent_orientation_names_elements_or_reorients(die_mesh, t
 def test_unexpected_library_error_is_one_line_exit_2(monkeypatch, capsys, tmp_path):
     """An error the library did not anticipate still gives one line and exit 2, no traceback
     (reference: the exception raised by the patched call)."""
-    import cadbridge.pipeline as pipeline
+    import cadbridge.tool.pipeline as pipeline
 
     def boom(*a, **k):
         raise ValueError("errors 'cad' has non-finite values at [59302]\nsecond line")

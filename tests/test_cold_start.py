@@ -23,7 +23,7 @@ MESSAGE = "compiling numerical kernels (first run only, about"
 def _inspect(cache: Path) -> subprocess.CompletedProcess:
     sample = min((ROOT / "iges_samples").glob("*.igs"), key=lambda p: p.stat().st_size)
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
-    return subprocess.run([sys.executable, "-m", "cadbridge.cli", "inspect", str(sample)], env=env,
+    return subprocess.run([sys.executable, "-m", "cadbridge", "inspect", str(sample)], env=env,
                           capture_output=True, text=True, timeout=600)
 
 
@@ -31,7 +31,7 @@ def _inspect(cache: Path) -> subprocess.CompletedProcess:
 def _unannounced():
     """The process's compile listener (if any) as if it had said nothing yet, restored after:
     said, with no stream and not quiet."""
-    from cadbridge import _jit
+    from cadbridge.common import jit as _jit
 
     saved = _jit._listener
     try:
@@ -66,7 +66,7 @@ def test_notice_only_for_cadbridge_functions_and_only_once():
     listener is looked up from numba's own compile event, a cache miss by definition for a
     function defined here)."""
     numba = pytest.importorskip("numba")
-    from cadbridge import _jit
+    from cadbridge.common import jit as _jit
 
     stream = io.StringIO()
     with _unannounced():
@@ -90,7 +90,7 @@ def test_notice_to_a_closed_stream_never_breaks_a_compile():
     operation on closed file" from the P-section scan): the compile must still succeed.
     Reference: the function's result."""
     numba = pytest.importorskip("numba")
-    from cadbridge import _jit
+    from cadbridge.common import jit as _jit
 
     stream = io.StringIO()
     stream.close()
@@ -105,7 +105,7 @@ def test_quiet_notice_says_nothing():
     """`cadbridge --quiet` (announce_compilation(quiet=True)): a compile writes nothing; a later
     call without quiet announces again (the notice was not used up). Reference: the stream."""
     numba = pytest.importorskip("numba")
-    from cadbridge import _jit
+    from cadbridge.common import jit as _jit
 
     stream = io.StringIO()
     with _unannounced():

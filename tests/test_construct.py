@@ -13,7 +13,7 @@ from math import pi
 import numpy as np
 import pytest
 
-from cadbridge.nurbs import NurbsCurve, ops
+from cadbridge.nurbs import NurbsCurve, edits
 from cadbridge.nurbs import construct as K
 
 
@@ -363,7 +363,7 @@ def test_tight_bbox_of_revolved_sub_domain():
     """Reference: for a full cylinder restricted to a quarter in v, tight_bbox contains the
     dense samples and is much smaller than the control-net box."""
     s = K.cylinder_patch(1.0, 1.0, 2 * pi).with_domain((0.0, 1.0, 0.0, pi / 2))
-    tb = ops.tight_bbox(s)
+    tb = edits.tight_bbox(s)
     u, v = s.grid(50, 50)
     P = s(u, v)
     assert np.all(P >= tb[0] - 1e-12) and np.all(P <= tb[1] + 1e-12)

@@ -38,15 +38,15 @@ def test_convert_node_normals_match_occ(path: Path):
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.normals.cad import cad_normals
     from cadbridge.nurbs.project import CONVERGED
-    from cadbridge.occ.reference import occ_read_shape
+    from cadbridge.verify.reference import occ_read_shape
 
     model = read_iges(path)
     size = model.size()
-    from cadbridge.mesh_source import mesh_source
+    from cadbridge.heal.mesh_source import mesh_source
 
     # as convert meshes it: faces the reader re-read (the SolidWorks sphere caps) come from
     # the file's model-space curves, for gmsh and for the OCC reference below; faces gmsh
-    # leaves empty (the Inventor spring's) are meshed by cadbridge.mesh.empty_faces
+    # leaves empty (the Inventor spring's) are meshed by cadbridge.mesh.gmsh.empty_faces
     with mesh_source(path, model) as src:
         mesh = mesh_cad(src)
         shape = occ_read_shape(src)

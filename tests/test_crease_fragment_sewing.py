@@ -53,7 +53,7 @@ def creased_sheet(tmp_path_factory) -> Path:
 
 
 def _creases(path: Path):
-    from cadbridge.creases import crease_lines
+    from cadbridge.heal.creases import crease_lines
     from cadbridge.iges import read_iges
 
     lines = crease_lines(read_iges(path))
@@ -76,11 +76,12 @@ def test_fragment_keeps_the_neighbours_sewn(creased_sheet):
     # and its free curves are the sheet's outer boundary; the fragment may add curves (the
     # crease) but no doubled point and no free curve
     from cadbridge.mesh import generate as G
+    from cadbridge.mesh.gmsh import session as S
 
     curves = _creases(creased_sheet)
-    with G.GmshSession(False) as sess:
+    with S.GmshSession(False) as sess:
         g = sess.gmsh
-        G._apply(sess, {"Geometry.OCCSewFaces": 1, "Geometry.Tolerance": 1e-4, "Geometry.OCCImportLabels": 0})
+        S.apply_options(sess, {"Geometry.OCCSewFaces": 1, "Geometry.Tolerance": 1e-4, "Geometry.OCCImportLabels": 0})
         g.model.occ.importShapes(str(creased_sheet))
         g.model.occ.synchronize()
         doubled0, free0 = _topology(g)
@@ -118,7 +119,7 @@ def _outer_perimeter(path: Path) -> float:
     from OCP.GProp import GProp_GProps
     from OCP.ShapeAnalysis import ShapeAnalysis_FreeBounds
 
-    from cadbridge.occ.reference import occ_read_shape
+    from cadbridge.verify.reference import occ_read_shape
 
     sew = BRepBuilderAPI_Sewing(1e-4)
     sew.Add(occ_read_shape(path))

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cadbridge.creases import SLIVER_BAND, crease_lines, inner_crease_knots, sliver_side
+from cadbridge.heal.creases import SLIVER_BAND, crease_lines, inner_crease_knots, sliver_side
 from cadbridge.nurbs.surface import NurbsSurface
 
 SAMPLES = Path(__file__).parents[1] / "iges_samples"

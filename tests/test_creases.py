@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from cadbridge.cli import EXIT_CHECK_FAILED, EXIT_OK, PROGRESS_LINE, main
-from cadbridge.creases import crease_lines, straddling_elements
+from cadbridge.heal.creases import crease_lines, straddling_elements
 from cadbridge.iges import read_iges
 from cadbridge.nagata import NagataMesh
-from cadbridge.nurbs.ops import isocurve
+from cadbridge.nurbs.edits import isocurve
 from cadbridge.nurbs.project import project_to_surface
 
 SAMPLES = Path(__file__).parents[1] / "iges_samples"
@@ -51,7 +51,7 @@ def test_crease_lines_of_multiple_knots(model):
 
 @pytest.fixture(scope="module", params=["tri", "quad"])
 def converted(request, tmp_path_factory):
-    from cadbridge.pipeline import convert
+    from cadbridge.tool.pipeline import convert
 
     out = tmp_path_factory.mktemp(f"mk_{request.param}") / "out"
     return request.param, convert(str(MK), str(out), element=request.param), out
@@ -106,14 +106,15 @@ def test_errors_are_named_in_summary_csv_and_vtu(converted):
 def test_trimmed_hole_surface_and_boundary_errors(tmp_path, monkeypatch):
     """A plate with a hole: the patches are exactly on the plane (surface error 0). With
     straight chords along the hole (boundary edges left to the two-normal formula) they bridge
-    into it; with the trim circle's conormals (the default, `cadbridge.boundary_edges`) the
+    into it; with the trim circle's conormals (the default, `cadbridge.nagata.boundary_edges`) the
     hole edges follow the circle, 0.006 off it (a quadratic over 30 degrees of R 10). Reference:
     the analytic circle R10 about (30, 25): the boundary error of a sample is its distance to
     the trimmed plate, R - |p - centre| inside the hole, else 0, and on the hole's edges (the
     samples within 0.01 of the circle) its distance to the circle, | |p - centre| - R |."""
     import functools
 
-    import cadbridge.pipeline as pipeline
+    import cadbridge.tool.build as build
+    import cadbridge.tool.pipeline as pipeline
 
     def run(name):
         r = pipeline.convert(str(SAMPLES / "trimmed_hole.igs"), str(tmp_path / name), element="tri")
@@ -129,7 +130,7 @@ def test_trimmed_hole_surface_and_boundary_errors(tmp_path, monkeypatch):
     assert np.count_nonzero(edge) >= 12 * 10  # every sample of the 12 hole edges (10 divisions)
     np.testing.assert_allclose(be, np.where(edge, np.abs(rad - 10.0), np.maximum(10.0 - rad, 0.0)), atol=1e-9)
     assert 0.001 < tool.stats["max_boundary_error"] < 0.01
-    monkeypatch.setattr(pipeline, "build_tool", functools.partial(pipeline.build_tool, boundary_curves=False))
+    monkeypatch.setattr(build, "build_tool", functools.partial(build.build_tool, boundary_curves=False))
     tool, rad, be = run("chords")
     np.testing.assert_allclose(be[rad <= 10.0], 10.0 - rad[rad <= 10.0], atol=1e-9)
     assert 0.05 < tool.stats["max_boundary_error"] < 0.6  # the chords cut 0.341 into the hole
@@ -215,7 +216,7 @@ def test_folded_elements_are_found():
     shared edge 0-2 (0->2 in one, 2->0 in the other), but the second's third vertex lies on
     the same side of that edge as the first's: it is laid back over the first. Reference:
     the hand-made fold; its mirror (vertex on the other side) is a proper neighbour."""
-    from cadbridge.pipeline import folded_elements
+    from cadbridge.tool.build import folded_elements
 
     up = np.tile([0.0, 0.0, 1.0], (4, 1))
     x = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0.8, 0.3, 0]])
@@ -233,8 +234,8 @@ def test_straddling_counts_only_where_the_crease_is_sharp():
     of under 2 degrees (no patch is harmed: the production die has such knot lines of
     0.0015 degrees), one near u = 1 a crease of over 20 degrees. Reference: the jump of the
     two planar pieces' normals, worked out by hand from the control net."""
-    from cadbridge.creases import straddling_elements
-    from cadbridge.model import Face, Model
+    from cadbridge.heal.creases import straddling_elements
+    from cadbridge.cad.model import Face, Model
     from cadbridge.nurbs.surface import NurbsSurface
 
     cp = np.array([[[0, 0, 0], [0, 1, 0], [0, 2, 0]], [[1, 0, 0], [1, 1, 0], [1, 2, 0.5]]], dtype=float)

@@ -44,7 +44,7 @@ def test_every_face_lies_on_occs_face(path: Path):
     from OCP.gp import gp_Pnt
 
     from cadbridge.iges import read_iges
-    from cadbridge.occ.reference import occ_read
+    from cadbridge.verify.reference import occ_read
 
     model = read_iges(path)
     faces = [f.face for f in occ_read(path)]

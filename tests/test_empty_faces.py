@@ -1,4 +1,4 @@
-"""Faces gmsh leaves without elements, meshed by `cadbridge.mesh.empty_faces`.
+"""Faces gmsh leaves without elements, meshed by `cadbridge.mesh.gmsh.empty_faces`.
 
 References:
 * the cusp zipper: a hand-built loop whose two chains run together (known offsets);
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cadbridge.mesh.empty_faces import _segments_cross, _zip_cusps
+from cadbridge.mesh.gmsh.empty_faces import _segments_cross, _zip_cusps
 
 REAL = Path(__file__).parents[1].parent / "shared" / "iges_real"
 SPRING = REAL / "occt_bug22869_Inventor2011_Spring.igs"
@@ -89,8 +89,8 @@ def _cylinder(sess, r: float, h: float) -> int:
 @pytest.mark.parametrize("element", ["tri", "quad"])
 def test_a_cleared_cylinder_face_is_filled_on_the_surface_and_conformal(element):
     gmsh = pytest.importorskip("gmsh")
-    from cadbridge.mesh.empty_faces import fill_empty_faces
-    from cadbridge.mesh.generate import GmshSession
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
+    from cadbridge.mesh.gmsh.session import GmshSession
 
     r, h = 3.0, 10.0
     with GmshSession() as sess:
@@ -142,7 +142,7 @@ def _occ_faces(path):
     from OCP.TopExp import TopExp_Explorer
     from OCP.TopoDS import TopoDS
 
-    from cadbridge.occ.reference import occ_read_shape
+    from cadbridge.verify.reference import occ_read_shape
 
     shape = occ_read_shape(path)
     out, exp = [], TopExp_Explorer(shape, TopAbs_FACE)
@@ -181,8 +181,8 @@ def test_a_filled_face_follows_the_callers_size_field(element):
     # boundary is spaced 1.0; the caller's field asks 0.4 everywhere, so the fill must make
     # about area / 0.4^2 quads (or twice as many triangles), not the ~area / 1.0^2 its
     # boundary spacing alone gives
-    from cadbridge.mesh.empty_faces import fill_empty_faces
-    from cadbridge.mesh.generate import GmshSession
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
+    from cadbridge.mesh.gmsh.session import GmshSession
 
     pytest.importorskip("gmsh")
     r, h, want = 3.0, 10.0, 0.4
@@ -207,8 +207,8 @@ def test_a_loop_that_starts_on_the_seam_closes_in_uv(monkeypatch, occurrence):
     # rotated to start on the seam, at either of its two passes (gmsh surface 546 of the
     # production die does: OCC's wire order), where there is no previous curve to pick the
     # seam's pcurve by
-    from cadbridge.mesh.empty_faces import _face_loops
-    from cadbridge.mesh.generate import GmshSession
+    from cadbridge.mesh.gmsh.empty_faces import _face_loops
+    from cadbridge.mesh.gmsh.session import GmshSession
 
     pytest.importorskip("gmsh")
     r, h = 3.0, 10.0

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
-from cadbridge.nagata.shapes import cylinder_quads, cylinder_tris, octahedron_sphere, torus_quads
+from nagata_shapes import cylinder_quads, cylinder_tris, octahedron_sphere, torus_quads
 from cadbridge.normals.estimators import METHODS, estimate_normals
 
 RNG = np.random.default_rng(99)

@@ -1,4 +1,4 @@
-"""cadbridge.fitting and `cadbridge fit`: scan of the U-shape die, springback compensation, inputs,
+"""cadbridge.fitting.surface_fit and `cadbridge fit`: scan of the U-shape die, springback compensation, inputs,
 bases, bad input. References: the die CAD (iges_samples/ushape_die_nurbs.igs) through
 cadbridge.project_points, OpenCASCADE reading the written IGES, analytic surfaces."""
 
@@ -12,10 +12,10 @@ import pytest
 
 import cadbridge
 from cadbridge.cli import PROGRESS_LINE, main
-from cadbridge.fitting import (FitInputError, coons_surface, data_outline, fit_points, join_strip, plane_base,
+from cadbridge.fitting.surface_fit import (FitInputError, coons_surface, data_outline, fit_points, join_strip, plane_base,
                                read_points, write_fit_outputs)
 from cadbridge.nurbs.curve import NurbsCurve
-from cadbridge.search import project_points
+from cadbridge.cad.search import project_points
 
 ROOT = Path(__file__).resolve().parents[1]
 DIE = ROOT / "iges_samples" / "ushape_die_nurbs.igs"
@@ -118,7 +118,7 @@ def test_compensation_fit_read_by_occ(tmp_path):
     # reference: OpenCASCADE reads the written IGES; its surface sampled with Geom_Surface.D0 must
     # lie within 0.005 mm of the moved die surface (bound above)
     pytest.importorskip("OCP")
-    from cadbridge.occ.reference import occ_eval, occ_read
+    from cadbridge.verify.reference import occ_eval, occ_read
 
     model, strip, field, nodes = _moved_die()
     rep = fit_points(nodes, base=model, tolerance=0.002, noise=0.0, source="compensated FE nodes")
@@ -255,7 +255,7 @@ def test_cli_fit_height_field_writes_outputs(tmp_path, capsys):
     face = model.faces[0]
     assert face.entity_type == 144
     pytest.importorskip("OCP")
-    from cadbridge.occ.reference import occ_read
+    from cadbridge.verify.reference import occ_read
 
     assert len(occ_read(out)) == 1  # OpenCASCADE reads the trimmed surface (144 over 128)
     assert main(["verify", str(out)]) == 0  # and evaluates it as we do
@@ -270,7 +270,7 @@ def test_cli_fit_height_field_writes_outputs(tmp_path, capsys):
 def test_large_input_path_chooses_knots_on_a_subset():
     # the >max_points_per_level path (knots from a random subset, final net on all points) gives
     # the same quality against the die CAD as the direct fit
-    from cadbridge.fitting import face_base
+    from cadbridge.fitting.surface_fit import face_base
     from cadbridge.nurbs.fit import fit_surface
 
     model, strip, x, bad = die_scan(30000)

@@ -155,8 +155,8 @@ def test_normal_equations_against_the_dense_product(p, q, spans_u, spans_v, rati
 def test_face_base_feet_on_open_and_closed_cylinders(angle):
     # reference: analytic feet of points 0.01 off a cylinder (a half, compiled Newton from the
     # nearest sample; the full one is closed: Newton must wrap across the seam, project_to_surface)
-    from cadbridge.fitting import face_base
-    from cadbridge.model import Face, Model
+    from cadbridge.fitting.surface_fit import face_base
+    from cadbridge.cad.model import Face, Model
 
     s = cylinder_patch(5.0, 20.0, angle=angle)
     rng = np.random.default_rng(0)
@@ -173,7 +173,7 @@ def test_face_base_feet_on_open_and_closed_cylinders(angle):
                                   "# scan\n\n1;2;3\n4;5;6\n7;8;9.5\n", "1\t2\t3\t0 0 1\n4 5 6 0 0 1\n7 8 9.5 0 0 1\n"])
 def test_text_reader_fast_path_equals_the_line_reader(tmp_path, text):
     # reference: the line-by-line reader (`_read_text` without its numpy fast path)
-    from cadbridge import fitting
+    from cadbridge.fitting import surface_fit as fitting
 
     path = tmp_path / "p.xyz"
     path.write_text(text)
@@ -186,7 +186,7 @@ def test_text_reader_fast_path_equals_the_line_reader(tmp_path, text):
 
 def test_beyond_csv_lists_exactly_the_flagged_points(tmp_path):
     # reference: the fit's own arrays (the CSV round-trips them exactly, %.17g)
-    from cadbridge.fitting import fit_points, write_fit_outputs
+    from cadbridge.fitting.surface_fit import fit_points, write_fit_outputs
 
     rng = np.random.default_rng(2)
     xy = rng.uniform(0, 50, (4000, 2))

@@ -3,7 +3,7 @@
 The production die in quad (docs/production_die.md): in the all-quad subdivision pass gmsh's
 mesh of the binder BND00963 folds at its pilot holes and corners with every algorithm (coarse
 quads laid over their neighbours, normals -0.994 among +0.994); `mesh_cad` then clears the
-surface and fills it in its (u, v) on gmsh's boundary nodes (`cadbridge.mesh.empty_faces`),
+surface and fills it in its (u, v) on gmsh's boundary nodes (`cadbridge.mesh.gmsh.empty_faces`),
 as a surface gmsh failed on. Two checks:
 
 * the mechanism on a cylinder, with the fold detector told that every surface folds on gmsh's
@@ -35,7 +35,7 @@ DIE = Path(__file__).parents[1] / "iges_samples" / "production_die_nurbs.igs"
 
 
 def test_covers_once_sees_an_overlap():
-    from cadbridge.mesh.qit_fallback import _covers_once
+    from cadbridge.mesh.gmsh.planar import _covers_once
 
     sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)
     ok = np.array([[0, 1, 2], [0, 2, 3]])

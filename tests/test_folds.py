@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from cadbridge.cli import EXIT_CHECK_FAILED, PROGRESS_LINE, main
-from cadbridge.folds import cusp_normal, fold_lines, fold_nodes, fold_straddling, folds_for
+from cadbridge.heal.folds import cusp_normal, fold_lines, fold_nodes, fold_straddling, folds_for
 from cadbridge.iges import read_iges
 from cadbridge.iges.writer import write_iges
-from cadbridge.model import Face, Model
+from cadbridge.cad.model import Face, Model
 from cadbridge.nurbs.surface import NurbsSurface
 
 SAMPLES = Path(__file__).parents[1] / "iges_samples"
@@ -200,7 +200,7 @@ def test_ansa_fold_lines_against_occ():
 
 
 def _convert_ansa(tmp_path, element):
-    from cadbridge.pipeline import convert
+    from cadbridge.tool.pipeline import convert
 
     return convert(str(ANSA), str(tmp_path / element), element=element)
 
@@ -227,5 +227,5 @@ def test_ansa_converts_tri(tmp_path):
 @pytest.mark.slow
 def test_ansa_converts_quad(tmp_path):
     # FACE(401)'s trim-loop excursion along the fold is cut out of its loop and its mesh
-    # (cadbridge.loop_excursions; gmsh wound an element inside out in that sliver)
+    # (cadbridge.heal.loop_excursions; gmsh wound an element inside out in that sliver)
     _check_ansa(_convert_ansa(tmp_path, "quad"))

@@ -1,5 +1,5 @@
 """Surfaces gmsh fails on (an error, not only "no elements"), meshed by cadbridge on gmsh's
-boundary nodes (`cadbridge.mesh.empty_faces.generate_surfaces` + `fill_empty_faces`).
+boundary nodes (`cadbridge.mesh.gmsh.empty_faces.generate_surfaces` + `fill_empty_faces`).
 
 The reproduction: faces of the production die in analytic mode, written alone by OCC's IGES
 writer into a temporary file: the binder BND00963 (a 120 surface of revolution, R 5000, 15
@@ -145,7 +145,7 @@ def test_surface_gmsh_fails_on_is_meshed_conformally_on_its_surface(repro):
 @pytest.mark.slow
 def test_without_the_fallback_gmsh_stops_on_the_binder(repro, monkeypatch):
     # the failure the fallback removes: gmsh's throwing generate, as before
-    from cadbridge.mesh import empty_faces
+    from cadbridge.mesh.gmsh import empty_faces
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.mesh import MeshError
 

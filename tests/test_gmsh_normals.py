@@ -3,7 +3,7 @@
 Reference: gmsh (its OpenCASCADE kernel reading the same IGES file). `mesh_cad` stores each
 node's gmsh surface tag (``node_entity``) and parametric coordinates on it (``node_uv``); the
 surface tags follow OCC's face order of the file, which we pair with our faces geometrically
-(`cadbridge.occ.verify.pair_faces`) and check: every node lies on the paired face.
+(`cadbridge.verify.faces.pair_faces`) and check: every node lies on the paired face.
 
 - (u, v): where our surface has gmsh's parametrisation (OCC's 128 B-spline faces), the
   projection of every node onto gmsh's face reproduces ``node_uv`` (<= 1e-9 x the domain
@@ -29,8 +29,8 @@ from cadbridge.iges import read_iges  # noqa: E402
 from cadbridge.mesh.generate import mesh_cad  # noqa: E402
 from cadbridge.normals.cad import cad_normals  # noqa: E402
 from cadbridge.nurbs.project import project_to_surface  # noqa: E402
-from cadbridge.occ.reference import occ_eval, occ_read  # noqa: E402
-from cadbridge.occ.verify import pair_faces  # noqa: E402
+from cadbridge.verify.reference import occ_eval, occ_read  # noqa: E402
+from cadbridge.verify.faces import pair_faces  # noqa: E402
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
 FILES = sorted(p.name for p in SAMPLES.glob("*.igs") if not p.name.startswith("production_die"))  # die: on request, git-ignored

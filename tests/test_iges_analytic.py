@@ -1,7 +1,7 @@
 """Faces over analytic base surfaces: 108 form 0 under a 144, the IGES 5.3 surfaces 190-198
 under B-rep faces (510), and trims over 120 surfaces mapped into our NURBS (u, v).
 
-References: OpenCASCADE (its IGES reader, `cadbridge.occ.verify`, BRepClass_FaceClassifier
+References: OpenCASCADE (its IGES reader, `cadbridge.verify.faces`, BRepClass_FaceClassifier
 via `occ_inside`, gp_Ax2's choice of X direction) and hand-computed geometry where stated."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from cadbridge.iges import IgesError, read_iges, read_iges_string
 from cadbridge.iges.analytic import ax2_x_direction
 
 pytest.importorskip("OCP")
-from cadbridge.occ.reference import occ_inside, occ_project, occ_read  # noqa: E402
-from cadbridge.occ.verify import verify  # noqa: E402
+from cadbridge.verify.reference import occ_inside, occ_project, occ_read  # noqa: E402
+from cadbridge.verify.faces import verify  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "iges_samples"
@@ -193,8 +193,8 @@ def test_solidworks_120_trims_agree_with_occ() -> None:
     outside our trim loops (through our surface) are classified the same way by OCC's face
     for >= 99 % of the points away from the boundary. OCC reads the four sphere caps, whose
     parameter-space curves measure the generatrix arc from its start, from their model-space
-    curves (`cadbridge.mesh_source`; by the standard OCC puts them inside the tube)."""
-    from cadbridge.mesh_source import mesh_source
+    curves (`cadbridge.heal.mesh_source`; by the standard OCC puts them inside the tube)."""
+    from cadbridge.heal.mesh_source import mesh_source
 
     path = REAL / "occt_bug22566_SolidWorks2010.igs"
     m = read_iges(path)

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import cadbridge.iges.edgefeet as ef
-from cadbridge.iges.trimcheck import PackedCurves
+from cadbridge.nurbs.curve_pack import PackedCurves
 from cadbridge.nurbs import construct
 from cadbridge.nurbs.project import FAILED, project_to_surface
 

@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from test_iges_fixtures import THESIS_APPENDIX_A, bilinear_128, make_iges  # noqa: E402
 
 from cadbridge.iges import IgesError, read_iges_string  # noqa: E402
-from cadbridge.model import Model  # noqa: E402
+from cadbridge.cad.model import Model  # noqa: E402
 
 
 def _line_of(text: str, needle: str) -> int:

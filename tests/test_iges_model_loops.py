@@ -17,10 +17,10 @@ import pytest
 
 from cadbridge.iges.analytic import SurfaceInvertedCurve, invert_edges
 from cadbridge.iges.entities import reverse_curve
-from cadbridge.model import Trim, TrimLoop
+from cadbridge.cad.model import Trim, TrimLoop
 from cadbridge.nurbs import construct
 from cadbridge.nurbs.project import closed_directions
-from cadbridge.trims import trim_contains
+from cadbridge.cad.trims import trim_contains
 
 REAL = Path(__file__).parents[1].parent / "shared" / "iges_real"
 
@@ -136,7 +136,7 @@ def test_brep_faces_without_pcurves_trimmed_as_occ(name):
     from OCP.gp import gp_Pnt
 
     from cadbridge.iges import read_iges
-    from cadbridge.occ.reference import occ_inside, occ_read
+    from cadbridge.verify.reference import occ_inside, occ_read
 
     model = read_iges(path)
     occ = occ_read(path)

@@ -15,7 +15,8 @@ import pytest
 
 from cadbridge.iges import read_iges
 from cadbridge.iges.analytic import ArcMap, InvertedCurve, MappedCurve
-from cadbridge.iges.trimcheck import PackedCurves, loop_deltas
+from cadbridge.iges.trimcheck import loop_deltas
+from cadbridge.nurbs.curve_pack import PackedCurves
 from cadbridge.nurbs import construct
 from cadbridge.nurbs.curve import NurbsCurve
 
@@ -179,7 +180,7 @@ def _occ_delta(face) -> float:
     from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve
     from OCP.gp import gp_Pnt
 
-    from cadbridge.occ.reference import occ_bspline_curve
+    from cadbridge.verify.reference import occ_bspline_curve
 
     worst = 0.0
     for lp in [face.trims.outer] + list(face.trims.inner):
@@ -268,8 +269,8 @@ def test_inspect_and_verify_report_trim_delta():
     test_solidworks_trims_exact_and_delta) that is the end ring DE 277, whose trim curves lie
     1.2e-4 mm off its model curves by OCC's projection onto them (`_occ_delta`)."""
     pytest.importorskip("OCP")
-    from cadbridge.cli import format_inspect
-    from cadbridge.occ.verify import verify
+    from cadbridge.cli.inspect import format_inspect
+    from cadbridge.verify.faces import verify
 
     m = read_iges(SW)
     text = format_inspect(m)

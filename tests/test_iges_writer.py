@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from cadbridge.iges import read_iges, write_iges
 from cadbridge.iges.writer import format_real, iges_text
-from cadbridge.model import Face, Model, Trim, TrimLoop, Units
+from cadbridge.cad.model import Face, Model, Trim, TrimLoop, Units
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 

@@ -119,7 +119,7 @@ def _appendix_a_grid(nu: int, nv: int):
 
 def _errors(mesh, model):
     from cadbridge.normals.cad import cad_normals
-    from cadbridge.pipeline import CadProjector, build_tool
+    from cadbridge.tool.build import CadProjector, build_tool
 
     cn = cad_normals(mesh, model)
     t = build_tool("s", mesh, cn.normals, cn.corner_normals, "cad", model=model, grid=16,
@@ -134,7 +134,7 @@ def test_thesis_s_surface_3x5_straddled_patches_and_moved_nodes():
     along its straight direction: the 5 centre patches straddle the inflection (u = 0.5715)
     and carry by far the largest shape error. Moving their nodes onto the inflection line
     leaves no edge across it and lowers the max error."""
-    from cadbridge.inflection_nodes import inflection_edges, move_nodes_to_inflections
+    from cadbridge.tool.inflection_nodes import inflection_edges, move_nodes_to_inflections
 
     model, mesh = _appendix_a_grid(3, 5)
     cn, tool, e = _errors(mesh, model)
@@ -144,7 +144,7 @@ def test_thesis_s_surface_3x5_straddled_patches_and_moved_nodes():
     assert len(edges) == 6 and np.allclose(t, (u_star - 1 / 3) * 3, atol=1e-9)
     centre = np.arange(5, 10)  # elements of the centre column
     assert e[centre].min() > 5 * np.delete(e, centre).max()
-    from cadbridge.inflection_nodes import inadmissible_elements
+    from cadbridge.tool.inflection_nodes import inadmissible_elements
 
     bad = inadmissible_elements(mesh, model, cn, tool.nagata)
     assert sorted(bad) == centre.tolist() and all("straddles an inflection" in r for r in bad.values())
@@ -164,9 +164,9 @@ def test_adaptive_s_surface_meets_tolerance_with_no_inadmissible_patch():
     """With inflection handling the adaptive mesh of the S surface holds t = 0.01 (measured
     on the denser check grid), the inflection line is a mesh edge and no patch is
     inadmissible or straddles the inflection."""
-    from cadbridge.inflection_nodes import inflection_edges
+    from cadbridge.tool.inflection_nodes import inflection_edges
     from cadbridge.normals.cad import cad_normals
-    from cadbridge.refine import refine_mesh
+    from cadbridge.tool.refine import refine_mesh
 
     r = refine_mesh(SAMPLES / "thesis_appendix_a.igs", 0.01)
     assert r.met and r.check["max_error"] <= 0.01

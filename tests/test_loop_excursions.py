@@ -1,4 +1,4 @@
-"""Trim-loop excursions (`cadbridge.loop_excursions`, `cadbridge.mesh.loop_cuts`).
+"""Trim-loop excursions (`cadbridge.heal.loop_excursions`, `cadbridge.mesh.gmsh.loop_cuts`).
 
 References: OpenCASCADE's area of planar faces built from the loops (BRepGProp), OCC's
 point classification on the original face (BRepClass_FaceClassifier), OCC's distance of the
@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cadbridge.loop_excursions import find_excursions, heal_excursions
-from cadbridge.model import Face, Model, Trim, TrimLoop
+from cadbridge.heal.loop_excursions import find_excursions, heal_excursions
+from cadbridge.cad.model import Face, Model, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
@@ -118,7 +118,7 @@ def test_classification_after_the_cut_against_occ():
     from OCP.gp import gp_Pnt
     from OCP.TopAbs import TopAbs_IN, TopAbs_ON
 
-    from cadbridge.loop_excursions import _polyline_distance
+    from cadbridge.heal.loop_excursions import _polyline_distance
 
     poly = _square_with(Z_LEFT)
     model = _model(poly)
@@ -198,8 +198,8 @@ def test_ansa_quad_mesh_leaves_the_excursion_out(tmp_path):
     the cut stretch (away from X and Y) lies on OCC's FACE(274) (BRepExtrema <= its trim
     tolerance): FACE(401)'s mesh does not reach into the sliver."""
     from cadbridge.iges import read_iges
-    from cadbridge.loop_excursions import _polyline_distance
-    from cadbridge.pipeline import convert
+    from cadbridge.heal.loop_excursions import _polyline_distance
+    from cadbridge.tool.pipeline import convert
 
     res = convert(str(ANSA), str(tmp_path / "q"), element="quad")
     assert any("trim defect healed: FACE(401)" in n for n in res.notes)
@@ -243,7 +243,7 @@ def test_restricted_mapped_trim_curve_is_the_same_curve():
     tools have such curves."""
     from cadbridge.iges import read_iges
     from cadbridge.iges.analytic import MappedCurve
-    from cadbridge.loop_excursions import _restricted
+    from cadbridge.heal.loop_excursions import _restricted
 
     model = read_iges(Path(__file__).resolve().parents[1] / "iges_samples" / "ushape_tools_analytic.igs")
     mapped = [c for f in model.faces if f.trims is not None and f.trims.outer is not None

@@ -14,7 +14,7 @@ from cadbridge.nagata import (
     patch_errors,
     radial_error,
 )
-from cadbridge.nagata.shapes import (
+from nagata_shapes import (
     cylinder_quads,
     cylinder_tris,
     octahedron_sphere,

@@ -5,7 +5,7 @@ import numpy as np
 from cadbridge.nagata import (
     Cylinder, NagataMesh, Plane, Sphere, Torus, cad_errors, normal_error, patch_errors, radial_error,
 )
-from cadbridge.nagata.shapes import octahedron_sphere
+from nagata_shapes import octahedron_sphere
 
 RNG = np.random.default_rng(5)
 

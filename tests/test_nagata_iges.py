@@ -268,7 +268,7 @@ def test_batch_text_is_the_generic_writers(monkeypatch):
     `bezier_iges_text` that `write_nagata_iges` writes is the same, character for
     character, over magnitudes from 1e-3 to 1e4 and both element kinds."""
     import cadbridge.iges.writer as w
-    from cadbridge.model import Face, Units
+    from cadbridge.cad.model import Face, Units
 
     monkeypatch.setattr(w.time, "strftime", lambda fmt: "20261202.120000")
     rng = np.random.default_rng(7)

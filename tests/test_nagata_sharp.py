@@ -6,7 +6,7 @@ import pytest
 from cadbridge.nagata import Cylinder, NagataMesh, edge_coefficient, edge_coefficient_multi, radial_error
 from cadbridge.nagata.edge import pinv_solve_sym
 from cadbridge.nagata.mesh import _edge_params
-from cadbridge.nagata.shapes import cylinder_quads
+from nagata_shapes import cylinder_quads
 
 RNG = np.random.default_rng(7)
 

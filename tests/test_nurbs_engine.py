@@ -47,8 +47,8 @@ def random_surface(rng, p=3, q=2, nu=6, nv=5, rational=True):
     return NurbsSurface(p, q, ku, kv, cp, w)
 
 
-from cadbridge.occ.reference import occ_bspline_curve as occ_curve  # noqa: E402
-from cadbridge.occ.reference import occ_bspline_surface as occ_surface  # noqa: E402
+from cadbridge.verify.reference import occ_bspline_curve as occ_curve  # noqa: E402
+from cadbridge.verify.reference import occ_bspline_surface as occ_surface  # noqa: E402
 
 
 def occ_d2(g, u, v):

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cadbridge.occ.reference import OccReadError, occ_eval, occ_inside, occ_normal, occ_project, occ_read
+from cadbridge.verify.reference import OccReadError, occ_eval, occ_inside, occ_normal, occ_project, occ_read
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
 

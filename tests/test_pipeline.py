@@ -1,4 +1,4 @@
-"""End to end: `cadbridge.pipeline` (nagata_from_mesh / convert / staged output).
+"""End to end: `cadbridge.tool.pipeline` (nagata_from_mesh / convert / staged output).
 
 References: analytic geometry (a cylinder strip built here, exact normals by hand), tool
 file and CSV round trips, OpenCASCADE's IGES reader for the exported Nagata patches
@@ -15,7 +15,9 @@ import pytest
 
 from cadbridge.io.csvgrid import read_grid_csv
 from cadbridge.io.toolfile import read_toolfile, write_toolfile
-from cadbridge.pipeline import CadProjector, convert, nagata_from_mesh, staged_output, tool_data
+from cadbridge.tool.build import CadProjector
+from cadbridge.tool.outputs import staged_output, tool_data
+from cadbridge.tool.pipeline import convert, nagata_from_mesh
 
 SAMPLES = Path(__file__).resolve().parent.parent / "iges_samples"
 
@@ -75,7 +77,7 @@ def test_tool_file_round_trip_bit_for_bit(strip_run, tmp_path):
 
 def test_nagata_iges_triangles_and_quads_match_opencascade(strip_run):
     pytest.importorskip("OCP")
-    from cadbridge.occ.reference import occ_read
+    from cadbridge.verify.reference import occ_read
 
     out, result = strip_run
     nm = result.tools[0].nagata

@@ -1,5 +1,5 @@
 """The (u, v) fill's planar mesher grades its size away from fine loop vertices
-(`cadbridge.mesh.qit_fallback._graded_field`), and a caller's gmsh size callback neither
+(`cadbridge.mesh.gmsh.planar._graded_field`), and a caller's gmsh size callback neither
 reaches it nor is lost by it (gmsh keeps one per model; its Python wrapper is one global, so a
 second ``setSizeCallback`` anywhere would free the caller's and crash its meshing).
 
@@ -14,8 +14,8 @@ import pytest
 
 pytest.importorskip("gmsh")
 
-from cadbridge.mesh.generate import GmshSession  # noqa: E402
-from cadbridge.mesh.qit_fallback import GRADING, mesh_planar_loops  # noqa: E402
+from cadbridge.mesh.gmsh.session import GmshSession  # noqa: E402
+from cadbridge.mesh.gmsh.planar import GRADING, mesh_planar_loops  # noqa: E402
 
 
 def _square(n: int, side: float) -> np.ndarray:

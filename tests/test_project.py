@@ -209,7 +209,7 @@ def test_bad_input():
 occ = pytest.importorskip("OCP")
 
 
-from cadbridge.occ.reference import occ_bspline_surface as to_occ  # noqa: E402
+from cadbridge.verify.reference import occ_bspline_surface as to_occ  # noqa: E402
 
 
 def occ_reference(gs, s: NurbsSurface, p):
@@ -340,8 +340,8 @@ def test_points_near_a_pole_find_their_azimuth():
     np.testing.assert_allclose(res.distance, np.abs(rad - r), atol=1e-9)
     np.testing.assert_allclose(res.foot, r * p / np.linalg.norm(p, axis=1)[:, None], atol=1e-9)
     # ... and through the model-level search (all faces at once, its own compiled Newton)
-    from cadbridge.model import Face, Model
-    from cadbridge.search import project_points
+    from cadbridge.cad.model import Face, Model
+    from cadbridge.cad.search import project_points
 
     pr = project_points(p, Model(faces=[Face(s, de=1)]))
     np.testing.assert_allclose(pr.distance, np.abs(rad - r), atol=1e-9)

@@ -1,4 +1,4 @@
-"""Global projection over a model (cadbridge.search.project_points).
+"""Global projection over a model (cadbridge.cad.search.project_points).
 
 References: analytic planes and an exact rational quarter-cylinder fillet (closest point in
 closed form), and a brute-force reference that projects every point onto every face
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 from test_project import circle_arc, cylinder, random_surface, sphere
 
-from cadbridge.model import Face, Model, Trim, TrimLoop
+from cadbridge.cad.model import Face, Model, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.project import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, project_to_surface
-from cadbridge.search import build_search_index, project_points, span_boxes
+from cadbridge.cad.search import build_search_index, project_points, span_boxes
 from cadbridge.nurbs.surface import NurbsSurface
 
 
@@ -189,7 +189,7 @@ def test_index_reuse():
 def test_index_cached_on_model_and_rebuilt_when_faces_change():
     """`index_for` builds once per model (the same object comes back, and project_points uses
     it by default); a changed face list (other length or a replaced face) gets a new index."""
-    from cadbridge.search import index_for
+    from cadbridge.cad.search import index_for
 
     m = step_model()
     idx = index_for(m)
@@ -209,7 +209,7 @@ def test_subpatch_boxes_contain_surface_and_cover_trimmed_region():
     """Strong convex hull on the Bezier sub-patches: every surface point inside the trims lies
     in a kept box of its face, and cells wholly inside a hole are dropped (fewer boxes than
     the untrimmed face). Reference: dense evaluation of the surface, `Face.contains`."""
-    from cadbridge.search import _face_cells
+    from cadbridge.cad.search import _face_cells
 
     rng = np.random.default_rng(5)
     s = random_surface(rng, rational=True)

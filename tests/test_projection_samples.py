@@ -1,7 +1,7 @@
 """Projection onto the sample IGES files, face by face and over whole models, against OpenCASCADE.
 
-Reference: OpenCASCADE 7.9 (OCP) reading the same file (`cadbridge.occ.reference.occ_read`),
-faces paired with ours geometrically (`cadbridge.occ.verify.pair_faces`: our sample points lie
+Reference: OpenCASCADE 7.9 (OCP) reading the same file (`cadbridge.verify.reference.occ_read`),
+faces paired with ours geometrically (`cadbridge.verify.faces.pair_faces`: our sample points lie
 on the paired OCC surface).
 
 - one face (`project_to_surface` on the untrimmed surface): points on, above, below and beyond
@@ -34,9 +34,9 @@ from test_project import occ_reference  # noqa: E402  (OCC interior + boundary r
 
 from cadbridge.iges import read_iges  # noqa: E402
 from cadbridge.nurbs.project import CONVERGED, FAILED, ON_BOUNDARY, project_to_surface  # noqa: E402
-from cadbridge.search import project_points  # noqa: E402
-from cadbridge.occ.reference import occ_normal, occ_project, occ_read, occ_read_shape  # noqa: E402
-from cadbridge.occ.verify import pair_faces  # noqa: E402
+from cadbridge.cad.search import project_points  # noqa: E402
+from cadbridge.verify.reference import occ_normal, occ_project, occ_read, occ_read_shape  # noqa: E402
+from cadbridge.verify.faces import pair_faces  # noqa: E402
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
 FILES = sorted(p.name for p in SAMPLES.glob("*.igs") if not p.name.startswith("production_die"))  # die: on request, git-ignored
@@ -65,7 +65,7 @@ def points_around(rng, s, n: int, spread: float) -> np.ndarray:
 
 
 def same_parametrisation(face, occ, size: float) -> bool:
-    from cadbridge.occ.reference import occ_eval
+    from cadbridge.verify.reference import occ_eval
 
     u0, u1, v0, v1 = face.surface.domain
     uu = np.linspace(u0, u1, 5).repeat(5)

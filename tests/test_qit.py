@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 from cadbridge.iges import read_iges, read_iges_string, write_iges
-from cadbridge.mesh.qit import QitError, QitOptions, discretise_edge, qit_mesh
-from cadbridge.mesh.qit_examples import example_71, example_72
+from cadbridge.mesh.qit.mesher import QitError, QitOptions, discretise_edge, qit_mesh
+from qit_examples import example_71, example_72
 from cadbridge.mesh.quality import mesh_quality, triangle_angles
-from cadbridge.model import Face, Model
+from cadbridge.cad.model import Face, Model
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "iges_real"
@@ -71,7 +71,7 @@ def _seg_dist(p, a, b):
 
 def check_invariants(model, mesh, R):
     """The invariants of the issue, each against an independent reference."""
-    from cadbridge.occ.reference import occ_bspline_surface, occ_eval
+    from cadbridge.verify.reference import occ_bspline_surface, occ_eval
 
     size = model.size()
     x, tris = mesh.nodes, mesh.triangles
@@ -158,8 +158,8 @@ def test_example_72_conformal(tmp_path_factory):
 def test_edge_segments_equal_arc_length():
     # reference: Gauss-Legendre (20 points x 64 pieces) of |Su u' + Sv v'| with OCC's
     # derivatives along each boundary iso-line of Ex. 7.1
-    from cadbridge.mesh.qit import _iso_loop
-    from cadbridge.occ.reference import occ_bspline_surface, occ_eval
+    from cadbridge.mesh.qit.mesher import _iso_loop
+    from cadbridge.verify.reference import occ_bspline_surface, occ_eval
 
     s = example_71()
     occ = occ_bspline_surface(s)
@@ -260,7 +260,7 @@ def test_sliver_of_collinear_edge_vertices_is_flipped():
     # three vertices of one straight edge joined into a flat triangle (what an extrapolated
     # pattern position can give on a face too small for an interior lattice): the flip of
     # its longest edge leaves two proper triangles; reference: exact geometry of the square
-    from cadbridge.mesh.qit import _fix_slivers
+    from cadbridge.mesh.qit.mesher import _fix_slivers
 
     x = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [1, 1, 0]], dtype=float)
     uv = x[:, :2]

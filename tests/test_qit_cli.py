@@ -9,8 +9,8 @@ from cadbridge.cli import main
 from cadbridge.iges import read_iges, write_iges
 from cadbridge.mesh.generate import mesh_cad
 from cadbridge.mesh.io import read_mesh
-from cadbridge.mesh.qit import qit_mesh
-from cadbridge.model import Face
+from cadbridge.mesh.qit.mesher import qit_mesh
+from cadbridge.cad.model import Face
 from cadbridge.nurbs.surface import NurbsSurface
 
 HOLE = Path(__file__).resolve().parents[1] / "iges_samples" / "trimmed_hole.igs"

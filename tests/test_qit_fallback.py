@@ -1,4 +1,4 @@
-"""gmsh for the faces QIT refuses (cadbridge.mesh.qit_fallback, qit_mesh(fallback=True),
+"""gmsh for the faces QIT refuses (cadbridge.mesh.gmsh.planar, qit_mesh(fallback=True),
 `--mesher qit`).
 
 Reference: the analytic geometry of two planar faces (a 100 x 60 plate and the 100 x 8
@@ -14,9 +14,9 @@ import pytest
 from cadbridge.cli import main
 from cadbridge.iges import write_iges
 from cadbridge.mesh.io import read_mesh
-from cadbridge.mesh.qit import QitError, qit_mesh
+from cadbridge.mesh.qit.mesher import QitError, qit_mesh
 from cadbridge.mesh.quality import triangle_angles
-from cadbridge.model import Face, Model
+from cadbridge.cad.model import Face, Model
 from cadbridge.nurbs.surface import NurbsSurface
 
 

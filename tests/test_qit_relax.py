@@ -1,5 +1,5 @@
 """Valence flips, spring relocation and the max-angle clean-up after QIT
-(cadbridge.mesh.qit_relax; QitOptions(strip_opt=True), the default).
+(cadbridge.mesh.qit.relax; QitOptions(strip_opt=True), the default).
 
 References: the exact triangular lattice on a tilted plane (relocation returns a perturbed
 vertex to it, on the surface); the strip of equilateral triangles along a straight edge,
@@ -11,8 +11,8 @@ invariants of tests/test_qit.py against OpenCASCADE; the paper's own mesh of eac
 import numpy as np
 import pytest
 
-from cadbridge.mesh.qit import QitOptions, qit_mesh
-from cadbridge.mesh.qit_relax import relax_vertices, valence_flips, vertex_angle_sums
+from cadbridge.mesh.qit.mesher import QitOptions, qit_mesh
+from cadbridge.mesh.qit.relax import relax_vertices, valence_flips, vertex_angle_sums
 from cadbridge.mesh.quality import mesh_quality, triangle_angles
 from cadbridge.nurbs.surface import NurbsSurface
 from test_qit import case_model, check_invariants

@@ -24,7 +24,8 @@ def _cylinder(sess, size: float) -> list[int]:
 
 
 def test_boundary_nodes_have_the_parity_of_gmsh_triangles():
-    from cadbridge.mesh.generate import GmshSession, _boundary_nodes
+    from cadbridge.mesh.generate import _boundary_nodes
+    from cadbridge.mesh.gmsh.session import GmshSession
 
     for size in (1.3, 1.1, 0.9):
         with GmshSession() as sess:
@@ -42,7 +43,8 @@ def test_boundary_nodes_have_the_parity_of_gmsh_triangles():
 
 
 def test_odd_faces_skip_the_first_attempt():
-    from cadbridge.mesh.generate import GmshSession, _all_quads_possible, _boundary_nodes
+    from cadbridge.mesh.generate import _all_quads_possible, _boundary_nodes
+    from cadbridge.mesh.gmsh.session import GmshSession
 
     with GmshSession() as sess:
         g = sess.gmsh

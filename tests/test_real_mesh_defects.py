@@ -4,7 +4,7 @@
   connectivity worked out by hand).
 * The Inventor spring of the OCC corpus: gmsh leaves its two helical wire faces without
   elements (its own log says "No elements in surface 1 6"); `mesh_cad` meshes them itself
-  (`cadbridge.mesh.empty_faces`) and says so in the mesh's notes.
+  (`cadbridge.mesh.gmsh.empty_faces`) and says so in the mesh's notes.
 * The ANSA file of the OCC corpus: the surface of FACE(274) runs back over itself in v
   (reference: its own control net, whose x goes 3549.8 -> 3545.8 -> 3547.6 along one row,
   and its analytic S_v reversing); `convert` must stop naming the face, not write a tool
@@ -63,7 +63,7 @@ def test_nothing_to_merge_returns_the_same_mesh():
 
 @pytest.mark.skipif(not (REAL / "occt_bug22869_Inventor2011_Spring.igs").is_file(), reason="corpus not present")
 def test_surfaces_gmsh_leaves_empty_are_named():
-    # they are meshed by cadbridge.mesh.empty_faces now (tests/test_empty_faces.py checks that
+    # they are meshed by cadbridge.mesh.gmsh.empty_faces now (tests/test_empty_faces.py checks that
     # mesh against OCC); the mesh's notes still name them
     from cadbridge.mesh.generate import mesh_cad
 
@@ -75,7 +75,7 @@ def test_surfaces_gmsh_leaves_empty_are_named():
 
 
 # ANSA9's FACE(274), which folds back over itself, used to stop convert here; its fold lines are
-# now mesh edges (cadbridge.folds): tests/test_folds.py checks the fold lines against OCC, the
+# now mesh edges (cadbridge.heal.folds): tests/test_folds.py checks the fold lines against OCC, the
 # conversion in tri and quad, and that a mesh across a fold still stops ("straddles a crease").
 
 
@@ -97,7 +97,8 @@ def test_an_ill_oriented_apex_node_follows_its_elements(tmp_path):
     follows its element's winding when the element's other corners agree. Reference: OCC's
     measure of the same tool (benchmarks/tool_accuracy.py) gave Nagata/flat 0.12 before the
     guard; here the Nagata surface must stay at most 0.25 x the flat mesh's error."""
-    from cadbridge.pipeline import convert, reversed_normal_elements
+    from cadbridge.tool.build import reversed_normal_elements
+    from cadbridge.tool.pipeline import convert
 
     r = convert(REAL / "occt_occ22470_SolidEdge_SpatialXPlus.igs", tmp_path / "out", element="tri")
     t = r.tools[0]
@@ -116,7 +117,7 @@ def test_a_point_whose_newton_fails_at_a_pole_is_restarted():
     its parametrisation are the same.)"""
     from cadbridge.iges import read_iges
     from cadbridge.nurbs.project import CONVERGED, project_to_surface
-    from cadbridge.search import project_points
+    from cadbridge.cad.search import project_points
 
     model = read_iges(REAL / "occt_bug22566_SolidWorks2010.igs")
     p = np.array([[0.3354439, -124.86572438, -0.89789149]])

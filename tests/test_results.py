@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cadbridge.mesh.mesh import CellBlock, Mesh
-from cadbridge.model import Face, Model
+from cadbridge.cad.model import Face, Model
 from cadbridge.nurbs.construct import cylinder_patch, plane_surface, sphere_patch
 from cadbridge.results import make_levels, map_results
 
@@ -263,7 +263,7 @@ def test_relevelling_reuses_the_mapping(monkeypatch):
     model, mesh = cylinder_case()
     m = map_results(mesh, mesh.nodes[:, 2], model)
     import cadbridge.normals.cad as cad
-    import cadbridge.search as search
+    import cadbridge.cad.search as search
 
     def boom(*a, **k):
         raise AssertionError("projection repeated")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cadbridge.occ.reference import occ_eval, occ_read
+from cadbridge.verify.reference import occ_eval, occ_read
 from cadbridge.ushape import FACE_LABELS, UShapeParams, blank_mesh, build_tools, tool_faces
 
 SAMPLES_DIR = Path(__file__).resolve().parents[1] / "iges_samples"

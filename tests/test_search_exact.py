@@ -195,12 +195,12 @@ def test_project_points_exact_vs_occ(path: Path):
 
     from cadbridge.iges import read_iges
     from cadbridge.nurbs.project import FAILED, ON_BOUNDARY
-    from cadbridge.occ.reference import occ_read_shape
-    from cadbridge.search import project_points
+    from cadbridge.verify.reference import occ_read_shape
+    from cadbridge.cad.search import project_points
 
     model = read_iges(path)
     size = model.size()
-    from cadbridge.mesh_source import mesh_source
+    from cadbridge.heal.mesh_source import mesh_source
 
     # faces the reader re-read (the SolidWorks sphere caps, `cadbridge.iges.arc_convention`):
     # OCC reads them from the file's model-space curves, as the mesher does
@@ -299,8 +299,8 @@ def test_bearing_100k_points_never_fail_and_never_farther_than_occ():
 
     from cadbridge.iges import read_iges
     from cadbridge.nurbs.project import FAILED
-    from cadbridge.occ.reference import occ_inside, occ_project, occ_read
-    from cadbridge.search import project_points
+    from cadbridge.verify.reference import occ_inside, occ_project, occ_read
+    from cadbridge.cad.search import project_points
 
     path = REAL / "occt_bearing_EuclidQuantum.iges"
     model = read_iges(path)

@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cadbridge.search as search
+import cadbridge.cad.search as search
 from cadbridge.iges import read_iges
-from cadbridge.search import index_for, project_points
+from cadbridge.cad.search import index_for, project_points
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
 REAL = Path(__file__).resolve().parents[2] / "shared" / "iges_real"

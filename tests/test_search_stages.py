@@ -16,7 +16,7 @@ from test_project_search import brute_force, step_model
 from cadbridge.iges import read_iges
 from cadbridge.nurbs.project import CONVERGED
 from cadbridge.nurbs.project_many import newton_is_final, newton_to_surfaces, project_to_surfaces
-from cadbridge.search import index_for, project_points
+from cadbridge.cad.search import index_for, project_points
 
 SAMPLES = Path(__file__).resolve().parents[1] / "iges_samples"
 

@@ -1,5 +1,5 @@
 """A face gmsh fails on that is smaller than mesh_cad's node-merge tolerance
-(`cadbridge.mesh.empty_faces._fill_tiny_face`).
+(`cadbridge.mesh.gmsh.empty_faces._fill_tiny_face`).
 
 The production die in analytic mode: OCC's fragment with a crease curve leaves gmsh surface
 1131, a sliver 1.3e-4 x 7e-7 mm of the binder's surface of revolution whose vertex tolerance
@@ -19,7 +19,7 @@ import pytest
 def test_face_below_merge_tolerance_is_filled_and_merged_away():
     gmsh = pytest.importorskip("gmsh")
     from cadbridge.mesh.cleanup import merge_close_nodes
-    from cadbridge.mesh.empty_faces import fill_empty_faces
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
     from cadbridge.mesh.generate import MERGE_TOLERANCE
     from cadbridge.mesh.mesh import Mesh
     from cadbridge.mesh.topology import boundary_edges, edge_table

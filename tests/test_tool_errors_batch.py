@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 
 from cadbridge.iges import read_iges
-from cadbridge.model import Model
+from cadbridge.cad.model import Model
 from cadbridge.nurbs.project import project_to_surface
-from cadbridge.tool_errors import _on_faces
+from cadbridge.tool.accuracy import _on_faces
 
 SAMPLES = Path(__file__).resolve().parent.parent / "iges_samples"
 

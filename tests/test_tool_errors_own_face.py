@@ -2,7 +2,7 @@
 its own face is inside the trims and no other face is near, that foot is the nearest point
 of the trimmed model.
 
-Reference: the global trimmed search (`cadbridge.search.project_points` over all faces,
+Reference: the global trimmed search (`cadbridge.cad.search.project_points` over all faces,
 trims decided on the curves), run on every sample; the shortcut must give the same distance
 (1e-9 x size) wherever it claims a point, and `tool_errors`' boundary error must equal the
 one measured with the global search everywhere.
@@ -19,8 +19,8 @@ from cadbridge.iges import read_iges
 from cadbridge.mesh.generate import mesh_cad
 from cadbridge.nagata import NagataMesh
 from cadbridge.normals.cad import cad_normals
-from cadbridge.pipeline import CadProjector
-from cadbridge.tool_errors import _on_faces, own_face_nearest, tool_errors
+from cadbridge.tool.build import CadProjector
+from cadbridge.tool.accuracy import _on_faces, own_face_nearest, tool_errors
 
 SAMPLES = Path(__file__).resolve().parent.parent / "iges_samples"
 
@@ -61,7 +61,7 @@ def test_boundary_error_equals_the_global_search():
     proj = CadProjector(model)
     err = tool_errors(nm, g.elem, g.eta, g.zeta, ef, model, proj.project)
     ref = np.linalg.norm(g.points - proj.project(g.points).foot, axis=1)
-    from cadbridge.boundary_edges import boundary_curve_distance, free_edge_samples
+    from cadbridge.nagata.boundary_edges import boundary_curve_distance, free_edge_samples
 
     free = np.flatnonzero(free_edge_samples(nm, g.elem, g.eta, g.zeta))
     ref[free] = np.maximum(ref[free], boundary_curve_distance(model.faces[0], g.points[free], model.size()))

@@ -15,12 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cadbridge.tool_errors as TE
+import cadbridge.tool.accuracy as TE
 from cadbridge.iges import read_iges
 from cadbridge.mesh.generate import mesh_cad
 from cadbridge.nagata import NagataMesh
 from cadbridge.normals.cad import cad_normals
-from cadbridge.pipeline import CadProjector
+from cadbridge.tool.build import CadProjector
 
 SAMPLES = Path(__file__).resolve().parent.parent / "iges_samples"
 

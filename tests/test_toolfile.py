@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from cadbridge.io.atomic import atomic_write
+from cadbridge.common.atomic import atomic_write
 from cadbridge.io.toolfile import (
     ToolData,
     ToolFileError,

@@ -300,7 +300,7 @@ FAST = [
 
 
 def _convert(tmp_path: Path, name: str, element: str, structured: bool) -> list[Path]:
-    from cadbridge.pipeline import convert
+    from cadbridge.tool.pipeline import convert
 
     out = tmp_path / "out"
     convert(str(SAMPLES / name), str(out), element=element, structured=structured)

@@ -1,5 +1,5 @@
 """Trim curves made C1 at C0 knots beside short pieces, for the mesher's copy
-(`cadbridge.trim_knots`). References: an analytic curve, the cubic graph y = x^3 - x (every
+(`cadbridge.heal.trim_knots`). References: an analytic curve, the cubic graph y = x^3 - x (every
 point of the rewritten curve on it), OpenCASCADE's IGES reader (the edges it makes of a trim
 loop, the face's area) and the analytic area under that graph."""
 
@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from cadbridge.iges import read_iges, write_iges
-from cadbridge.model import Face, Trim, TrimLoop
-from cadbridge.nurbs import ops
+from cadbridge.cad.model import Face, Trim, TrimLoop
+from cadbridge.nurbs import edits
 from cadbridge.nurbs.construct import composite_curve, line, plane_surface
 from cadbridge.nurbs.curve import NurbsCurve
-from cadbridge.trim_knots import has_c0_knots, smooth_short_knots, smoothed_curve
+from cadbridge.heal.trim_knots import has_c0_knots, smooth_short_knots, smoothed_curve
 
 SAMPLES = Path(__file__).parents[1] / "iges_samples"
 S = 10.0  # model scale: the graph over x in [0, S]
@@ -31,11 +31,11 @@ def _graph_chain(speeds: bool = False) -> NurbsCurve:
     instead, so the speed jumps at the knots (the point set is still the graph)."""
     # power basis y = -t + t^3 -> Bezier ordinates 0, -1/3, -2/3, 0
     c = NurbsCurve(3, [0, 0, 0, 0, 1, 1, 1, 1], S * np.array([[0, 0], [1 / 3, -1 / 3], [2 / 3, -2 / 3], [1, 0]]))
-    c = ops.refine_curve(c, np.repeat(CUTS, 3))
+    c = edits.refine_curve(c, np.repeat(CUTS, 3))
     if not speeds:
         return c
     ends = [0.0, *CUTS, 1.0]
-    pieces = [ops.reparametrize_curve(ops.restrict_curve(c, a, b), (k, k + 1.0)) for k, (a, b) in enumerate(zip(ends[:-1], ends[1:]))]
+    pieces = [edits.reparametrize_curve(edits.restrict_curve(c, a, b), (k, k + 1.0)) for k, (a, b) in enumerate(zip(ends[:-1], ends[1:]))]
     return composite_curve(pieces)
 
 
@@ -78,12 +78,12 @@ def test_corner_rational_and_moving_knots_stay():
     tangents differ by 1 degree would move the curve by ~1e-6: above a 1e-9 allowance it
     stays, below 1e-3 it goes; a rational curve is left alone."""
     def cubic(a, b):
-        return ops.elevate_curve(line(a, b), 2)
+        return edits.elevate_curve(line(a, b), 2)
 
     corner = composite_curve([cubic((0, 0, 0), (1, 0, 0)), cubic((1, 0, 0), (1, 0.001, 0))])
     assert smoothed_curve(corner, shorter=0.05, max_move=1.0) is None
     a = math.radians(1.0)
-    short = ops.reparametrize_curve(cubic((1, 0, 0), (1 + 0.001 * math.cos(a), 0.001 * math.sin(a), 0)), (0.0, 0.001))
+    short = edits.reparametrize_curve(cubic((1, 0, 0), (1 + 0.001 * math.cos(a), 0.001 * math.sin(a), 0)), (0.0, 0.001))
     bent = composite_curve([cubic((0, 0, 0), (1, 0, 0)), short])  # unit speed on both sides
     assert smoothed_curve(bent, shorter=0.05, max_move=1e-9) is None
     assert smoothed_curve(bent, shorter=0.05, max_move=1e-3) is not None
@@ -96,7 +96,7 @@ def _region_file(tmp_path):
     (bottom, right side, graph backwards, left side) written by cadbridge's writer with both
     2D and 3D trim curves."""
     surf = plane_surface((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (-1.0, 11.0), (-11.0, 1.0))
-    g = ops.reverse_curve(_graph_chain())
+    g = edits.reverse_curve(_graph_chain())
     loop2 = [line((0, -S), (S, -S)), line((S, -S), (S, 0)), g, line((0, 0), (0, -S))]
     loop3 = [NurbsCurve(c.degree, c.knots, np.column_stack([c.control_points, np.zeros(len(c.control_points))]),
                         c.weights, c.domain) for c in loop2]
@@ -177,7 +177,7 @@ def test_nothing_to_smooth_leaves_the_text(tmp_path):
     """A file whose trim curves have no C0 knots comes back unchanged."""
     surf = plane_surface((0.0, 0.0, 0.0), (0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.0, 1.0), (0.0, 1.0))
     pts = [(0.1, 0.1), (0.9, 0.1), (0.9, 0.9), (0.1, 0.9)]
-    loop = [ops.elevate_curve(line(a, b), 2) for a, b in zip(pts, pts[1:] + pts[:1])]
+    loop = [edits.elevate_curve(line(a, b), 2) for a, b in zip(pts, pts[1:] + pts[:1])]
     path = tmp_path / "square.igs"
     write_iges([Face(surface=surf, de=1, trims=Trim(TrimLoop(loop)))], path)
     text = path.read_text(encoding="latin-1")
@@ -191,7 +191,7 @@ def test_the_dies_copies_keep_every_face(tmp_path, name):
     """The mesher's copy of each production die, read by OpenCASCADE (the reference): the same
     faces, each with the same number of wires and its area within 1e-6 (a copy with the pieces
     reparametrized to equal speeds lost a 181.8 mm hole of the NURBS die's face 0: 1.4 %)."""
-    from cadbridge.mesh_source import write_mesh_source
+    from cadbridge.heal.mesh_source import write_mesh_source
 
     path = SAMPLES / name
     if not path.is_file():

@@ -1,4 +1,4 @@
-"""Trim classification on the exact curves (cadbridge.trims, Face/Trim.contains) and the
+"""Trim classification on the exact curves (cadbridge.cad.trims, Face/Trim.contains) and the
 nearest point of the trim boundary (project_to_trims).
 
 References: analytic geometry (a cubic Bezier graph v = f(u) with u linear in t, circles,
@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 from test_project import circle_arc
 
-from cadbridge.model import Face, Trim, TrimLoop, distance_to_polygon, points_in_polygon
+from cadbridge.cad.model import Face, Trim, TrimLoop, distance_to_polygon, points_in_polygon
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
-from cadbridge.trims import LoopBoundary, project_to_trims
+from cadbridge.cad.trims import LoopBoundary, project_to_trims
 
 REAL = Path(__file__).parents[1].parent / "shared" / "iges_real"
 
@@ -266,7 +266,7 @@ def test_real_faces_vs_occ_classifier(name):
         pytest.skip(f"{path} not present")
     pytest.importorskip("OCP")
     from cadbridge.iges import read_iges
-    from cadbridge.occ.reference import occ_eval, occ_read
+    from cadbridge.verify.reference import occ_eval, occ_read
 
     m = read_iges(path)
     occ = occ_read(path)
@@ -310,7 +310,7 @@ def test_project_to_trims_across_the_seam_of_a_closed_hole_curve():
     side of the seam, not stop at the end the nearest sample gave. Reference: the distance to
     the analytic circle. (Newton clamped at t0 gave 0.518 instead of 0.121 at (20.134, 24.5).)"""
     from cadbridge.iges import read_iges
-    from cadbridge.trims import project_to_trims
+    from cadbridge.cad.trims import project_to_trims
 
     m = read_iges(Path(__file__).parents[1] / "iges_samples" / "trimmed_hole.igs")
     rng = np.random.default_rng(3)

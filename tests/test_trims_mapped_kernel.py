@@ -1,4 +1,4 @@
-"""The compiled path of exactly mapped trim curves (`cadbridge.trims._kernel_form`: a
+"""The compiled path of exactly mapped trim curves (`cadbridge.cad.trims._kernel_form`: a
 `MappedCurve`'s 2D base NURBS curve and its packed map, `_tcurve_ders_one`).
 
 References:
@@ -19,8 +19,8 @@ import pytest
 
 from cadbridge.iges import read_iges
 from cadbridge.iges.analytic import MappedCurve
-from cadbridge.model import Face, Trim, TrimLoop
-from cadbridge.trims import LoopBoundary, _curve_ders, project_to_trims
+from cadbridge.cad.model import Face, Trim, TrimLoop
+from cadbridge.cad.trims import LoopBoundary, _curve_ders, project_to_trims
 
 ROOT = Path(__file__).parents[1]
 FILES = [ROOT / "iges_samples" / "ushape_tools_analytic.igs",

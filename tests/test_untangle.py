@@ -1,4 +1,4 @@
-"""`cadbridge.mesh.untangle`: free nodes moved until no element is inverted.
+"""`cadbridge.mesh.gmsh.untangle`: free nodes moved until no element is inverted.
 
 References: the exact area of the square the meshes cover (a mesh whose elements are all
 counter-clockwise and use only the square's boundary nodes on its border covers it once, so
@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from cadbridge.mesh.untangle import corner_sines, untangle
+from cadbridge.mesh.gmsh.untangle import corner_sines, untangle
 
 
 def _grid(n: int) -> tuple[np.ndarray, np.ndarray, int]:

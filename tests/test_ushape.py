@@ -168,7 +168,7 @@ def _toolfile_nagata(td):
 @pytest.mark.parametrize("tool", TOOLS)
 def test_nagata_iges_read_by_opencascade_matches_patches(ushape, tool):
     pytest.importorskip("OCP")
-    from cadbridge.occ.reference import occ_read
+    from cadbridge.verify.reference import occ_read
 
     out, _ = ushape
     td = read_toolfile(out / tool / f"{tool}.nagata")

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cadbridge.occ.reference import occ_read
-from cadbridge.occ.verify import OccCrashError, _segfault, compare_models, run_isolated, verify
+from cadbridge.verify.reference import occ_read
+from cadbridge.verify.faces import OccCrashError, _segfault, compare_models, run_isolated, verify
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "iges_samples"

@@ -145,7 +145,7 @@ class ParamMap:
 
 
 def _ders(curve: NurbsCurve, t, order: int) -> np.ndarray:
-    """``curve.derivatives(t, order)`` through the compiled evaluator of `trimcheck.eval_packed`
+    """``curve.derivatives(t, order)`` through the compiled evaluator of `cadbridge.nurbs.curve_pack.eval_packed`
     (same algorithms, P&T A3.2 + A4.2; t clamped to the knot range): the trim maps evaluate
     the file's curves many times in small batches, where the numpy path is call-bound. The
     packed form is kept on the curve (``_packed``), built on first use. (N, order+1, dim)."""
@@ -153,7 +153,7 @@ def _ders(curve: NurbsCurve, t, order: int) -> np.ndarray:
         return curve.derivatives(t, order)
     pk = curve.__dict__.get("_packed")
     if pk is None:
-        from cadbridge.iges.trimcheck import PackedCurves
+        from cadbridge.nurbs.curve_pack import PackedCurves
 
         pk = curve.__dict__["_packed"] = PackedCurves([curve])
     t = np.atleast_1d(np.asarray(t, dtype=float)).ravel()
@@ -209,9 +209,9 @@ def sample_chain(fn: Callable[[np.ndarray], np.ndarray], curve: NurbsCurve, angu
 def _sample_many(curves: list[NurbsCurve], fn: Callable[[np.ndarray], np.ndarray],
                  angular: tuple[bool, bool]) -> list[tuple[np.ndarray, np.ndarray]]:
     """``sample_chain(fn, c, angular, None, 0.0)`` for each of many NurbsCurves of one
-    dimension at once: one compiled sampling and evaluation (`trimcheck.PackedCurves`, the
+    dimension at once: one compiled sampling and evaluation (`cadbridge.nurbs.curve_pack.PackedCurves`, the
     parameters of `NurbsCurve.sample_parameters`), one call of fn; angles unwrapped per curve."""
-    from cadbridge.iges.trimcheck import PackedCurves
+    from cadbridge.nurbs.curve_pack import PackedCurves
 
     pk = PackedCurves(curves)
     ci, t = pk.sample(MIN_PER_SPAN)
@@ -464,7 +464,7 @@ class MappedCurve(_TrimCurve):
         return self._natural_ders(t, 0)[:, 0]
 
     def packed_map(self) -> np.ndarray:
-        """The map in the flat form the compiled trim kernels take (`cadbridge.trims.MAP_LEN`
+        """The map in the flat form the compiled trim kernels take (`cadbridge.cad.trims.MAP_LEN`
         = 29 floats): 1, M row by row, b, then pre_0 and pre_1 as (flag, start_in, sweep,
         start_out, segments) (flag 0: identity), then post_0 and post_1 as (src, flag,
         start_in, sweep, start_out, segments)."""
@@ -589,12 +589,12 @@ def _theta_v(nat: np.ndarray, r1) -> np.ndarray:
 
 def _height_line(frame: Frame, radius_at: Callable[[float], float], r0) -> NurbsCurve:
     c = _construct()
-    from cadbridge.nurbs import ops
+    from cadbridge.nurbs import edits
 
     h0, h1 = r0
     p0 = frame.origin + radius_at(h0) * frame.x + h0 * frame.axis
     p1 = frame.origin + radius_at(h1) * frame.x + h1 * frame.axis
-    return ops.reparametrize_curve(c.line(p0, p1), (h0, h1))
+    return edits.reparametrize_curve(c.line(p0, p1), (h0, h1))
 
 
 def cylinder_map(frame: Frame, radius: float, cone_tan: float = 0.0, kind: str = "cylinder") -> ParamMap:
@@ -1151,7 +1151,7 @@ def invert_edges(surface: NurbsSurface, pieces: list[NurbsCurve], rel_gap: float
     is inserted (it maps to that one point). Returns the (u, v) pieces. Raises ValueError
     when a piece cannot be projected or the loop winds around a closed direction."""
     from cadbridge.iges.edgefeet import edge_feet
-    from cadbridge.iges.trimcheck import PackedCurves
+    from cadbridge.nurbs.curve_pack import PackedCurves
     from cadbridge.nurbs.project import surface_samples
 
     if not pieces:

@@ -21,7 +21,7 @@ from cadbridge.iges.trimcheck import DeltaBatch, loop_deltas
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record
 from cadbridge.iges.parameters import FastTokens, Params, prepare_params, read_params
-from cadbridge.model import Diagnostic, Face, Trim, TrimLoop
+from cadbridge.cad.model import Diagnostic, Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 

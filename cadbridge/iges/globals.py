@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from cadbridge.iges.errors import IgesError
 from cadbridge.iges.lexer import Record, Token, tokenize
 from cadbridge.iges.values import parse_int, parse_real
-from cadbridge.model import Units
+from cadbridge.cad.model import Units
 
 __all__ = ["GlobalSection", "parse_global", "units_from_flag", "UNIT_TABLE"]
 

@@ -16,7 +16,7 @@ from cadbridge.iges.errors import IgesError
 from cadbridge.iges.globals import (F_AUTHOR, F_FILE_NAME, F_ORGANIZATION, F_PREPROCESSOR, F_PRODUCT_ID,
                                     F_SYSTEM, parse_global)
 from cadbridge.iges.lexer import split_sections
-from cadbridge.model import Diagnostic, Face, Model
+from cadbridge.cad.model import Diagnostic, Face, Model
 
 __all__ = ["read_iges", "read_iges_string"]
 

@@ -22,8 +22,8 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_write
-from cadbridge.model import Face, Model, Units
+from cadbridge.common.atomic import atomic_write
+from cadbridge.cad.model import Face, Model, Units
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 

@@ -28,7 +28,7 @@ import os
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_write
+from cadbridge.common.atomic import atomic_write
 
 __all__ = ["read_coefficients_listing", "read_grid_csv", "write_coefficients_listing", "write_grid_csv"]
 

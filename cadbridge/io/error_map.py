@@ -1,6 +1,6 @@
 """PNG of an error field over a tool: the surface in 3D, each triangle coloured by its error.
 
-matplotlib Agg (no pyplot state), written atomically (`cadbridge.io.atomic`).
+matplotlib Agg (no pyplot state), written atomically (`cadbridge.common.atomic`).
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import os
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_path
+from cadbridge.common.atomic import atomic_path
 
 __all__ = ["plot_error_map"]
 

@@ -101,7 +101,7 @@ def write_nagata_iges(
     entity subscript is the 1-based global patch number. The text is that of
     `cadbridge.iges.write_iges` of `nagata_to_surfaces` (`cadbridge.iges.writer.bezier_iges_text`), written atomically.
     """
-    from cadbridge.io.atomic import atomic_write
+    from cadbridge.common.atomic import atomic_write
     from cadbridge.iges.globals import units_from_flag
     from cadbridge.iges.writer import bezier_iges_text
 

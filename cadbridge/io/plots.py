@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_path
+from cadbridge.common.atomic import atomic_path
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 

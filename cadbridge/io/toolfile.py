@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_write
+from cadbridge.common.atomic import atomic_write
 
 __all__ = [
     "FORMAT_VERSION",
@@ -297,7 +297,13 @@ def format_toolfile(tool: ToolData) -> str:
 
 
 def write_toolfile(tool: ToolData, path: str | os.PathLike) -> None:
-    """Write ``tool`` to ``path`` atomically (temporary file + fsync + rename)."""
+    """Write ``tool`` to ``path`` atomically (temporary file + fsync + rename).
+
+    Example::
+
+        >>> tool = cadbridge.read_toolfile("die_out/die/die.nagata")     # doctest: +SKIP
+        >>> cadbridge.write_toolfile(tool, "copy.nagata")                 # the same bytes again
+    """
     text = format_toolfile(tool)
     with atomic_write(path, "w") as fh:
         fh.write(text)
@@ -402,7 +408,13 @@ def _is_int(tok: str) -> bool:
 
 
 def read_toolfile(path: str | os.PathLike) -> ToolData:
-    """Read a tool file written by `write_toolfile` (or by hand, following docs/toolfile.md)."""
+    """Read a tool file written by `write_toolfile` (or by hand, following docs/toolfile.md).
+
+    Example::
+
+        >>> tool = cadbridge.read_toolfile("die_out/die/die.nagata")     # doctest: +SKIP
+        >>> tool.nodes.shape, tool.normals.shape                          # (N, 3) each
+    """
     path = Path(path)
     with open(path, encoding="utf-8", newline="") as fh:
         text = fh.read()

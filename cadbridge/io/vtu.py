@@ -26,7 +26,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from cadbridge.io.atomic import atomic_path
+from cadbridge.common.atomic import atomic_path
 
 __all__ = ["write_surface_vtu", "write_mesh_vtu", "decode_field_string"]
 

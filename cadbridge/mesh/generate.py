@@ -44,124 +44,17 @@ revolution, NURBS) since it looks only at the boundary curves.
 from __future__ import annotations
 
 import math
-import threading
 import warnings
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from cadbridge.mesh.gmsh.session import GmshSession, apply_options, quiet_stdout
 from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
 
-__all__ = ["mesh_cad", "FaceInfo", "GmshSession"]
+__all__ = ["mesh_cad", "FaceInfo"]
 
-_LOCK = threading.RLock()  # gmsh is a process-wide singleton
-
-
-class GmshSession:
-    """Context manager owning gmsh for one call: initialise (or add a private model if the
-    caller holds gmsh already), track changed options, and undo everything on exit."""
-
-    def __init__(self, verbose: bool = False) -> None:
-        self.verbose = verbose
-        self._owner = False
-        self._saved_num: dict[str, float] = {}
-        self._saved_str: dict[str, str] = {}
-        self._model = "cadbridge-mesh"
-        self._prev_model: str | None = None
-        self.views: list[int] = []  # post-processing views made in the call (not part of the model)
-
-    def __enter__(self):
-        import gmsh
-
-        _LOCK.acquire()
-        try:
-            if gmsh.isInitialized():
-                self._prev_model = gmsh.model.getCurrent()
-                if self._prev_model.startswith(self._model):  # nested in another call: a name of its own
-                    self._model = f"{self._prev_model}-nested"
-            else:
-                gmsh.initialize(readConfigFiles=False, interruptible=False)
-                self._owner = True
-                _restore_python_signals()
-            self.set("General.Terminal", 1 if self.verbose else 0)
-            self.set("General.Verbosity", 5 if self.verbose else 1)
-            gmsh.model.add(self._model)
-        except BaseException:
-            self._cleanup()
-            raise
-        return self
-
-    @property
-    def gmsh(self):
-        import gmsh
-
-        return gmsh
-
-    def set(self, name: str, value: float | str) -> None:
-        """Set a gmsh option, remembering its old value (restored on exit)."""
-        import gmsh
-
-        if isinstance(value, str):
-            if name not in self._saved_str and not self._owner:
-                self._saved_str[name] = gmsh.option.getString(name)
-            gmsh.option.setString(name, value)
-        else:
-            if name not in self._saved_num and not self._owner:
-                self._saved_num[name] = gmsh.option.getNumber(name)
-            gmsh.option.setNumber(name, float(value))
-
-    def _cleanup(self) -> None:
-        import gmsh
-
-        try:
-            if self._owner:
-                if gmsh.isInitialized():
-                    gmsh.finalize()
-            elif gmsh.isInitialized():
-                for v in self.views:
-                    try:
-                        gmsh.view.remove(v)
-                    except Exception:
-                        pass
-                try:
-                    gmsh.model.setCurrent(self._model)
-                    gmsh.model.remove()
-                except Exception:
-                    pass
-                for k, v in self._saved_num.items():
-                    gmsh.option.setNumber(k, v)
-                for k, v in self._saved_str.items():
-                    gmsh.option.setString(k, v)
-                if self._prev_model:
-                    try:
-                        gmsh.model.setCurrent(self._prev_model)
-                    except Exception:
-                        pass
-        finally:
-            _restore_python_signals()
-            _LOCK.release()
-
-    def __exit__(self, *exc) -> None:
-        self._cleanup()
-
-
-def _restore_python_signals() -> None:
-    """Give SIGPIPE and SIGINT back the handlers Python keeps for them.
-
-    gmsh resets SIGPIPE to its default (terminate) at the C level: afterwards a write to a
-    closed pipe (e.g. to a crashed worker process) would kill the whole process instead of
-    raising BrokenPipeError. Python's bookkeeping still holds the intended handlers.
-    """
-    import signal
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        return  # signal handlers can only be set from the main thread
-    for sig in (signal.SIGPIPE, signal.SIGINT):
-        handler = signal.getsignal(sig)
-        if handler is not None:
-            signal.signal(sig, handler)
 
 
 class FaceInfo:
@@ -464,7 +357,7 @@ def mesh_cad(
     curvature_elements : if > 0, ``Mesh.MeshSizeFromCurvature`` (elements per 2*pi).
     target_unit : ``Geometry.OCCTargetUnit`` (e.g. "M"); None keeps OCC's default (mm).
     parametric : store ``node_entity`` / ``node_uv`` in point_data (module docs).
-    embed_curves : 3D `NurbsCurve` s lying on the CAD faces (e.g. `cadbridge.creases`'
+    embed_curves : 3D `NurbsCurve` s lying on the CAD faces (e.g. `cadbridge.heal.creases`'
         crease lines) that must become mesh edges: each is added as a gmsh B-spline and
         fragmented with the surfaces it lies on (OCC general fuse), which splits those faces
         along it; pieces of a curve that lie on no face are removed. Raises `MeshError` if a
@@ -487,14 +380,14 @@ def mesh_cad(
     orientation as gmsh gives it (following each OCC face's orientation), unused nodes
     dropped, ``cell_data["element_entity"]`` and (if ``parametric``) the node data above.
     Raises `MeshError` naming the file on import / meshing failure.
-    loop_cuts : trim-loop excursions (`cadbridge.loop_excursions.heal_excursions`): the faces
-        holding them are meshed without them (`cadbridge.mesh.loop_cuts`).
+    loop_cuts : trim-loop excursions (`cadbridge.heal.loop_excursions.heal_excursions`): the faces
+        holding them are meshed without them (`cadbridge.mesh.gmsh.loop_cuts`).
     mesher : "gmsh" (default) or "qit": the quasi-isotropic triangulation of
-        `cadbridge.mesh.qit` (IGES only; ``size`` is its target edge length R; the gmsh
+        `cadbridge.mesh.qit.mesher` (IGES only; ``size`` is its target edge length R; the gmsh
         options do not apply).
     """
     if mesher == "qit":
-        from cadbridge.mesh.qit import mesh_cad_qit
+        from cadbridge.mesh.qit.mesher import mesh_cad_qit
 
         return mesh_cad_qit(path, size=size, element=element, structured=structured, embed_curves=embed_curves)
     if mesher != "gmsh":
@@ -560,9 +453,9 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     }
     if kw["target_unit"]:
         opts["Geometry.OCCTargetUnit"] = kw["target_unit"]
-    _apply(sess, opts)
+    apply_options(sess, opts)
     try:
-        with _quiet_stdout(not sess.verbose):  # OCC's IGES reader prints to fd 1
+        with quiet_stdout(not sess.verbose):  # OCC's IGES reader prints to fd 1
             g.model.occ.importShapes(str(path))
         g.model.occ.synchronize()
     except Exception as exc:
@@ -594,7 +487,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         # with recombination each retry costs more (the Inventor spring: > 200 s at the default
         # 10), and where a retry succeeds it fills zero-width cusp strips with slivers (nodes
         # 1e-13 apart, corner normals reversed, quads folded). No retry: such faces stay empty
-        # and cadbridge.mesh.empty_faces meshes them, cutting those strips off.
+        # and cadbridge.mesh.gmsh.empty_faces meshes them, cutting those strips off.
         "Mesh.MaxRetries": 0,
         # the size integral along curves (node spacing from curvature) to 1e-5 instead of
         # gmsh's 1e-9: the production die's 1D mesh 21 -> 3.5 s, 67 833 -> 67 784 nodes.
@@ -602,7 +495,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         # U-shape's radius elements then miss the thesis' 0.060 % by 4e-6 %).
         "Mesh.LcIntegrationPrecision": 1e-9 if kw["structured"] else 1e-5,
     }
-    _apply(sess, mopts)
+    apply_options(sess, mopts)
     if kw["size_callback"] is not None or kw["background_sizes"] is not None:
         # the callback or field alone sets the sizes inside faces (else gmsh interpolates the
         # boundary sizes across them, filling a plane next to a small round with small elements)
@@ -735,7 +628,7 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
     subdivided, so their count is even and recombination may close them). A surface that still
     folds (the production die's binder BND00963 in the quad subdivision pass: every gmsh
     algorithm gave the same fold) or keeps triangles is cleared and meshed by cadbridge in its
-    (u, v) on gmsh's boundary nodes (`cadbridge.mesh.empty_faces`), as a surface gmsh failed
+    (u, v) on gmsh's boundary nodes (`cadbridge.mesh.gmsh.empty_faces`), as a surface gmsh failed
     on; where that cannot mesh a face that only kept triangles, the whole model is meshed again
     with the subdivision, the last refold algorithm on the redone surfaces (`_regenerate_all`).
     Returns (mesh without the nodes' (u, v), which the caller collects once at the end; notes
@@ -800,8 +693,8 @@ def _folds(g, mesh: Mesh) -> dict[int, int]:
 def _fill_folds(g, surfaces: list[int], folds: dict[int, int], left_triangles: set[int], size: float, kw: dict,
                 path: Path, subdivided: bool) -> tuple[Mesh, list[str]]:
     """Clear the surfaces ``folds`` {surface: pairs} and mesh them in their (u, v)
-    (`cadbridge.mesh.empty_faces`): (mesh, one note per face)."""
-    from cadbridge.mesh.empty_faces import fill_empty_faces
+    (`cadbridge.mesh.gmsh.empty_faces`): (mesh, one note per face)."""
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
 
     for s in folds:
         g.model.mesh.clear([(2, s)])  # the surface's own nodes and elements; its curves' nodes stay
@@ -902,7 +795,7 @@ def _set_sizes(g, sess: GmshSession, kw: dict, size: float, scale: float) -> Non
     size callback and the background field, every size times ``scale`` (2 before the all-quad
     subdivision, which halves them)."""
     n = kw["curvature_elements"]
-    _apply(sess, {
+    apply_options(sess, {
         "Mesh.MeshSizeMax": scale * size,
         # curvature sizing refines at most 20 x below the size (a pole or a sliver face
         # of tiny radius would otherwise ask for elements without end)
@@ -1009,19 +902,19 @@ def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
 
 def _generate(g, surfaces: list[int]) -> dict[int, str]:
     """gmsh's 2D meshing, going on past a surface it cannot mesh: {failed surface: gmsh's error}
-    (`cadbridge.mesh.empty_faces.generate_surfaces`; those surfaces are then filled)."""
-    from cadbridge.mesh.empty_faces import generate_surfaces
+    (`cadbridge.mesh.gmsh.empty_faces.generate_surfaces`; those surfaces are then filled)."""
+    from cadbridge.mesh.gmsh.empty_faces import generate_surfaces
 
     return generate_surfaces(g, surfaces)
 
 
 def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdivided: bool,
                 failed: dict[int, str] | None = None) -> list[str]:
-    """Mesh the surfaces gmsh left without elements ourselves (`cadbridge.mesh.empty_faces`:
+    """Mesh the surfaces gmsh left without elements ourselves (`cadbridge.mesh.gmsh.empty_faces`:
     in their (u, v) on gmsh's boundary nodes), and those holding a trim-loop excursion, less
-    its nodes (`cadbridge.mesh.loop_cuts`); one note per face."""
-    from cadbridge.mesh import loop_cuts
-    from cadbridge.mesh.empty_faces import fill_empty_faces
+    its nodes (`cadbridge.mesh.gmsh.loop_cuts`); one note per face."""
+    from cadbridge.mesh.gmsh import loop_cuts
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
 
     cuts = {}
     if kw.get("loop_cuts"):
@@ -1125,41 +1018,6 @@ def _embed_curves(g, curves: list, path: Path) -> None:
     if free:
         g.model.occ.remove(free, recursive=True)
         g.model.occ.synchronize()
-
-
-class _quiet_stdout:
-    """Redirect file descriptor 1 to /dev/null (C++ code printing to std::cout)."""
-
-    def __init__(self, enabled: bool) -> None:
-        self.enabled = enabled
-        self._saved: int | None = None
-
-    def __enter__(self) -> None:
-        import os
-        import sys
-
-        if not self.enabled:
-            return
-        try:
-            sys.stdout.flush()
-            self._saved = os.dup(1)
-            devnull = os.open(os.devnull, os.O_WRONLY)
-            os.dup2(devnull, 1)
-            os.close(devnull)
-        except OSError:
-            self._saved = None
-
-    def __exit__(self, *exc) -> None:
-        import os
-
-        if self._saved is not None:
-            os.dup2(self._saved, 1)
-            os.close(self._saved)
-
-
-def _apply(sess: GmshSession, opts: dict[str, float | str]) -> None:
-    for k, v in opts.items():
-        sess.set(k, v)
 
 
 def _collect(g, surfaces: list[int], parametric: bool, path: Path) -> Mesh:

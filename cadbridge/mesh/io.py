@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_path
+from cadbridge.common.atomic import atomic_path
 
 from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
 
@@ -114,7 +114,7 @@ def _sniff_gid(path: Path) -> bool:
 # ---------------------------------------------------------------------------- atomic write
 def atomic_write(path: str | os.PathLike, write: Callable[[str], None]) -> None:
     """Call ``write(tmp_path)`` on a temporary file next to ``path``, then rename it onto
-    ``path`` (`cadbridge.io.atomic.atomic_path`)."""
+    ``path`` (`cadbridge.common.atomic.atomic_path`)."""
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():

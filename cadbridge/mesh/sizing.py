@@ -19,7 +19,7 @@ largest error, so the target edge length for a shape tolerance t is
 topology of their boundaries lets gmsh make).
 
 `SizeField` turns (size) into a gmsh size callback: target sizes at sample points of the
-faces (and at refinement marks added by the verification loop, `cadbridge.refine`), graded
+faces (and at refinement marks added by the verification loop, `cadbridge.tool.refine`), graded
 away from each sample, h(x) = min_i (h_i + g |x - x_i|), clipped to [h_min, h_max].
 Lengths in model units.
 """

@@ -11,7 +11,7 @@ Every other edge uses the two-normal closed form (Nagata eq. 15, with the bounde
 `cadbridge.nagata.edge`). docs/toolfile.md states the same rule for readers of tool files.
 
 Edge normals: a mesh edge listed in ``edge_normals`` with a conormal at each end (the
-curve's ``t x n``, `cadbridge.boundary_edges` gives them to the free boundary edges that
+curve's ``t x n``, `cadbridge.nagata.boundary_edges` gives them to the free boundary edges that
 follow a curved trim curve) takes the two-normal coefficient plus the sideways part the
 conormals ask for (`cadbridge.nagata.edge.edge_coefficient_conormal`): the edge curve keeps
 the surface's normal curvature and follows the trim curve's geodesic curvature, instead of

@@ -30,9 +30,9 @@ import numpy as np
 from cadbridge.mesh.io import MeshWarning
 from cadbridge.mesh.mesh import Mesh, MeshError
 from cadbridge.mesh.topology import edge_table, non_manifold_edges, orient_consistently, orientation_conflicts
-from cadbridge.model import Model
+from cadbridge.cad.model import Model
 from cadbridge.nurbs.project_many import project_to_surfaces
-from cadbridge.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, index_for, project_points
+from cadbridge.cad.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, index_for, project_points
 
 __all__ = ["CadNormals", "ProjectionError", "cad_normals"]
 

@@ -20,7 +20,8 @@ from typing import Sequence
 
 import numpy as np
 
-from cadbridge.nurbs import ops
+from cadbridge.nurbs import edits
+from cadbridge.nurbs.knots import reparametrize
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
@@ -222,7 +223,7 @@ def conic_arc(A, B, C, D, E, F, zt, start, end) -> NurbsCurve:
         pts2 = ctr + uv @ axes.T
         pts2[0] = P0
         pts2[-1] = P0 if sweep == 2 * pi else P2
-        knots = ops.reparametrize(knots, (0.0, sweep))
+        knots = reparametrize(knots, (0.0, sweep))
     else:
         g0 = M[:2, :] @ np.append(P0, 1.0)  # gradients (up to factor 2)
         g2 = M[:2, :] @ np.append(P2, 1.0)
@@ -273,9 +274,9 @@ def composite_curve(curves: Sequence[NurbsCurve], tol: float = 1e-9) -> NurbsCur
     dims = {c.dim for c in curves}
     if len(dims) != 1:
         raise ValueError("composite_curve: curves of different dimensions")
-    cs = [ops.restrict_curve(c) for c in curves]
+    cs = [edits.restrict_curve(c) for c in curves]
     p = max(c.degree for c in cs)
-    cs = [ops.elevate_curve(c, p - c.degree) if c.degree < p else c for c in cs]
+    cs = [edits.elevate_curve(c, p - c.degree) if c.degree < p else c for c in cs]
     allpts = np.concatenate([c.control_points for c in cs])
     size = max(float(np.linalg.norm(np.ptp(allpts, axis=0))), 1e-300)
     knots = list(cs[0].knots[:-1])
@@ -299,7 +300,7 @@ def composite_curve(curves: Sequence[NurbsCurve], tol: float = 1e-9) -> NurbsCur
         ctrl.append(pw[1:])
         t_end = kn[-1]
     knots.append(t_end)
-    return ops.curve_from_homogeneous(p, np.array(knots), np.concatenate(ctrl))
+    return edits.curve_from_homogeneous(p, np.array(knots), np.concatenate(ctrl))
 
 
 # ---------------------------------------------------------------------------- surfaces
@@ -333,10 +334,10 @@ def ruled_surface(c1: NurbsCurve, c2: NurbsCurve, reverse_second: bool = False) 
     IGES form 0 (equal relative arc length) is not reproduced exactly.
     """
     if reverse_second:
-        c2 = ops.reverse_curve(c2)
-    a, b = ops.make_compatible([c1, c2])
+        c2 = edits.reverse_curve(c2)
+    a, b = edits.make_compatible([c1, c2])
     cw = np.stack([a._pw, b._pw], axis=1)  # (n, 2, 4)
-    return ops.surface_from_homogeneous(a.degree, 1, a.knots, [0.0, 0.0, 1.0, 1.0], cw)
+    return edits.surface_from_homogeneous(a.degree, 1, a.knots, [0.0, 0.0, 1.0, 1.0], cw)
 
 
 def revolved_surface(generatrix: NurbsCurve, axis_point, axis_dir, start_angle: float, end_angle: float) -> NurbsSurface:
@@ -349,7 +350,7 @@ def revolved_surface(generatrix: NurbsCurve, axis_point, axis_dir, start_angle: 
     use :func:`arc_parameter` to map an angle to v. A full turn (2 pi) gives 4 segments.
     Points of the generatrix on the axis give collapsed rows (poles).
     """
-    g = ops.restrict_curve(generatrix)
+    g = edits.restrict_curve(generatrix)
     if g.dim != 3:
         raise ValueError("revolved_surface: the generatrix must be 3D")
     sweep = float(end_angle) - float(start_angle)
@@ -373,7 +374,7 @@ def revolved_surface(generatrix: NurbsCurve, axis_point, axis_dir, start_angle: 
 def tabulated_cylinder(directrix: NurbsCurve, vector) -> NurbsSurface:
     """Tabulated cylinder S(u, v) = C(u) + v * vector (IGES 122): u the directrix
     parameter (its domain), v in [0, 1], exactly linear in v."""
-    c = ops.restrict_curve(directrix)
+    c = edits.restrict_curve(directrix)
     if c.dim != 3:
         raise ValueError("tabulated_cylinder: the directrix must be 3D")
     vec = np.asarray(vector, dtype=float)
@@ -387,7 +388,7 @@ def cylinder_patch(radius: float, height: float, angle: float = 2 * pi) -> Nurbs
     """Cylinder x^2 + y^2 = radius^2, 0 <= z <= height, azimuth 0..angle about +z.
     u = z in [0, height], v in [0, angle] (angle at knots, see :func:`arc_angle`);
     Su x Sv points towards the axis."""
-    gen = ops.reparametrize_curve(line((radius, 0.0, 0.0), (radius, 0.0, height)), (0.0, height))
+    gen = edits.reparametrize_curve(line((radius, 0.0, 0.0), (radius, 0.0, height)), (0.0, height))
     return revolved_surface(gen, (0, 0, 0), (0, 0, 1), 0.0, angle)
 
 

@@ -742,7 +742,7 @@ def fit_surface(
 ) -> SurfaceFit:
     """Fit one NURBS surface to points with start parameters, refining knots to a tolerance.
 
-    points (N, 3); u, v (N,) start parameters (from a base surface, `cadbridge.fitting`).
+    points (N, 3); u, v (N,) start parameters (from a base surface, `cadbridge.fitting.surface_fit`).
     degree (p, q); tolerance: max deviation wanted (model units); knots: fixed start knot vectors
     (clamped; default uniform with ``initial_spans`` spans, by default 4 along the longer side of
     the domain); max_ctrl: control net limit (nu, nv); smoothing: thin-plate weight (module doc;
@@ -781,7 +781,7 @@ def fit_surface(
 
     if rational_base is not None:
         p, q = rational_base.degree_u, rational_base.degree_v
-        from cadbridge.nurbs.ops import restrict_surface
+        from cadbridge.nurbs.edits import restrict_surface
 
         base = restrict_surface(rational_base, domain) if domain is not None else restrict_surface(rational_base)
         ku, kv = base.knots_u.copy(), base.knots_v.copy()
@@ -930,7 +930,7 @@ def fit_surface(
                          max_points_per_level=max_points_per_level, project_final=False, progress=progress)
         ku, kv = f0.surface.knots_u, f0.surface.knots_v
         if base is not None:
-            from cadbridge.nurbs.ops import refine_surface
+            from cadbridge.nurbs.edits import refine_surface
 
             extra_u = [t for t in ku[p + 1 : -p - 1] if t not in base.knots_u]
             extra_v = [t for t in kv[q + 1 : -q - 1] if t not in base.knots_v]
@@ -1060,7 +1060,7 @@ def fit_surface(
         new_u = 0.5 * (ku[p + su_idx] + ku[p + su_idx + 1])
         new_v = 0.5 * (kv[q + sv_idx] + kv[q + sv_idx + 1])
         if base is not None:
-            from cadbridge.nurbs.ops import refine_surface
+            from cadbridge.nurbs.edits import refine_surface
 
             base = refine_surface(base, new_u, new_v)
             ku, kv = base.knots_u.copy(), base.knots_v.copy()

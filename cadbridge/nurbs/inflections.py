@@ -8,7 +8,7 @@ A Nagata edge is quadratic, so it cannot follow an inflection between its end no
   (`cadbridge.nurbs.curvature.normal_curvature`), sampled, and every sign change bisected on
   the exact surface down to a parameter tolerance.
 * **Control polygon** (`control_polygon_inflections`, thesis Fig. 59): the iso-curve's exact
-  control polygon (`cadbridge.nurbs.ops.isocurve`) turns one way, then the other; the leg
+  control polygon (`cadbridge.nurbs.edits.isocurve`) turns one way, then the other; the leg
   joining the two corners where the turning changes sign crosses the curve near its
   inflection, and the crossing is taken as the estimate. By the variation-diminishing
   property a planar curve has no more inflections than its polygon has turning sign changes,
@@ -96,7 +96,7 @@ class InflectionLine:
 
     uv (K, 2) points of the line (bisected on iso-lines of the other parameter); iso: the
     line is the iso-line ``direction = value`` within ``iso_tol`` of the domain (then it can
-    be inserted exactly as a mesh edge, `cadbridge.nurbs.ops.isocurve`)."""
+    be inserted exactly as a mesh edge, `cadbridge.nurbs.edits.isocurve`)."""
 
     direction: str
     uv: NDArray
@@ -155,7 +155,7 @@ def control_polygon_inflections(surface: NurbsSurface, direction: str, at: float
     curve (the estimates of its inflections). The turning of polygon corner i is the second
     divided difference of the polygon over the Greville abscissae, along the surface normal
     at the Greville point of Q_i: the polygon bends towards or away from the surface."""
-    from cadbridge.nurbs.ops import isocurve
+    from cadbridge.nurbs.edits import isocurve
 
     curve = isocurve(surface, "v" if direction == "u" else "u", float(at))
     q = np.asarray(curve.control_points, dtype=float)

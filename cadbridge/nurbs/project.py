@@ -287,7 +287,7 @@ def smooth_pieces(surface: NurbsSurface) -> list[NurbsSurface]:
         if len(eu) == 2 and len(ev) == 2:
             hit = [surface]
         else:
-            from cadbridge.nurbs.ops import restrict_surface
+            from cadbridge.nurbs.edits import restrict_surface
 
             hit = [restrict_surface(surface, (a, b, c, d)) for a, b in zip(eu[:-1], eu[1:]) for c, d in zip(ev[:-1], ev[1:])]
         _PIECES[surface] = hit

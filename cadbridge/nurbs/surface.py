@@ -515,14 +515,9 @@ class NurbsSurface:
         return np.minimum(a, b)
 
     # ------------------------------------------------------------------ geometry helpers
-    def bbox(self, tight: bool = False) -> np.ndarray:
-        """Axis-aligned box, (2, 3) [min, max], containing the surface (convex hull property,
-        weights > 0): of the control net, or with ``tight`` of the Bézier patch nets after
-        refinement restricted to the domain (`cadbridge.nurbs.ops.tight_bbox`)."""
-        if tight:
-            from cadbridge.nurbs.ops import tight_bbox
-
-            return tight_bbox(self)
+    def bbox(self) -> np.ndarray:
+        """Axis-aligned box, (2, 3) [min, max], of the control net: contains the surface (convex
+        hull property, weights > 0). `cadbridge.nurbs.edits.tight_bbox` gives a tighter one."""
         pts = self.control_points.reshape(-1, 3)
         return np.array([pts.min(axis=0), pts.max(axis=0)])
 

@@ -28,7 +28,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from cadbridge.results.mapping import surface_area_of_triangles
+from cadbridge.results.areas import surface_area_of_triangles
+from cadbridge.results.levels import level_ranks
 
 __all__ = ["Bands", "BandRegion", "band_areas", "band_index"]
 
@@ -254,7 +255,7 @@ class Bands:
     def _region_areas(self, regs: list[BandRegion]) -> None:
         """Each region's area: the band's polygons on its face whose centroid lies in it (the
         loops are exactly these polygons' outline, so the polygon test is exact here)."""
-        from cadbridge.model import points_in_polygon
+        from cadbridge.cad.model import points_in_polygon
 
         if not regs:
             return
@@ -298,7 +299,7 @@ def _signed_area(loop: np.ndarray) -> float:
 def _inside(hole: np.ndarray, outer: np.ndarray) -> bool:
     """Whether the hole loop lies in the outer loop: the hole's vertices are shared edges or
     inside, so the test uses the hole vertex farthest inside (largest even-odd majority)."""
-    from cadbridge.model import points_in_polygon
+    from cadbridge.cad.model import points_in_polygon
 
     return bool(np.mean(points_in_polygon(hole, outer)) > 0.5)
 
@@ -397,8 +398,6 @@ def band_areas(mapping, levels: np.ndarray, quadrature: int = 4, ranks: tuple[np
     lower = np.concatenate([[-np.inf], levels])
     upper = np.concatenate([levels, [np.inf]])
     if ranks is None:
-        from cadbridge.results.contours import level_ranks
-
         ranks = level_ranks(mapping, levels)
     # band_index is monotone: the bands of a triangle's extreme values bound its bands; a
     # value equal to the top level belongs to the top interior band

@@ -213,7 +213,7 @@ class BorderArcs:
     def _piece(crv: NurbsCurve, p: float, q: float) -> NurbsCurve:
         """The curve over [p, q] (or reversed for p > q) as its own clamped NURBS (knot
         insertion: the same curve, exactly; OCC reads sub-ranges of unclamped curves badly)."""
-        from cadbridge.nurbs.ops import restrict_curve, reverse_curve
+        from cadbridge.nurbs.edits import restrict_curve, reverse_curve
 
         c2 = NurbsCurve(crv.degree, crv.knots, crv.control_points[:, :2], crv.weights if crv.rational else None,
                         crv.domain)

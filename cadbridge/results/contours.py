@@ -22,40 +22,12 @@ import numba
 import numpy as np
 
 from cadbridge.nurbs.project import project_to_surface
+from cadbridge.results.bands import band_areas
+from cadbridge.results.levels import level_ranks, make_levels
 
-__all__ = ["ContourLines", "Contours", "contour", "contour_lines", "level_ranks", "make_levels"]
+__all__ = ["ContourLines", "Contours", "contour", "contour_lines", "level_ranks", "make_levels"]  # the last two re-exported
 
 _EDGES = ((0, 1), (1, 2), (2, 0))
-
-
-def make_levels(values: np.ndarray, levels, vmin: float | None = None, vmax: float | None = None) -> np.ndarray:
-    """Increasing contour levels (L,): ``levels`` an int n gives n equal bands between vmin
-    and vmax (defaults: the data range), i.e. n + 1 levels; a sequence is taken as is (it must
-    be finite and strictly increasing; vmin / vmax then drop levels outside them)."""
-    lo = float(np.min(values)) if vmin is None else float(vmin)
-    hi = float(np.max(values)) if vmax is None else float(vmax)
-    if not (np.isfinite(lo) and np.isfinite(hi)):
-        raise ValueError("--min / --max must be finite")
-    if isinstance(levels, (int, np.integer)):
-        n = int(levels)
-        if n < 1:
-            raise ValueError(f"the number of bands must be at least 1, got {n}")
-        if not hi > lo:
-            if vmin is None and vmax is None:
-                hi = lo + max(abs(lo), 1.0) * 1e-9  # a constant field: one band around it
-            else:
-                raise ValueError(f"--max ({hi:g}) must be greater than --min ({lo:g})")
-        return np.linspace(lo, hi, n + 1)
-    lv = np.asarray(levels, dtype=float).reshape(-1)
-    if lv.size < 1 or not np.all(np.isfinite(lv)):
-        raise ValueError("levels must be finite numbers")
-    if np.any(np.diff(lv) <= 0):
-        raise ValueError(f"levels must be strictly increasing: {lv.tolist()}")
-    if vmin is not None or vmax is not None:
-        lv = lv[(lv >= lo) & (lv <= hi)]
-        if lv.size == 0:
-            raise ValueError(f"no level lies within --min {lo:g} .. --max {hi:g}")
-    return lv
 
 
 @dataclass
@@ -162,31 +134,6 @@ def _chain(a, b, n_pts):  # pragma: no cover - compiled
                 n_lines += 1
     line_start[n_lines] = k
     return order, flip, line_start[: n_lines + 1], closed[:n_lines]
-
-
-@numba.njit(cache=True)
-def _ranks_kernel(fmin, fmax, levels, lo, hi):  # pragma: no cover - compiled
-    n_lv = len(levels)
-    for i in range(len(fmin)):
-        a, b = fmin[i], fmax[i]
-        k = 0
-        while k < n_lv and levels[k] <= a:
-            k += 1
-        lo[i] = k
-        while k < n_lv and levels[k] <= b:
-            k += 1
-        hi[i] = k
-
-
-def level_ranks(mapping, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per sub-triangle, the number of levels <= its smallest and <= its largest value,
-    (T,) int64 each (``searchsorted(levels, f, side="right")``, one compiled pass): the
-    levels crossing it are those with rank in [lo, hi)."""
-    fmin, fmax = mapping.tri_range
-    lo = np.empty(len(fmin), dtype=np.int64)
-    hi = np.empty(len(fmin), dtype=np.int64)
-    _ranks_kernel(fmin, fmax, np.ascontiguousarray(levels, dtype=float), lo, hi)
-    return lo, hi
 
 
 def _level_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -390,8 +337,6 @@ class Contours:
 def contour(mapping, levels: np.ndarray, *, chord_tol: float | None = None) -> Contours:
     """Lines (`contour_lines`) and bands (`cadbridge.results.bands.band_areas`) at ``levels``."""
     import time
-
-    from cadbridge.results.bands import band_areas
 
     t0 = time.perf_counter()
     levels = np.asarray(levels, dtype=float)

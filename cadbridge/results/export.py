@@ -11,7 +11,7 @@
   314 colour per level range and the level range in its 406 name (`cadbridge.iges.writer`);
 - `write_png`: the CAD shaded by band with the contour lines on top.
 
-Every file is written atomically (`cadbridge.io.atomic`).
+Every file is written atomically (`cadbridge.common.atomic`).
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cadbridge.io.atomic import atomic_path, atomic_write
-from cadbridge.model import Face, Trim, TrimLoop
+from cadbridge.common.atomic import atomic_path, atomic_write
+from cadbridge.cad.model import Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.results.bands import band_index
 from cadbridge.results.borders import loop_curves

@@ -1,6 +1,6 @@
 """NUMISHEET'93 U-shape (2D draw bending) benchmark: tool contact surfaces, blank mesh, IGES export.
 
-This package builds geometry with OpenCASCADE (OCP); like `cadbridge.occ` it is outside the
+This package builds geometry with OpenCASCADE (OCP); like `cadbridge.verify` it is outside the
 core and is never imported by it.
 """
 

@@ -251,7 +251,7 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
 
     mesher: "gmsh" or "qit" for the unstructured triangle variant (``fine_size``).
 
-    progress: optional stage reporter (see `cadbridge.pipeline.NoProgress`).
+    progress: optional stage reporter (see `cadbridge.common.progress.NoProgress`).
     """
     from cadbridge.iges import read_iges
     from cadbridge.io.plots import plot_error_histogram, plot_normal_sources, plot_section_error
@@ -259,7 +259,8 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
     from cadbridge.mesh.io import write_mesh
     from cadbridge.mesh.mesh import CellBlock, Mesh
     from cadbridge.normals.cad import cad_normals
-    from cadbridge.pipeline import CadProjector, NoProgress, build_tool, staged_output, tool_data, write_tool_outputs
+    from cadbridge.tool.build import CadProjector, NoProgress, build_tool
+    from cadbridge.tool.outputs import staged_output, tool_data, write_tool_outputs
 
     p = params or UShapeParams()
     progress = progress or NoProgress()

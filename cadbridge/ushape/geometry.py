@@ -40,7 +40,7 @@ from OCP.TopAbs import TopAbs_SHELL
 from OCP.TopExp import TopExp_Explorer
 from OCP.TopoDS import TopoDS, TopoDS_Face, TopoDS_Shape, TopoDS_Shell
 
-from cadbridge.io.atomic import atomic_write
+from cadbridge.common.atomic import atomic_write
 
 __all__ = ["FACE_LABELS", "UShapeParams", "blank_mesh", "build_tools", "export_iges", "tool_faces"]
 

@@ -1,0 +1,107 @@
+"""The `cadbridge` command: CAD in, exact normals, Nagata tool files and reports out.
+
+Each subcommand is a thin layer over the library: parse arguments, call, print, and turn
+the library's errors into one clear line and an exit code:
+
+    0  success          1  checks failed (verify deviations, nodes off the CAD, a tool worse
+                           than its flat mesh or straddling a crease)
+    2  bad input (unreadable IGES/mesh, wrong arguments, or input the library could not
+       handle: one line naming the error and where; CADBRIDGE_DEBUG=1 shows the traceback)
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from pathlib import Path
+
+from cadbridge._version import __version__
+from cadbridge.common.errors import EXIT_BAD_INPUT, EXIT_CHECK_FAILED, EXIT_OK, CheckFailed, UsageError
+from cadbridge.common.progress import PROGRESS_LINE, Progress, say
+
+
+__all__ = ["COMMANDS", "EXIT_BAD_INPUT", "EXIT_CHECK_FAILED", "EXIT_OK", "PROGRESS_LINE", "CheckFailed", "Progress",
+           "UsageError", "build_parser", "main", "say"]
+
+# One module per subcommand, in the order `cadbridge --help` lists them. Each defines
+# ``register(sub, fmt) -> None`` that adds its parser with ``set_defaults(func=...)``; its
+# command functions raise `UsageError` (exit 2) or `CheckFailed` (exit 1) with one line.
+COMMANDS: tuple[str, ...] = ("inspect", "verify", "mesh", "normals", "nagata", "convert", "ushape", "map", "fit",
+                             "quality")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    fmt = argparse.RawDescriptionHelpFormatter
+    parser = argparse.ArgumentParser(
+        prog="cadbridge",
+        formatter_class=fmt,
+        description="Turn die and punch CAD (IGES/NURBS) into Nagata-patch tool files.",
+        epilog="example:\n  cadbridge ushape -o out/            # the NUMISHEET'93 U-shape benchmark\n"
+        "  cadbridge convert die.igs -o die/   # mesh + normals + Nagata + report",
+    )
+    parser.add_argument("--version", action="version", version=f"cadbridge {__version__}")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress lines (errors and the summary are still printed)")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    for name in COMMANDS:
+        importlib.import_module(f"cadbridge.cli.{name}").register(sub, fmt)
+    return parser
+
+
+def _known_errors() -> tuple[type[BaseException], ...]:
+    errs: list[type[BaseException]] = [UsageError, CheckFailed, FileNotFoundError, IsADirectoryError, PermissionError,
+                                       NotADirectoryError]
+    for mod, name in (
+        ("cadbridge.iges", "IgesError"),
+        ("cadbridge.mesh.mesh", "MeshError"),
+        ("cadbridge.normals.cad", "ProjectionError"),
+        ("cadbridge.io.toolfile", "ToolFileError"),
+        ("cadbridge.verify.reference", "OccReadError"),
+        ("cadbridge.tool.build", "ToolQualityError"),
+    ):
+        try:
+            module = __import__(mod, fromlist=[name])
+            errs.append(getattr(module, name))
+        except (ImportError, AttributeError):
+            pass
+    return tuple(errs)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    Progress.quiet = bool(getattr(args, "quiet", False))
+    from cadbridge.common.jit import announce_compilation
+
+    # one line on the then-current stderr if numba has to compile (cold cache), not with --quiet
+    announce_compilation(quiet=Progress.quiet)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("cadbridge: interrupted", file=sys.stderr)
+        return 130
+    except _known_errors() as exc:
+        from cadbridge.normals.cad import ProjectionError
+        from cadbridge.tool.build import ToolQualityError
+
+        print(f"cadbridge {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_CHECK_FAILED if isinstance(exc, (ProjectionError, ToolQualityError, CheckFailed)) else EXIT_BAD_INPUT
+    except (ValueError, ArithmeticError, MemoryError, OSError, RuntimeError, LookupError, TypeError) as exc:
+        # anything the library did not anticipate: still one line (the input it could not
+        # handle); CADBRIDGE_DEBUG=1 shows the traceback for a bug report
+        import os
+        import traceback
+
+        if os.environ.get("CADBRIDGE_DEBUG"):
+            traceback.print_exc()
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        print(f"cadbridge {args.command}: error: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''} "
+              f"(at {Path(where.filename).name}:{where.lineno}; CADBRIDGE_DEBUG=1 shows the traceback)",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,312 @@
+"""Trim-loop excursions: stretches of a trim loop that run back beside themselves.
+
+A face whose trim edge follows a neighbour's folded edge (`cadbridge.heal.folds`) inherits the fold
+in its own (u, v): in `occt_OCC131-2_ANSA9.igs`, FACE(401)'s loop runs down curve 5 (1-based)
+to v = 1.8286, turns back up to v = 1.8449 and down again (a Z of two hairpins), its strands
+0.03-0.25 mm apart in model space. The loop is simple (OCC's CheckSelfIntersection agrees),
+but the finger and the notch it encloses are far narrower than any element, so a mesher
+that follows the loop puts elements across them (gmsh: inside out).
+
+`find_excursions` finds such stretches on the exact trim curves: the loop is sampled at exact
+curve parameters (64 per knot span) and mapped through the surface, S(c(t)); an excursion is
+a pair of loop points X, Y whose model-space chord |XY| is at most ``width`` while the loop
+runs ``arc(X -> Y) > RATIO x |XY|`` between them (a neighbour pair has arc ~ |XY|). Among the
+candidate pairs (a KD-tree's pairs within ``width``) the one with the largest
+``arc - RATIO x |XY|`` is taken: it covers the whole retrace with the shortest chord.
+``width`` defaults to max(4 x the face's trim tolerance delta, 1e-3 x model size): below the
+file's own accuracy, or far below any element a forming mesh uses.
+
+`heal_excursions` cuts each excursion out of its loop: the curve holding X ends at X (its
+domain shortened, the exact curve kept), a straight (u, v) segment joins X to Y, the curve
+holding Y starts at Y. The loop cadbridge classifies with then has no sliver; the removed
+(u, v) area is reported (it is the sliver's signed area, finger minus notch).
+
+Limitations: a real slot narrower than ``width`` and longer than ``RATIO / 2 x`` its width
+would be cut as well (no such slot is in the samples or the corpus; the tests check that only
+FACE(401) of ANSA9 has an excursion).
+"""
+
+from __future__ import annotations
+
+import copy
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cadbridge.cad.model import Face, Model, TrimLoop
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.cad.trims import segment_distance
+
+__all__ = ["Excursion", "find_excursions", "heal_excursions", "RATIO", "COS_SAME_WAY", "MIN_LENGTH", "SAMPLES_PER_SPAN"]
+
+RATIO = 20.0
+"""An excursion's loop length between X and Y exceeds RATIO x its chord |XY|."""
+COS_SAME_WAY = 0.5
+"""... and the loop leaves Y within 60 degrees of the direction it came into X (a Z, not a U)."""
+MIN_LENGTH = 1e-4
+"""Excursions shorter than this x model size are left alone (no mesher resolves them)."""
+SAMPLES_PER_SPAN = 64
+"""Exact curve samples per knot span (the candidates' resolution along the loop)."""
+
+
+@dataclass(frozen=True)
+class Excursion:
+    """One excursion of a trim loop.
+
+    face_de, face_name : the face (top-level DE, name); loop : 0 the outer loop, i >= 1 hole i-1.
+    cut : ((curve index, parameter) of X, (curve index, parameter) of Y), 0-based curve indices.
+    start, end : X and Y in model space, (3,); chord : |XY|; length : loop length X -> Y
+    (model units); uv_area : signed (u, v) area of the loop stretch X -> Y closed by the chord
+    (counter-clockwise positive; ~0 for a Z, finger and notch cancel)."""
+
+    face_de: int
+    face_name: str | None
+    loop: int
+    cut: tuple[tuple[int, float], tuple[int, float]]
+    start: np.ndarray
+    end: np.ndarray
+    chord: float
+    length: float
+    uv_area: float
+    stretch_uv: np.ndarray = field(repr=False, default=None)  # (K, 2) exact loop samples X -> Y
+    stretch_xyz: np.ndarray = field(repr=False, default=None)  # (K, 3) S(stretch_uv)
+    rest_xyz: np.ndarray = field(repr=False, default=None)  # (R, 3) the rest of the loop, Y -> X
+
+    def in_stretch(self, xyz: np.ndarray) -> np.ndarray:
+        """Whether points (N, 3) on the loop's edge (mesh nodes) lie on the cut stretch, strictly
+        between X and Y: nearer its polyline than the rest of the loop's polyline. (N,) bool."""
+        xyz = np.asarray(xyz, dtype=float).reshape(-1, 3)
+        return _polyline_distance(xyz, self.stretch_xyz) < _polyline_distance(xyz, self.rest_xyz)
+
+    def __str__(self) -> str:
+        x = self.start
+        return (f"{self.face_name or 'face'} (DE {self.face_de}) loop {self.loop}: trim loop runs back beside "
+                f"itself for {self.length:.3g} within {self.chord:.3g} at ({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g}); "
+                f"cut out (curve {self.cut[0][0] + 1} to curve {self.cut[1][0] + 1}, 1-based)")
+
+
+def _loops(face: Face) -> list[TrimLoop | None]:
+    t = face.trims
+    if t is None:
+        return []
+    return [t.outer] + list(t.inner)
+
+
+def _samples(face: Face, loop: TrimLoop) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Loop samples: curve index (M,), parameter (M,), uv (M, 2), xyz (M, 3); each curve's
+    last sample dropped (the next curve starts there), the loop not closed."""
+    ci, ts, uvs = [], [], []
+    for i, c in enumerate(loop.curves):
+        t = c.sample_parameters(SAMPLES_PER_SPAN)[:-1]
+        ci.append(np.full(len(t), i))
+        ts.append(t)
+        uvs.append(c.evaluate(t)[:, :2])
+    uv = np.concatenate(uvs)
+    xyz = face.surface.evaluate(uv[:, 0], uv[:, 1])
+    return np.concatenate(ci), np.concatenate(ts), uv, xyz
+
+
+def _best_pair(xyz: np.ndarray, uv: np.ndarray, width: float) -> tuple[int, int, float, float] | None:
+    """Indices (i, j) along the closed sample loop with the stretch i -> j (forward, wrapping)
+    an excursion: model-space chord <= width, arc > RATIO x chord both in model space and in
+    (u, v) (a loop that folds only in model space, along a folded surface's edge, is straight
+    in its own (u, v): that is `cadbridge.heal.folds`' case, not a trim defect), arc - RATIO x chord
+    largest; with the chord and the arc. None if there is none."""
+    n = len(xyz)
+
+    def arcs(p):
+        seg = np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+        return np.concatenate([[0.0], np.cumsum(seg)])  # s[k]: arc from sample 0 to k; s[n] the loop
+
+    s, q = arcs(xyz), arcs(uv)
+    pairs = cKDTree(xyz).query_pairs(width, output_type="ndarray")
+    if len(pairs) == 0:
+        return None
+    a, b = pairs[:, 0], pairs[:, 1]  # a < b
+    d = np.linalg.norm(xyz[a] - xyz[b], axis=1)
+    fwd = s[b] - s[a]
+    # the excursion is the shorter way round (the rest of the loop is the face itself)
+    use_fwd = fwd <= s[n] - fwd
+    arc = np.where(use_fwd, fwd, s[n] - fwd)
+    qf = q[b] - q[a]
+    uv_arc = np.where(use_fwd, qf, q[n] - qf)
+    uv_d = np.linalg.norm(uv[a] - uv[b], axis=1)
+    # a Z, not a U: the loop leaves Y in the direction it came into X (a U-turn -- a slit, or two
+    # boundary curves meeting tangentially at a cusp corner -- leaves the opposite way)
+    tan = np.roll(xyz, -1, axis=0) - np.roll(xyz, 1, axis=0)
+    tan /= np.maximum(np.linalg.norm(tan, axis=1), 1e-300)[:, None]
+    same_way = np.einsum("ij,ij->i", tan[a], tan[b]) > COS_SAME_WAY
+    score = np.where(same_way & (uv_arc > RATIO * uv_d), arc - RATIO * d, -np.inf)
+    k = int(np.argmax(score))
+    if not score[k] > 0:
+        return None
+    i, j = (int(a[k]), int(b[k])) if use_fwd[k] else (int(b[k]), int(a[k]))
+    return i, j, float(d[k]), float(arc[k])
+
+
+def default_width(face: Face, size: float) -> float:
+    """The excursion width of a face: max(4 x its trim tolerance delta, 1e-3 x model size)."""
+    delta = face.trim_delta
+    return max(4.0 * (delta or 0.0), 1e-3 * size)
+
+
+def find_excursions(model: Model, width: float | None = None, faces: list[int] | None = None) -> list[Excursion]:
+    """The excursions of the trim loops of ``model`` (one per loop at most; `heal_excursions`
+    cuts repeatedly), for the face indices ``faces`` (default all). ``width`` in model units
+    (default `default_width` per face). Plain data; the model is not changed."""
+    out = []
+    size = model.size()
+    for fi in range(len(model.faces)) if faces is None else faces:
+        f = model.faces[fi]
+        for li, lp in enumerate(_loops(f)):
+            if lp is None or not lp.curves:
+                continue
+            e = _loop_excursion(f, li, lp, default_width(f, size) if width is None else width, MIN_LENGTH * size)
+            if e is not None:
+                out.append(e)
+    return out
+
+
+def _polygon(f: Face, lp: TrimLoop) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The loop's `cadbridge.cad.trims.LoopBoundary` vertices (exact curve points, cached on the
+    loop) as curve index, parameter, uv, xyz like `_samples`; None when the curves do not join
+    end to start (1e-6 x the loop's (u, v) span): some files list a loop's curves in another
+    order, which the parity test of the trims does not mind but which has no arc along the loop."""
+    bd = lp.boundary
+    real = bd.curve >= 0
+    gaps = ~real
+    if np.any(np.linalg.norm(bd.b[gaps] - bd.a[gaps], axis=1) > 1e-6 * bd.size):
+        return None
+    uv = bd.a[real]
+    return bd.curve[real], bd.ta[real], uv, f.surface.evaluate(uv[:, 0], uv[:, 1])
+
+
+def _hairpins_both_ways(uv: np.ndarray, xyz: np.ndarray, width: float) -> bool:
+    """Whether the closed polygon (uv (M, 2), xyz (M, 3)) turns back by more than 150 degrees
+    within 2 x ``width`` of model-space arc both to the left and to the right somewhere: a Z
+    has two such hairpins of opposite sense (a necessary condition, on the polygon, that
+    narrows the loops the dense check looks at)."""
+    m = len(uv)
+    if m < 4:
+        return False
+    d = np.roll(uv, -1, axis=0) - uv  # edge k: vertex k -> k + 1
+    turn = np.arctan2(np.roll(d, 1, axis=0)[:, 0] * d[:, 1] - np.roll(d, 1, axis=0)[:, 1] * d[:, 0],
+                      np.einsum("ij,ij->i", np.roll(d, 1, axis=0), d))  # at vertex k, (M,)
+    turn = np.where(np.linalg.norm(d, axis=1) > 0, turn, 0.0)
+    seg = np.linalg.norm(np.roll(xyz, -1, axis=0) - xyz, axis=1)
+    s = np.concatenate([[0.0], np.cumsum(np.tile(seg, 2))])  # twice round: windows may wrap
+    th = np.concatenate([[0.0], np.cumsum(np.tile(turn, 2))])
+    k = np.arange(m)
+    j = np.searchsorted(s, s[k] + 2.0 * width, side="right") - 1
+    j = np.maximum(j, k + 1)
+    w = th[j + 1] - th[k]  # turning at vertices k..j
+    lim = np.radians(150.0)
+    return bool(np.any(w > lim) and np.any(w < -lim))
+
+
+def _loop_excursion(f: Face, li: int, lp: TrimLoop, width: float, min_length: float) -> Excursion | None:
+    poly = _polygon(f, lp)
+    # the polygon narrows the candidates; the cut is chosen on dense exact curve samples
+    if poly is None or not _hairpins_both_ways(poly[2], poly[3], width):
+        return None
+    ci, ts, uv, xyz = _samples(f, lp)
+    best = _best_pair(xyz, uv, width)
+    if best is None:
+        return None
+    i, j, d, arc = best
+    if arc < min_length:
+        return None
+    idx = np.arange(i, j + 1) if i <= j else np.concatenate([np.arange(i, len(uv)), np.arange(0, j + 1)])
+    p = uv[idx]
+    area = 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+    n = len(uv)
+    rest = np.arange(j, j + n - len(idx) + 2) % n  # Y -> X the other way round
+    return Excursion(f.de, f.name, li, ((int(ci[i]), float(ts[i])), (int(ci[j]), float(ts[j]))),
+                     xyz[i].copy(), xyz[j].copy(), d, arc, area, uv[idx].copy(), xyz[idx].copy(), xyz[rest].copy())
+
+
+def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance of points (N, 3) to the open polyline (M, 3), (N,); all pairs (a few hundred
+    mesh nodes of one face against one loop)."""
+    return segment_distance(p[:, None, :], line[None, :-1], line[None, 1:]).min(axis=1)
+
+
+def _restricted(c, t0: float, t1: float):
+    """``c`` on the domain [t0, t1] (the same exact curve, fewer of it): a `NurbsCurve`, or a
+    trim curve mapped exactly from an analytic surface's parametrisation
+    (`cadbridge.iges.analytic.MappedCurve` &c., whose domain is its base curve's)."""
+    if isinstance(c, NurbsCurve):
+        return NurbsCurve(c.degree, c.knots, c.control_points, c.weights, domain=(t0, t1))
+    out = copy.copy(c)
+    for k in [k for k in vars(out) if k.startswith("_")]:  # caches of the whole curve
+        del out.__dict__[k]
+    out.base = _restricted(c.base, t0, t1)
+    return out
+
+
+def _segment(a: np.ndarray, b: np.ndarray) -> NurbsCurve:
+    """The straight (u, v) segment a -> b as a degree-1 curve on [0, 1]."""
+    return NurbsCurve(1, [0.0, 0.0, 1.0, 1.0], np.array([a, b], dtype=float))
+
+
+def cut_loop(lp: TrimLoop, e: Excursion) -> TrimLoop:
+    """``lp`` with the stretch X -> Y of ``e`` replaced by the (u, v) chord X -> Y.
+
+    The loop is rotated to start at the curve holding Y, so X's curve comes last: [Y's curve
+    from Y, ..., X's curve up to X, chord]. Model-space counterparts are dropped (the healed
+    loop has none for the chord); the face keeps the trim tolerance measured before."""
+    (cx, tx), (cy, ty) = e.cut
+    curves = lp.curves
+    n = len(curves)
+    x_uv = curves[cx].evaluate(np.array([tx]))[0, :2]
+    y_uv = curves[cy].evaluate(np.array([ty]))[0, :2]
+    out: list[NurbsCurve] = []
+    if cx == cy and tx < ty:  # X and Y on one curve, Y after X: the stretch inside it
+        c = curves[cx]
+        if ty < c.domain[1]:
+            out.append(_restricted(c, ty, c.domain[1]))
+        out += [curves[(cx + k) % n] for k in range(1, n)]
+        if tx > c.domain[0]:
+            out.append(_restricted(c, c.domain[0], tx))
+    else:
+        cy_c = curves[cy]
+        if ty < cy_c.domain[1]:
+            out.append(_restricted(cy_c, ty, cy_c.domain[1]))
+        k = (cy + 1) % n
+        while k != cx:
+            out.append(curves[k])
+            k = (k + 1) % n
+        cx_c = curves[cx]
+        if tx > cx_c.domain[0]:
+            out.append(_restricted(cx_c, cx_c.domain[0], tx))
+    out.append(_segment(x_uv, y_uv))
+    return TrimLoop(out, None)
+
+
+def heal_excursions(model: Model, width: float | None = None, max_cuts: int = 4) -> list[Excursion]:
+    """Cut every excursion (`find_excursions`) out of its loop, in place: each loop is cut
+    until it has none (at most ``max_cuts`` times). Each face's trim tolerance is read before
+    (it is measured on the file's curves). Returns the excursions cut, in order."""
+    done = []
+    size = model.size()
+    for f in model.faces:
+        if f.trims is None:
+            continue
+        w = default_width(f, size) if width is None else width  # reads trim_delta first
+        for li in range(1 + len(f.trims.inner)):
+            for _ in range(max_cuts):
+                lp = f.trims.outer if li == 0 else f.trims.inner[li - 1]
+                if lp is None or not lp.curves:
+                    break
+                e = _loop_excursion(f, li, lp, w, MIN_LENGTH * size)
+                if e is None:
+                    break
+                new = cut_loop(lp, e)
+                if li == 0:
+                    f.trims.outer = new
+                else:
+                    f.trims.inner[li - 1] = new
+                done.append(e)
+    return done

@@ -1,0 +1,619 @@
+"""Faces gmsh leaves without elements, meshed in their own (u, v) on gmsh's boundary nodes.
+
+gmsh gives up on a surface whose 1D mesh it cannot recover in parameter space ("No elements
+in surface ..."). On the Inventor spring of the OCC corpus the cause is a *cusp*: a trim
+curve leaves a face corner tangent to the neighbouring boundary curve and runs along it
+within the file's tolerance (the grind planes touch the wire's half-tubes along their seam
+lines for 45 mm at 0.004-0.017 mm), so in (u, v) the two boundary curves cross each other
+(OCC's pcurves are ~7e-4 off) and no constrained triangulation exists.
+
+For each such face this module:
+
+1. gathers the face's loops from gmsh's own 1D mesh (every node shared with the neighbours,
+   so the mesh stays conformal), with (u, v) from each curve's pcurve on the face
+   (``reparametrizeOnSurface``);
+2. *zips* cusps: from a loop corner, the two boundary chains are walked side by side while
+   each next node lies within ``eps`` (3D) of the other chain, ``eps`` = 4 x the largest
+   distance between a boundary node and the surface at its (u, v) (the file's own
+   curve-to-surface disagreement) and at least 1/8 of the element size; that strip has no width within the CAD's accuracy and
+   is cut off the loop (left open: a crack of width <= eps, reported in the notes), since
+   triangles across it would have random windings;
+3. checks that the remaining loops are simple in (u, v) (else a `MeshError` naming the face);
+4. triangulates them with gmsh's Frontal-Delaunay in (u, v) scaled by the mean |S_u|, |S_v|
+   (`cadbridge.mesh.gmsh.planar.mesh_loops_in_parameter_space`), boundary nodes fixed,
+   element size from the boundary spacing inside and at most the face's curvature size
+   (``curvature_elements`` per full turn of the largest principal curvature, as gmsh's
+   ``Mesh.MeshSizeFromCurvature``); interior nodes are S(u, v), exactly on the surface;
+5. for quads, Blossom-recombines that triangulation; after gmsh's all-quad subdivision
+   (``subdivided=True``, every curve's 1D mesh split in two) it meshes on the coarse nodes
+   (every other node of each curve) and splits each element into quads itself (triangle ->
+   3, quad -> 4, boundary midpoints = gmsh's fine nodes), so the face is all quads;
+6. winds the elements like the neighbouring gmsh elements (a shared edge is traversed in
+   opposite directions), or like gmsh's face normal where no neighbour is meshed, and adds
+   nodes (with their (u, v)) and elements to the gmsh model, so the caller collects them
+   with the rest.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cadbridge.mesh.mesh import MeshError
+
+__all__ = ["fill_empty_faces", "generate_surfaces", "EPS_FACTOR"]
+
+EPS_FACTOR = 4.0
+"""Cusp strips narrower than this x the face's curve-to-surface disagreement are cut off..."""
+STRIP_FRACTION = 0.125
+"""... or narrower than this x the face's element size: triangles across a narrower strip are
+slivers whose centroid lies as near the neighbouring face as their own (at 0.04 mm on the
+spring, with nodes 0.01 mm off the surface, one took the plane's normals: 90 degrees off)."""
+
+
+def _has_elements(g, s: int) -> bool:
+    return any(len(t) for t in g.model.mesh.getElements(2, s)[1])
+
+
+def generate_surfaces(g, surfaces: list[int]) -> dict[int, str]:
+    """``gmsh.model.mesh.generate(2)`` that does not stop at the first surface gmsh cannot mesh.
+
+    By default (``General.AbortOnError`` 2) gmsh throws on the first error, e.g. "Impossible
+    to mesh periodic surface 963" (its periodic mesher, used for every surface periodic in u or
+    v, could not recover the face's boundary edges in (u, v); `Mesh.MaxRetries` is 0), and every
+    surface after it stays unmeshed. Here gmsh logs the error and goes on; the surfaces it failed
+    on are left without elements (gmsh's generators return before creating any; a surface an
+    error names is cleared in case) and `fill_empty_faces` meshes them on gmsh's boundary nodes.
+    Returns {surface: gmsh's error messages} for the failed surfaces: those an error names, and,
+    when an error names no surface (e.g. "The 1D mesh seems not to be forming a closed loop"),
+    those left without elements. Raises gmsh's ``Exception`` (as a throwing ``generate`` would)
+    for an error naming no surface when every surface has elements: an error this fallback
+    cannot locate."""
+    import re
+
+    prev = g.option.getNumber("General.AbortOnError")
+    g.option.setNumber("General.AbortOnError", 0)
+    g.logger.start()
+    try:
+        g.model.mesh.generate(2)
+        log = g.logger.get()
+    finally:
+        g.logger.stop()
+        g.option.setNumber("General.AbortOnError", prev)
+    errors = [m for m in log if m.startswith("Error")]
+    if not errors:
+        return {}
+    known = set(surfaces)
+    named: dict[int, list[str]] = {}
+    for m in errors:
+        for t in re.findall(r"surface (\d+)", m):
+            if int(t) in known:
+                named.setdefault(int(t), []).append(m)
+    unnamed = [m for m in errors if not re.search(r"surface \d+", m)]
+    empty = [s for s in surfaces if s not in named and not _has_elements(g, s)] if unnamed else []
+    if unnamed and not empty:
+        raise Exception(unnamed[-1].removeprefix("Error").lstrip(": "))
+    failed = {s: "; ".join(named[s]) for s in named}
+    failed.update({s: "; ".join(unnamed) for s in empty})
+    for s in named:
+        if _has_elements(g, s):
+            g.model.mesh.clear([(2, s)])  # a surface an error names starts again from its boundary
+    return {s: m.replace("Error: ", "") for s, m in failed.items()}
+
+
+def fill_empty_faces(g, surfaces: list[int], *, size: float, curvature_elements: int, element: str,
+                     subdivided: bool, label: str, cuts: dict | None = None,
+                     failed: dict[int, str] | None = None, merge_tolerance: float = 0.0,
+                     size_at=None) -> list[str]:
+    """Mesh every surface of ``surfaces`` that has no 2D elements in the current gmsh model
+    (see module docs); ``size`` the largest element size (model units), ``element`` "tri" or
+    "quad", ``subdivided`` when the model's mesh went through gmsh's all-quad subdivision;
+    ``cuts`` {surface: trim-loop excursions} whose boundary nodes are left out of the loop
+    (`cadbridge.mesh.gmsh.loop_cuts`); ``failed`` {surface: gmsh's error} from `generate_surfaces`;
+    ``merge_tolerance`` the distance below which the caller merges nodes afterwards (a failed
+    face smaller than it gets a fan that the merge collapses: `_fill_tiny_face`);
+    ``size_at(xyz (N, 3)) -> (N,)`` the caller's target sizes (model units), followed inside
+    the face too (`_interior_sizes`). Returns one note per face filled. Raises `MeshError` naming a face it cannot mesh; for a
+    face gmsh failed on, the message says "gmsh failed" (so `mesh_cad` retries with OCC's
+    shape healing)."""
+    notes = []
+    failed = failed or {}
+    for s in surfaces:
+        if _has_elements(g, s):
+            continue
+        if s in failed:
+            tiny = _fill_tiny_face(g, s, merge_tolerance)
+            if tiny:
+                notes.append(tiny.replace("mesh: ", f"mesh: gmsh failed ({failed[s]}) on ", 1))
+                continue
+        try:
+            # a face gmsh failed on is not a cusp face: only strips within the file's own
+            # curve-to-surface disagreement are cut (not h / 8: its acute corners are geometry)
+            note = _fill_face(g, s, size=size, curvature_elements=curvature_elements, element=element,
+                              subdivided=subdivided, label=label, cut=(cuts or {}).get(s),
+                              strip_fraction=0.0 if s in failed else STRIP_FRACTION, size_at=size_at)
+        except MeshError as exc:
+            if s in failed:
+                raise MeshError(f"{label}: gmsh failed: {failed[s]}; meshing {_label(g, s)} in its (u, v) "
+                                f"did not work either: {exc}") from exc
+            raise
+        if s in failed:
+            note = note.replace("gmsh left", f"gmsh failed ({failed[s]}) and left", 1)
+        notes.append(note)
+    return notes
+
+
+class _Loop:
+    """One boundary loop of a face: node tags (n,), xyz (n, 3), uv (n, 2), and for each node
+    its index along its curve (0 at the curve's first node, so corners are 0) and whether
+    its curve has an even number of segments (for the coarse nodes after subdivision)."""
+
+    def __init__(self) -> None:
+        self.tags: list[int] = []
+        self.xyz: list[np.ndarray] = []
+        self.uv: list[np.ndarray] = []
+        self.k: list[int] = []
+        self.even: list[bool] = []
+
+    def arrays(self):
+        return (np.asarray(self.tags, dtype=np.int64), np.concatenate(self.xyz).reshape(-1, 3),
+                np.concatenate(self.uv).reshape(-1, 2), np.asarray(self.k), np.asarray(self.even))
+
+
+def _face_loops(g, s: int) -> list[tuple]:
+    """The loops of surface ``s`` from gmsh's 1D mesh, each as (tags, xyz, uv, k, even) arrays
+    (`_Loop`), nodes in loop order, not closed."""
+    oriented = [t for d, t in g.model.getBoundary([(2, s)], combined=False, oriented=True, recursive=False)
+                if d == 1]
+    count: dict[int, int] = {}
+    for ct in oriented:
+        count[abs(ct)] = count.get(abs(ct), 0) + 1
+    loops, cur, first_tag = [], None, None
+    prev_uv = None
+    for i, ct in enumerate(oriented):  # loop over the (few) boundary curves of the face
+        c = abs(ct)
+        ends = [t for _, t in g.model.getBoundary([(1, c)], combined=False, oriented=False)]
+        p0, p1 = (ends[0], ends[-1]) if ends else (None, None)
+        lo, hi = (float(a[0]) for a in g.model.getParametrizationBounds(1, c))
+        nt, nx, npar = g.model.mesh.getNodes(1, c, includeBoundary=False, returnParametricCoord=True)
+        nt, nx, npar = np.asarray(nt, dtype=np.int64), np.asarray(nx, dtype=float).reshape(-1, 3), np.asarray(npar)
+        o = np.argsort(npar)
+        tags, xyz, t = list(nt[o]), list(nx[o]), list(npar[o])
+        if p0 is None:
+            raise MeshError(f"{_label(g, s)}: curve {c} has no end points")
+        for p, at in ((p0, 0), (p1, len(tags) + 1)):
+            vt, vx, _ = g.model.mesh.getNodes(0, p)
+            if len(vt) == 0:
+                raise MeshError(f"{_label(g, s)}: curve {c} end point {p} has no mesh node")
+            tags.insert(at, int(vt[0]))
+            xyz.insert(at, np.asarray(vx, dtype=float)[:3])
+        t = [lo] + t + [hi]
+        uv = _pcurve(g, c, t, s, 0, ct < 0)
+        if count[c] > 1:
+            # a seam (the curve twice in the loop): the pcurve that continues the previous
+            # curve, or where a loop starts on the seam, the one the next curve continues
+            # (gmsh surface 546 of the production die, a ring whose loop starts on its seam:
+            # pcurve 0 at u = 0 where the next curve starts at u = 2 pi, so the loop ended a
+            # period away)
+            uv1 = _pcurve(g, c, t, s, 1, ct < 0)
+            if prev_uv is not None:
+                if np.linalg.norm(uv1[0] - prev_uv) < np.linalg.norm(uv[0] - prev_uv):
+                    uv = uv1
+            elif i + 1 < len(oriented) and count[abs(oriented[i + 1])] == 1:
+                nxt = oriented[i + 1]
+                lo_n, hi_n = (float(a[0]) for a in g.model.getParametrizationBounds(1, abs(nxt)))
+                start = _pcurve(g, abs(nxt), [lo_n, hi_n], s, 0, nxt < 0)[0]
+                if np.linalg.norm(uv1[-1] - start) < np.linalg.norm(uv[-1] - start):
+                    uv = uv1
+        if ct < 0:
+            tags, xyz = tags[::-1], xyz[::-1]
+        n = len(tags) - 1  # segments of this curve
+        if cur is None:
+            cur, first_tag = _Loop(), tags[0]
+        for j in range(n):  # all but the last node (the next curve starts there)
+            cur.tags.append(tags[j])
+            cur.xyz.append(xyz[j])
+            cur.uv.append(uv[j])
+            cur.k.append(j)
+            cur.even.append(n % 2 == 0)
+        prev_uv = uv[-1]
+        # the loop closed: back at its first node, and in (u, v) too (a closed curve around a
+        # periodic face, e.g. a cylinder's circle before its seam, ends where it began in 3D
+        # but one period away in (u, v))
+        span = float(np.ptp(np.concatenate(cur.uv).reshape(-1, 2), axis=0).max()) if len(cur.uv) > 1 else 0.0
+        if tags[-1] == first_tag and np.linalg.norm(uv[-1] - cur.uv[0]) <= 1e-2 * max(span, 1e-300):
+            loops.append(cur.arrays())
+            cur, prev_uv = None, None
+    if cur is not None:
+        raise MeshError(f"{_label(g, s)}: its boundary curves do not close into loops")
+    return loops
+
+
+def _fill_tiny_face(g, s: int, tol: float) -> str | None:
+    """Fill a face smaller than the node-merge tolerance ``tol`` (its 3D box diagonal below it)
+    with a fan of triangles on its boundary nodes, and return a note; None for a larger face.
+
+    OCC's fragment with a crease curve can leave such slivers (the analytic die's gmsh surface
+    1131: 1.3e-4 x 7e-7 mm between the crease and a binder edge, its vertex tolerance larger
+    than the face, so its two curves do not close in (u, v) and gmsh's periodic mesher fails).
+    All its nodes lie within ``tol`` of each other, so `cadbridge.mesh.cleanup.merge_close_nodes`
+    joins them into one and drops these triangles: the face leaves no element and no crack."""
+    bb = np.asarray(g.model.getBoundingBox(2, s), dtype=float)
+    if not float(np.linalg.norm(bb[3:] - bb[:3])) < tol:
+        return None
+    tags: list[int] = []
+    for _, ct in g.model.getBoundary([(2, s)], combined=False, oriented=True, recursive=False):
+        nt = g.model.mesh.getNodes(1, abs(ct), includeBoundary=True)[0]  # the curve's nodes, ends included
+        tags.extend(int(t) for t in nt if int(t) not in tags)
+    if len(tags) < 3:
+        return None
+    fan = np.array([[tags[0], tags[i], tags[i + 1]] for i in range(1, len(tags) - 1)], dtype=np.int64)
+    g.model.mesh.addElementsByType(s, 2, [], fan.ravel().tolist())
+    return (f"mesh: {_label(g, s)}, a sliver {float(np.linalg.norm(bb[3:] - bb[:3])):.2g} across (below the "
+            f"node-merge tolerance {tol:.2g}); its {len(tags)} boundary nodes merge into one, it leaves no elements")
+
+
+def _pcurve(g, c: int, t: list[float], s: int, which: int, backwards: bool) -> np.ndarray:
+    """(u, v) on surface s of curve c at parameters t (its pcurve ``which`` of a seam),
+    (len(t), 2), reversed when the loop runs the curve backwards."""
+    uv = np.asarray(g.model.reparametrizeOnSurface(1, c, t, s, which), dtype=float).reshape(-1, 2)
+    return uv[::-1] if backwards else uv
+
+
+def _label(g, s: int) -> str:
+    return f"gmsh surface {s} ({g.model.getType(2, s)})"
+
+
+def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance from p (3,) to the segments a-b (M, 3) -> (M,)."""
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
+
+
+def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float) -> tuple[np.ndarray, list[tuple[int, float]]]:
+    """Cut the zero-width strips off one loop (module docs, step 2).
+
+    xyz (n, 3) loop nodes, corner (n,) bool (curve end points). Returns the kept node indices
+    in loop order and, per strip, (cusp node index, strip length along the loop)."""
+    n = len(xyz)
+    keep = np.ones(n, dtype=bool)
+    strips = []
+    seg = np.linalg.norm(np.roll(xyz, -1, axis=0) - xyz, axis=1)  # seg[i]: node i -> i + 1
+    for p in np.flatnonzero(corner):  # loop over the (few) corners
+        if not keep[p]:
+            continue
+        a, b = p, p  # last zipped node forward (chain A) and backward (chain B)
+        sa = sb = 0.0  # arc length walked on each chain
+        steps = 0
+        while steps < n - 4:  # at least 3 nodes stay out of the strip
+            na, nb = (a + 1) % n, (b - 1) % n
+            if not (keep[na] and keep[nb]):
+                break  # another strip's nodes
+            # advance the chain that is behind in arc length; its next node must lie within
+            # eps of the other chain's segments near the current rung
+            if sa + seg[a] <= sb + seg[nb]:
+                other = [(b - j) % n for j in range(0 if b == p else -1, 4)]  # chain B near the rung
+                d = _point_segment_distance(xyz[na], xyz[other[:-1]], xyz[other[1:]]).min()
+                if d > eps:
+                    break
+                sa += seg[a]
+                a = na
+            else:
+                other = [(a + j) % n for j in range(0 if a == p else -1, 4)]  # chain A near the rung
+                d = _point_segment_distance(xyz[nb], xyz[other[:-1]], xyz[other[1:]]).min()
+                if d > eps:
+                    break
+                sb += seg[nb]
+                b = nb
+            steps += 1
+        if a != p and b != p:
+            # nodes strictly between b and a (through p) leave the loop: b -> a becomes an edge
+            j = (b + 1) % n
+            while j != a:
+                keep[j] = False
+                j = (j + 1) % n
+            strips.append((int(p), max(sa, sb)))
+    return np.flatnonzero(keep), strips
+
+
+def _segments_cross(uv_loops: list[np.ndarray]) -> bool:
+    """True if two non-adjacent segments of the loops (closed polygons in (u, v)) intersect."""
+    from scipy.spatial import cKDTree
+
+    a = np.concatenate([lp for lp in uv_loops])
+    b = np.concatenate([np.roll(lp, -1, axis=0) for lp in uv_loops])
+    start = np.concatenate([np.full(len(lp), i) for i, lp in enumerate(uv_loops)])
+    idx = np.concatenate([np.arange(len(lp)) for lp in uv_loops])
+    size = np.concatenate([np.full(len(lp), len(lp)) for lp in uv_loops])
+    mid = 0.5 * (a + b)
+    half = 0.5 * np.linalg.norm(b - a, axis=1)
+    pairs = cKDTree(mid).query_pairs(2.0 * float(half.max()) + 1e-300, output_type="ndarray")
+    if len(pairs) == 0:
+        return False
+    i, j = pairs[:, 0], pairs[:, 1]
+    same = start[i] == start[j]
+    adj = same & (((idx[i] - idx[j]) % size[i] == 1) | ((idx[j] - idx[i]) % size[i] == 1))
+    i, j = i[~adj], j[~adj]
+
+    def orient(p, q, r):
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
+    d1, d2 = orient(a[i], b[i], a[j]), orient(a[i], b[i], b[j])
+    d3, d4 = orient(a[j], b[j], a[i]), orient(a[j], b[j], b[i])
+    return bool(np.any((d1 * d2 < 0) & (d3 * d4 < 0)))
+
+
+def _face_size(g, s: int, uv_box: np.ndarray, size: float, curvature_elements: int) -> tuple[float, np.ndarray]:
+    """(element size, scale (2,)): the size from the largest principal curvature over a grid
+    of the face's (u, v) box (as gmsh's MeshSizeFromCurvature, at least size / 20), and the
+    mean |S_u|, |S_v| there."""
+    gu = np.linspace(uv_box[0, 0], uv_box[1, 0], 9)
+    gv = np.linspace(uv_box[0, 1], uv_box[1, 1], 33)
+    uv = np.stack(np.meshgrid(gu, gv, indexing="ij"), axis=-1).reshape(-1, 2)
+    d = np.asarray(g.model.getDerivative(2, s, uv.ravel().tolist()), dtype=float).reshape(-1, 2, 3)
+    scale = np.linalg.norm(d, axis=2).mean(axis=0)
+    if not np.all(scale > 0):
+        raise MeshError(f"{_label(g, s)}: zero parametric derivative over the face")
+    h = size
+    if curvature_elements:
+        k1, k2, *_ = g.model.getPrincipalCurvatures(s, uv.ravel().tolist())
+        kmax = float(np.nanmax(np.abs(np.concatenate([np.asarray(k1, float), np.asarray(k2, float)]))))
+        if kmax > 0 and math.isfinite(kmax):
+            h = min(size, max(size / 20.0, 2.0 * math.pi / (curvature_elements * kmax)))
+    return h, scale
+
+
+INTERIOR_SAMPLES = 129
+"""Most samples per side of the (u, v) grid on which a filled face reads the caller's sizes."""
+
+
+def _interior_sizes(g, s: int, box: np.ndarray, scale: np.ndarray, h: float, size_at, factor: float):
+    """(scaled (u, v) (K, 2), sizes (K,)) of the caller's size field on a grid over the face's
+    (u, v) box ``box`` (2, 2): S(u, v) on the grid, ``factor`` x ``size_at`` there, each point
+    the smallest size of its 3 x 3 neighbourhood (the mesher takes the nearest point's size,
+    and the field may fall between grid points). Spacing at most the smallest size read on a
+    first 17 x 17 grid, at most `INTERIOR_SAMPLES` per side; None where no size is below ``h``.
+
+    Without it a filled face grows from its boundary spacing up to the largest size: the
+    production die's pilot walls, filled after folding with every gmsh algorithm, came back
+    at 22x the error law of their radius in the adaptive loop."""
+    def grid(nu: int, nv: int):
+        gu = np.linspace(box[0, 0], box[1, 0], nu)
+        gv = np.linspace(box[0, 1], box[1, 1], nv)
+        uv = np.stack(np.meshgrid(gu, gv, indexing="ij"), axis=-1).reshape(-1, 2)
+        x = np.asarray(g.model.getValue(2, s, uv.ravel().tolist()), dtype=float).reshape(-1, 3)
+        return uv, factor * np.asarray(size_at(x), dtype=float).reshape(nu, nv)
+
+    _, first = grid(17, 17)
+    lo = float(first.min())
+    if not lo < h:
+        return None
+    ext = (box[1] - box[0]) * scale
+    nu, nv = (int(np.clip(math.ceil(e / lo) + 1, 17, INTERIOR_SAMPLES)) for e in ext)
+    from scipy.ndimage import minimum_filter
+
+    uv, hs = grid(nu, nv)
+    return uv * scale, np.minimum(minimum_filter(hs, size=3, mode="nearest").ravel(), h)
+
+
+def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,
+               label: str, cut: list | None = None, strip_fraction: float = STRIP_FRACTION,
+               size_at=None) -> str:
+    from cadbridge.mesh.gmsh.planar import mesh_planar_loops
+
+    name = _label(g, s)
+    loops = _face_loops(g, s)
+    all_uv = np.concatenate([lp[2] for lp in loops])
+    all_xyz = np.concatenate([lp[1] for lp in loops])
+    on = np.asarray(g.model.getValue(2, s, all_uv.ravel().tolist()), dtype=float).reshape(-1, 3)
+    dev = float(np.linalg.norm(on - all_xyz, axis=1).max())
+    box = np.array([all_uv.min(axis=0), all_uv.max(axis=0)])
+    diag = float(np.linalg.norm(all_xyz.max(axis=0) - all_xyz.min(axis=0)))
+    h, scale = _face_size(g, s, box, size, curvature_elements)
+    eps = max(EPS_FACTOR * dev, strip_fraction * h, 1e-9 * diag)
+    coarse = element == "quad" and subdivided
+    if coarse:
+        h *= 2.0  # split in two below
+    # the nodes meshed on: all loop nodes, or (after subdivision) every other node per curve
+    kept_loops, notes_strip, n_cut = [], [], 0
+    for tags, xyz, uv, k, even in loops:
+        use = np.ones(len(tags), dtype=bool)
+        if coarse:
+            if not np.all(even):
+                raise MeshError(f"{label}: {name}: a boundary curve has an odd number of segments after "
+                                f"gmsh's quad subdivision; cannot make all-quad elements there")
+            use = k % 2 == 0
+        sel = np.flatnonzero(use)
+        keep, strips = _zip_cusps(xyz[sel], (k[sel] == 0), eps)
+        sel = sel[keep]
+        for p, length in strips:
+            x = xyz[np.flatnonzero(use)[p]]
+            notes_strip.append(f"{length:.3g} long at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})")
+        if cut:  # trim-loop excursions: their nodes stay on the neighbour only
+            from cadbridge.mesh.gmsh.loop_cuts import drop_mask
+
+            drop = drop_mask(cut, xyz[sel])
+            n_cut += int(drop.sum())
+            sel = sel[~drop]
+        if len(sel) < 3:
+            continue  # the whole loop is a zero-width strip
+        kept_loops.append((tags, xyz, uv, sel))
+    if not kept_loops:
+        raise MeshError(f"{label}: {name}: the face has no width within the CAD's accuracy ({eps:.3g})")
+    uv_loops = [uv[sel] for tags, xyz, uv, sel in kept_loops]
+    if _segments_cross(uv_loops):
+        raise MeshError(f"{label}: {name}: its boundary crosses itself in (u, v) (after cutting the "
+                        f"cusp strips narrower than {eps:.3g}); cannot mesh it in parameter space")
+    # the outer loop first (largest area in (u, v)), as the fallback mesher expects
+    area = [0.5 * float(np.sum(lp[:, 0] * np.roll(lp[:, 1], -1) - np.roll(lp[:, 0], -1) * lp[:, 1]))
+            for lp in uv_loops]
+    order = sorted(range(len(uv_loops)), key=lambda i: -abs(area[i]))
+    kept_loops = [kept_loops[i] for i in order]
+    uv_loops = [uv_loops[i] for i in order]
+    point_sizes = []
+    for lp in uv_loops:
+        q = lp * scale
+        seg = np.linalg.norm(np.roll(q, -1, axis=0) - q, axis=1)
+        point_sizes.append(np.minimum(0.5 * (seg + np.roll(seg, 1)), h))
+    interior = None if size_at is None else _interior_sizes(g, s, box, scale, h, size_at, 2.0 if coarse else 1.0)
+    uv, tris, quads = mesh_planar_loops(uv_loops, scale, h, f"{label}: {name}", point_sizes=point_sizes,
+                                        recombine=element == "quad", interior_sizes=interior)
+    loop_tags = np.concatenate([tags[sel] for tags, xyz, uv_, sel in kept_loops])
+    if coarse:
+        loop_tags, uv, quads = _split_to_quads(uv, tris, quads, kept_loops, len(loop_tags))
+        tris = np.zeros((0, 3), dtype=np.int64)
+    n_loop = len(loop_tags)
+    uv, tangled = _untangled(uv, scale, tris, quads, n_loop)
+    interior_uv = uv[n_loop:]
+    xyz_new = np.asarray(g.model.getValue(2, s, interior_uv.ravel().tolist()), dtype=float).reshape(-1, 3) \
+        if len(interior_uv) else np.zeros((0, 3))
+    base = int(g.model.mesh.getMaxNodeTag()) + 1
+    new_tags = np.arange(base, base + len(interior_uv), dtype=np.int64)
+    node_tag = np.concatenate([loop_tags, new_tags])
+    tri_t, quad_t = node_tag[tris], node_tag[quads]
+    if _flip_needed(g, s, tri_t, quad_t, uv, tris, quads):
+        tri_t, quad_t = tri_t[:, ::-1], quad_t[:, ::-1]
+    if len(new_tags):
+        g.model.mesh.addNodes(2, s, new_tags.tolist(), xyz_new.ravel().tolist(), interior_uv.ravel().tolist())
+    if len(tri_t):
+        g.model.mesh.addElementsByType(s, 2, [], tri_t.ravel().tolist())
+    if len(quad_t):
+        g.model.mesh.addElementsByType(s, 3, [], quad_t.ravel().tolist())
+    what = f"{len(tri_t)} triangles" if len(tri_t) else ""
+    what += (", " if what and len(quad_t) else "") + (f"{len(quad_t)} quads" if len(quad_t) else "")
+    note = f"mesh: gmsh left {name} without elements; meshed in its (u, v) on gmsh's boundary nodes ({what})"
+    if cut:
+        note = (f"mesh: {name} meshed in its (u, v) on gmsh's boundary nodes ({what}) without its trim-loop "
+                f"excursion ({n_cut} boundary nodes left to the neighbour, a crack <= {max(e.chord for e in cut):.3g})")
+    if tangled:
+        note += f" ({tangled} element(s) inverted in (u, v) smoothed out)" if tangled > 0 else \
+            f" ({-tangled} element(s) inverted in (u, v) that smoothing could not repair)"
+    if notes_strip:
+        note += (f"; {len(notes_strip)} cusp strip(s) narrower than {eps:.2g} (where two boundary curves run "
+                 f"together within the CAD's accuracy) left open: " + "; ".join(notes_strip))
+    return note
+
+
+def _untangled(uv: np.ndarray, scale: np.ndarray, tris: np.ndarray, quads: np.ndarray,
+               n_loop: int) -> tuple[np.ndarray, int]:
+    """(uv (N, 2), k): the interior nodes (index >= ``n_loop``) moved by
+    `cadbridge.mesh.gmsh.untangle` in the face's scaled (u, v) where an element (counter-clockwise
+    there) has an inverted corner: k > 0 elements were inverted and none is now, k < 0: -k
+    are still inverted; (uv, 0) unchanged where none was (gmsh's and the split's meshes as
+    they are)."""
+    from cadbridge.mesh.gmsh.untangle import corner_sines, untangle
+
+    q = uv * scale
+    blocks = [b for b in (tris, quads) if len(b)]
+    inverted = sum(int(np.sum(corner_sines(q, b).min(axis=1) <= 0.0)) for b in blocks)
+    if not inverted:
+        return uv, 0
+    q, left = untangle(q, blocks, n_loop)
+    return q / scale, (inverted if not left else -left)
+
+
+def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_loops: list, n_loop: int):
+    """Split every element into quads (triangle -> 3, quad -> 4) through its edge midpoints
+    and its centroid, in (u, v). A boundary segment between two coarse nodes takes the fine
+    node between them (gmsh's subdivision node); other edges get a new node at the (u, v)
+    midpoint. uv (N, 2): the n_loop coarse loop nodes first. Returns (loop tags (L,): the
+    coarse then the fine boundary nodes, uv (M, 2): those L first, then the old interior
+    nodes and the new ones, quads (Q, 4)), wound as the elements were."""
+    coarse_tags, fine_tags, fine_uv = [], [], []
+    mid_of: dict[tuple[int, int], int] = {}  # coarse boundary segment (local ids) -> fine node id
+    off = 0
+    for tags, xyz, luv, sel in kept_loops:
+        coarse_tags.append(tags[sel])
+        m = len(sel)
+        for j in range(m):  # loop over the boundary segments (a few hundred)
+            a, b = sel[j], sel[(j + 1) % m]
+            if (b - a) % len(tags) == 2:  # one fine node between two coarse ones
+                f = (a + 1) % len(tags)
+                mid_of[(off + j, off + (j + 1) % m)] = mid_of[(off + (j + 1) % m, off + j)] = len(fine_tags)
+                fine_tags.append(int(tags[f]))
+                fine_uv.append(luv[f])
+        off += m
+    n_fine = len(fine_tags)
+    n_int = len(uv) - n_loop
+    base = n_loop + n_fine + n_int  # first new interior node
+
+    def renum(i: int) -> int:  # old id -> id in the returned numbering
+        return i if i < n_loop else i + n_fine
+
+    new_uv: list[np.ndarray] = []
+    edge_node: dict[tuple[int, int], int] = {}
+
+    def midpoint(a: int, b: int) -> int:
+        if (a, b) in mid_of:
+            return n_loop + mid_of[(a, b)]
+        key = (a, b) if a < b else (b, a)
+        if key not in edge_node:
+            edge_node[key] = base + len(new_uv)
+            new_uv.append(0.5 * (uv[a] + uv[b]))
+        return edge_node[key]
+
+    out = []
+    for el in [*tris.tolist(), *quads.tolist()]:  # loop over the coarse elements (a few thousand)
+        k = len(el)
+        c = base + len(new_uv)
+        new_uv.append(uv[el].mean(axis=0))
+        mids = [midpoint(el[i], el[(i + 1) % k]) for i in range(k)]
+        for i in range(k):  # corner i, midpoint of edge i, centroid, midpoint of edge i - 1
+            out.append((renum(el[i]), mids[i], c, mids[i - 1]))
+    uv_all = np.concatenate([uv[:n_loop], np.asarray(fine_uv, dtype=float).reshape(-1, 2), uv[n_loop:],
+                             np.asarray(new_uv, dtype=float).reshape(-1, 2)])
+    tags_all = np.concatenate([*coarse_tags, np.asarray(fine_tags, dtype=np.int64)])
+    return tags_all, uv_all, np.asarray(out, dtype=np.int64).reshape(-1, 4)
+
+
+def _flip_needed(g, s: int, tri_t: np.ndarray, quad_t: np.ndarray, uv: np.ndarray, tris: np.ndarray,
+                 quads: np.ndarray) -> bool:
+    """True if the new elements (counter-clockwise in (u, v); node tags tri_t (T, 3), quad_t
+    (Q, 4); local ids tris, quads into uv) must be reversed: the meshed neighbours traverse
+    the shared edges in the same direction (a consistently wound mesh traverses them
+    oppositely); without meshed neighbours, their normal disagrees with gmsh's face normal."""
+    def directed(conn_list):
+        e = [np.stack([c[:, k], c[:, (k + 1) % c.shape[1]]], axis=1) for c in conn_list if len(c)
+             for k in range(c.shape[1])]
+        return np.concatenate(e) if e else np.zeros((0, 2), dtype=np.int64)
+
+    ours = directed([tri_t, quad_t])
+    mx = int(max(ours.max(), 1)) + 1
+    key = np.sort(ours[:, 0] * mx + ours[:, 1])
+
+    def count_in_key(k: np.ndarray) -> int:
+        if not len(key) or not len(k):
+            return 0
+        at = np.minimum(np.searchsorted(key, k), len(key) - 1)
+        return int(np.sum(key[at] == k))
+    # only the face's boundary nodes can be shared, and only with the surfaces on its curves
+    # (not every node against every surface: the die's binder, 10^5 elements, took minutes)
+    curves = {abs(t) for d, t in g.model.getBoundary([(2, s)], combined=False, oriented=False) if d == 1}
+    bnd = np.unique(np.concatenate([np.asarray(g.model.mesh.getNodes(1, c, includeBoundary=True)[0], dtype=np.int64)
+                                    for c in curves])) if curves else np.zeros(0, dtype=np.int64)
+    near = sorted({int(t) for c in curves for t in g.model.getAdjacencies(1, c)[0]} - {s})
+    same = opposite = 0
+    for t in near:
+        et, _, en = g.model.mesh.getElements(2, t)
+        conns = [np.asarray(n, dtype=np.int64).reshape(-1, 3 if typ == 2 else 4) for typ, n in zip(et, en)
+                 if typ in (2, 3)]
+        if not conns or not len(bnd):
+            continue
+        on_bnd = np.zeros(max(int(bnd.max()), max(int(c.max(initial=0)) for c in conns)) + 1, dtype=bool)
+        on_bnd[bnd] = True  # a lookup by node tag: the neighbours can hold 10^5 elements
+        conns = [c[on_bnd[c].sum(axis=1) >= 2] for c in conns]
+        e = directed(conns)
+        e = e[(e < mx).all(axis=1)]
+        same += count_in_key(e[:, 0] * mx + e[:, 1])
+        opposite += count_in_key(e[:, 1] * mx + e[:, 0])
+    if same or opposite:
+        return same > opposite
+    # no meshed neighbour: compare with gmsh's normal of the face at the element centroids
+    conn = tris if len(tris) else quads
+    c = uv[conn].mean(axis=1)
+    nrm = np.asarray(g.model.getNormal(s, c.ravel().tolist()), dtype=float).reshape(-1, 3)
+    x = np.asarray(g.model.getValue(2, s, uv.ravel().tolist()), dtype=float).reshape(-1, 3)
+    en = np.cross(x[conn[:, 1]] - x[conn[:, 0]], x[conn[:, 2]] - x[conn[:, 0]])
+    return float(np.einsum("ij,ij->i", en, nrm).sum()) < 0

@@ -1,0 +1,158 @@
+"""What a tool writes: its tool file data (`tool_data`), the files of its folder (tool file,
+VTU, CSV grid, coefficient listing, Nagata IGES, plots) and the atomic output folder
+(`staged_output`: everything is written into a temporary folder beside the output and
+moved into place at the end, so an error never leaves partial output behind).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from cadbridge.tool.build import CadProjector, corner_overrides, element_blocks, grid_rows, sample_divisions, ToolResult
+
+__all__ = ['LISTING_MAX_ELEMENTS', 'staged_output', 'tool_data', 'write_tool_outputs']
+
+
+def tool_data(tool: ToolResult, units: str, cad: str | None = None):
+    """The `cadbridge.io.toolfile.ToolData` of a tool (what its ``.nagata`` file holds)."""
+    from cadbridge.io.toolfile import ToolData
+
+    nm, mesh = tool.nagata, tool.mesh
+    blocks = element_blocks(mesh)  # triangles first (see build_tool)
+    tri = [b for b, c in zip(blocks, mesh.cells) if c.type == "triangle"]
+    quad = [b for b, c in zip(blocks, mesh.cells) if c.type == "quad"]
+    ce, cl, cn = corner_overrides(tool.normals, blocks, tool.corner_normals)
+    return ToolData(
+        name=tool.name,
+        units=units,
+        nodes=mesh.nodes,
+        normals=tool.normals,
+        triangles=np.concatenate(tri) if tri else np.zeros((0, 3), dtype=np.int64),
+        quads=np.concatenate(quad) if quad else np.zeros((0, 4), dtype=np.int64),
+        corner_element=ce,
+        corner_local=cl,
+        corner_normals=cn,
+        edge_nodes=nm.edge_normals[0],
+        edge_normals=np.stack([nm.edge_normals[1], nm.edge_normals[2]], 1),
+        tri_coefficients=nm.tri_coefficients if tri else None,
+        quad_coefficients=nm.quad_coefficients if quad else None,
+        source=cad or "",
+        normal_source=tool.normal_source,
+    )
+
+LISTING_MAX_ELEMENTS = 50_000
+
+def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | None, report: bool,
+                       projector: CadProjector | None = None, listings: bool | None = None) -> list[str]:
+    """Tool file, and with ``report`` the VTUs, PNGs and the per-patch listings (CSV grid,
+    coefficient listing, Nagata IGES); ``listings`` None: only for tools of at most
+    `LISTING_MAX_ELEMENTS` elements (True / False: always / never).
+
+    Returns the names of the files written (relative to ``folder``).
+    """
+    from cadbridge.io.toolfile import write_toolfile
+
+    name, nm, mesh = tool.name, tool.nagata, tool.mesh
+    blocks = element_blocks(mesh)
+    tooldata = tool_data(tool, units, cad)
+    tri_c, quad_c = tooldata.tri_coefficients, tooldata.quad_coefficients
+    write_toolfile(tooldata, folder / f"{name}.nagata")
+    files = [f"{name}.nagata"]
+    if not report:
+        return files
+
+    from cadbridge.io.csvgrid import write_coefficients_listing, write_grid_csv
+    from cadbridge.io.nagata_iges import write_nagata_iges
+    from cadbridge.io.plots import plot_error_histogram
+    from cadbridge.io.vtu import write_mesh_vtu, write_surface_vtu
+
+    g = tool.grid
+    names = ("surface_error", "boundary_error", "flat_surface_error", "normal_error")
+    errors = {k: g[k] for k in names if k in g}
+    # point index within its patch, 1-based like the thesis' "Excel" file (grid points of a
+    # patch are consecutive)
+    elem = np.asarray(g["element"])
+    if listings is None:
+        listings = nm.n_elements <= LISTING_MAX_ELEMENTS
+    if listings:
+        first = np.searchsorted(elem, elem)
+        write_grid_csv(folder / f"{name}_grid.csv", elem + 1, np.arange(len(elem)) - first + 1, g["points"],
+                       g["normals"], errors or None)
+        write_coefficients_listing(folder / f"{name}_coefficients.txt", tri_c, quad_c)
+        write_nagata_iges(tri_c, quad_c, folder / f"{name}_nagata.igs", units=units)
+        files += [f"{name}_grid.csv", f"{name}_coefficients.txt", f"{name}_nagata.igs"]
+
+    verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(min(4, sample_divisions(nm, 4)), return_params=True)
+    _, vnorm = nm.evaluate(pe, peta, pzeta)
+    surface_data = {"normal": vnorm, "element": pe.astype(np.int32)}
+    at = grid_rows(g, pe, peta, pzeta) if errors else None
+    if at is not None and all(k in g for k in names) and "face" in g:
+        # the VTU's vertices are points of the error grid (same divisions, as on big models
+        # where the sample budget sets both to 2): its errors, not a second measurement
+        surface_data.update({k: np.asarray(g[k])[at] for k in names}, face_id=np.asarray(g["face"])[at].astype(np.int32))
+    elif projector is not None and tool.element_face is not None:
+        from cadbridge.tool.accuracy import tool_errors
+
+        err = tool_errors(nm, pe, peta, pzeta, tool.element_face, projector.model, projector.project)
+        surface_data.update(surface_error=err.surface, boundary_error=err.boundary,
+                            flat_surface_error=err.flat_surface, normal_error=err.normal,
+                            face_id=err.face.astype(np.int32))
+    write_surface_vtu(folder / f"{name}_nagata.vtu", verts, tris, point_data=surface_data)
+
+    mesh_data = {"normal": tool.normals}
+    if tool.node_face is not None:
+        mesh_data["face_id"] = np.asarray(tool.node_face, dtype=np.int32)
+        mesh_data["distance"] = tool.node_distance
+    write_mesh_vtu(folder / f"{name}_mesh.vtu", mesh.nodes, [(c.type, b) for c, b in zip(mesh.cells, blocks)],
+                   point_data=mesh_data, field_data={"normal_source": tool.normal_source})
+    files += [f"{name}_nagata.vtu", f"{name}_mesh.vtu"]
+    if errors:
+        u = units.lower()
+        plot_error_histogram(folder / f"{name}_surface_error.png",
+                             {f"Nagata ({tool.normal_source})": np.abs(errors["surface_error"]),
+                              "flat mesh": np.abs(errors["flat_surface_error"])},
+                             xlabel=f"|surface error| [{u}]", title=f"{name}: distance to the underlying CAD surfaces")
+        plot_error_histogram(folder / f"{name}_boundary_error.png", {tool.normal_source: errors["boundary_error"]},
+                             xlabel=f"boundary error [{u}]", title=f"{name}: distance to the trimmed CAD faces")
+        plot_error_histogram(folder / f"{name}_normal_error.png", {tool.normal_source: errors["normal_error"]},
+                             xlabel="normal error [deg]", title=f"{name}: Nagata normal error vs CAD")
+        files += [f"{name}_surface_error.png", f"{name}_boundary_error.png", f"{name}_normal_error.png"]
+    return files
+
+@contextmanager
+def staged_output(output: str | os.PathLike) -> Iterator[Path]:
+    """Write into a temporary folder beside ``output``; move the files into place only on
+    success. On an error the temporary folder is removed and ``output`` is left as it was
+    (not created if it did not exist)."""
+    output = Path(output)
+    parent = output.resolve().parent
+    created_parent = not parent.exists()
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", dir=parent))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created_parent:
+            try:
+                parent.rmdir()
+            except OSError:
+                pass
+        raise
+    if not output.exists():
+        os.replace(tmp, output)  # the usual case: one rename
+        return
+    for p in sorted(tmp.rglob("*")):
+        rel = p.relative_to(tmp)
+        if p.is_dir():
+            (output / rel).mkdir(parents=True, exist_ok=True)
+        else:
+            os.replace(p, output / rel)
+    shutil.rmtree(tmp, ignore_errors=True)
