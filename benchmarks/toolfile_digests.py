@@ -9,7 +9,8 @@ every file of `../shared/iges_real/`, one process each, and writes one line per 
     diff /tmp/before.txt /tmp/after.txt && echo bit-identical
 
 `--ushape` also runs `cadbridge ushape` and digests its tool files and `summary.md` (the
-U-shape table, which holds no timings). The package imported is the one `python -m cadbridge`
+U-shape table, which holds no timings). A tool file records the path of its CAD file, so two
+trees are compared on the same input paths (`--samples`). The package imported is the one `python -m cadbridge`
 finds (set PYTHONPATH to digest another checkout).
 """
 
@@ -27,9 +28,9 @@ ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "iges_real"
 
 
-def inputs(real: Path) -> list[Path]:
+def inputs(samples: Path, real: Path) -> list[Path]:
     """The samples (the production dies excluded: they are generated on request) and real files."""
-    files = sorted(p for p in (ROOT / "iges_samples").glob("*.igs") if not p.name.startswith("production_die"))
+    files = sorted(p for p in samples.glob("*.igs") if not p.name.startswith("production_die"))
     if real.is_dir():
         files += sorted(p for p in real.iterdir() if p.suffix.lower() in (".igs", ".iges"))
     return files
@@ -54,11 +55,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-o", "--output", type=Path, required=True, help="digest listing to write")
     ap.add_argument("--ushape", action="store_true", help="also digest `cadbridge ushape`")
+    ap.add_argument("--samples", type=Path, default=ROOT / "iges_samples",
+                    help="folder of sample IGES files (default: %(default)s); a tool file records its CAD's path, "
+                         "so compare two trees on the same input paths")
     ap.add_argument("--real", type=Path, default=REAL, help="folder of real IGES files (default: %(default)s)")
     a = ap.parse_args()
     lines = []
     with tempfile.TemporaryDirectory() as tmp:
-        for f in inputs(a.real):
+        for f in inputs(a.samples, a.real):
             out = Path(tmp) / f.stem
             rc = run(["convert", str(f), "-o", str(out)])
             rows = digest_tree(out, (".nagata",)) if rc == 0 else []

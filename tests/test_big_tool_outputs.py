@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+import cadbridge.tool.outputs as O
 import cadbridge.tool.pipeline as P
 from cadbridge.io.csvgrid import read_coefficients_listing
 from cadbridge.io.toolfile import read_toolfile
@@ -23,7 +24,7 @@ def test_listings_above_the_limit_only_with_full_report(tmp_path, monkeypatch):
     full = P.convert(cad, tmp_path / "full", element="quad")
     names = set(full.files)
     assert {"die_grid.csv", "die_coefficients.txt", "die_nagata.igs"} <= names
-    monkeypatch.setattr(P, "LISTING_MAX_ELEMENTS", 10)  # the die has 185 quads: now a "big" tool
+    monkeypatch.setattr(O, "LISTING_MAX_ELEMENTS", 10)  # the die has 185 quads: now a "big" tool
     small = P.convert(cad, tmp_path / "small", element="quad")
     assert set(small.files) == names - {"die_grid.csv", "die_coefficients.txt", "die_nagata.igs"}
     assert not (tmp_path / "small" / "die_grid.csv").exists()

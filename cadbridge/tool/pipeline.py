@@ -13,7 +13,8 @@ from pathlib import Path
 
 from cadbridge.mesh.mesh import Mesh
 from cadbridge.tool.build import CadProjector, check_tools, NoProgress, ToolQualityError, ToolResult, tools_from_mesh
-from cadbridge.tool.outputs import LISTING_MAX_ELEMENTS, staged_output, write_tool_outputs
+from cadbridge.tool import outputs
+from cadbridge.tool.outputs import staged_output, write_tool_outputs
 
 __all__ = ["RunResult", "convert", "nagata_from_mesh"]
 
@@ -148,7 +149,7 @@ def convert(
     of thesis Fig. 8 (0.06 % radial error) and 3 elements across a quarter fillet (§5.2).
     Raises `ToolQualityError` when a tool is worse than its flat mesh, unless
     ``allow_worse``. ``full_report``: the per-patch listings also for tools above
-    `LISTING_MAX_ELEMENTS` elements.
+    `cadbridge.tool.outputs.LISTING_MAX_ELEMENTS` elements.
 
     Example::
 
@@ -204,9 +205,9 @@ def convert(
             progress.stage(f"{t.name}: writing tool file and report")
             result.files += write_tool_outputs(t, tmp, model.units.name, cad, True, projector,
                                                listings=True if full_report else None)
-            if not full_report and t.nagata.n_elements > LISTING_MAX_ELEMENTS:
+            if not full_report and t.nagata.n_elements > outputs.LISTING_MAX_ELEMENTS:
                 result.notes.append(f"{t.name}: {t.nagata.n_elements} elements: grid CSV, coefficient listing and "
-                                    f"Nagata IGES not written (above {LISTING_MAX_ELEMENTS}; --full-report writes them)")
+                                    f"Nagata IGES not written (above {outputs.LISTING_MAX_ELEMENTS}; --full-report writes them)")
         if adaptive is not None:
             result.files += adaptive.write_report(tmp, model, projector)
     if adaptive is not None:
