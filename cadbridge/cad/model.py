@@ -14,7 +14,7 @@ import numpy as np
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["Diagnostic", "Face", "Model", "TrimLoop", "Trim", "Units", "distance_to_polygon", "points_in_polygon"]
+__all__ = ["Diagnostic", "EmptyModelError", "Face", "Model", "TrimLoop", "Trim", "Units", "distance_to_polygon", "points_in_polygon"]
 
 
 @dataclass(frozen=True)
@@ -183,6 +183,11 @@ class Face:
         return ok
 
 
+class EmptyModelError(ValueError):
+    """A model without faces where surfaces are needed (a wireframe drawing, curves or points
+    only): the input holds nothing to mesh or project onto (exit code 2 in the CLI)."""
+
+
 @dataclass
 class Model:
     """What `read_iges` returns.
@@ -193,6 +198,7 @@ class Model:
     entity_counts  {entity type: count} over all directory entries
     raw            {DE number: (entity type, form, parameter list)} for entities not interpreted
     diagnostics    reader warnings with line numbers
+    source         name of the file read
     """
 
     faces: list[Face] = field(default_factory=list)
@@ -208,11 +214,18 @@ class Model:
     entity_counts: dict[int, int] = field(default_factory=dict)
     raw: dict[int, tuple] = field(default_factory=dict)
     diagnostics: list[Diagnostic] = field(default_factory=list)
+    source: str | None = None  # name of the file read (``filename`` is the one its header states)
+
+    def empty_reason(self) -> str:
+        """One line saying that the file holds no surface and what it holds instead."""
+        held = ", ".join(f"{n} x {t}" for t, n in sorted(self.entity_counts.items())[:8]) or "no entities"
+        more = " ..." if len(self.entity_counts) > 8 else ""
+        return f"{self.source or self.filename or 'model'}: no surfaces in this file, nothing to convert (entity types: {held}{more})"
 
     def bbox(self) -> np.ndarray:
         """Axis-aligned box of all faces, (2, 3): [min, max] (from the control nets)."""
         if not self.faces:
-            raise ValueError("empty model: no faces")
+            raise EmptyModelError(self.empty_reason())
         boxes = np.array([f.surface.bbox() for f in self.faces])
         return np.array([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
 

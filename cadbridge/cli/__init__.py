@@ -55,6 +55,7 @@ def _known_errors() -> tuple[type[BaseException], ...]:
                                        NotADirectoryError]
     for mod, name in (
         ("cadbridge.iges", "IgesError"),
+        ("cadbridge.cad.model", "EmptyModelError"),
         ("cadbridge.mesh.mesh", "MeshError"),
         ("cadbridge.normals.cad", "ProjectionError"),
         ("cadbridge.io.toolfile", "ToolFileError"),

@@ -68,6 +68,7 @@ def _read(text: str, filename: str, holder: list) -> Model:
         entity_counts=dict(Counter(e.entity_type for e in entries.values())), diagnostics=diagnostics,
     )
     holder.append(b)
+    model.source = filename
     model.faces = _faces(b)  # trim deltas deferred: `Face.trim_delta`
     _raw(b, model)
     return model
