@@ -48,8 +48,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from cadbridge.nurbs.basis import ders_basis_funs, ders_basis_one, find_span, find_span_one, validate_knots
-from cadbridge.nurbs.project import _newton_range
-from cadbridge.nurbs.surface import NurbsSurface, _d01_range
+from cadbridge.nurbs.newton import newton_range
+from cadbridge.nurbs.surface import NurbsSurface, d01_range
 
 __all__ = [
     "FitError",
@@ -390,7 +390,7 @@ _CORRECT_BLOCK = 2048  # points per task of the parallel correction kernel
 @numba.njit(cache=True, error_model="numpy")
 def _residual_at(der, k, px, py, pz):  # pragma: no cover - compiled
     """(|x - S|, (x - S) . unit Su x Sv, or the distance where the normal is undefined) from
-    der[k] = (S, Sv; Su, Suv) of `_d01_range`."""
+    der[k] = (S, Sv; Su, Suv) of `d01_range`."""
     rx, ry, rz = px - der[k, 0, 0, 0], py - der[k, 0, 0, 1], pz - der[k, 0, 0, 2]
     d = np.sqrt(rx * rx + ry * ry + rz * rz)
     sux, suy, suz = der[k, 1, 0, 0], der[k, 1, 0, 1], der[k, 1, 0, 2]
@@ -409,7 +409,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
     """Parameter correction and residuals in one pass over the points (`reproject`).
 
     Point t with movable[t] and |x_t - S(u_t, v_t)| <= near (near < 0: no correction) gets, with
-    steps = 0, the projected Newton iterations of `cadbridge.nurbs.project` (`_newton_range`, the
+    steps = 0, the projected Newton iterations of `cadbridge.nurbs.project` (`nurbs.newton.newton_range`, the
     kernel of `project_to_surface`) from its (u_t, v_t), and the new foot is taken (moved[t] =
     True) if it passes that module's orthogonality check and is not farther than the old one;
     with steps > 0, that many Gauss-Newton steps of Hoschek's parameter correction (Hoschek 1988;
@@ -418,7 +418,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
     foot with
     edge flags (bits 1, 2, 4, 8: u = u0, u1, v = v0, v1) is put back on its edge. Then
     dist[t] = |x - S|, signed[t] = (x - S) . Su x Sv / |Su x Sv| (dist where the normal is
-    undefined), S and its first derivatives by `NurbsSurface.derivatives`' kernel (`_d01_range`)."""
+    undefined), S and its first derivatives by `NurbsSurface.derivatives`' kernel (`d01_range`)."""
     n = pts.shape[0]
     nblk = (n + _CORRECT_BLOCK - 1) // _CORRECT_BLOCK
     for blk in numba.prange(nblk):
@@ -426,12 +426,12 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
         b = min(n, a + _CORRECT_BLOCK)
         m = b - a
         der = np.empty((m, 2, 2, 3))
-        _d01_range(pw, ku, kv, p, q, 1, rational, u[a:b], v[a:b], der, 0, m)
+        d01_range(pw, ku, kv, p, q, 1, rational, u[a:b], v[a:b], der, 0, m)
         for k in range(m):
             dist[a + k], signed[a + k] = _residual_at(der, k, pts[a + k, 0], pts[a + k, 1], pts[a + k, 2])
         if near < 0.0:
             continue
-        # the block's points to correct, gathered for one `_newton_range` call
+        # the block's points to correct, gathered for one `newton_range` call
         idx = np.empty(m, dtype=np.int64)
         pb = np.empty((m, 3))
         eb = np.empty(m)
@@ -453,8 +453,8 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
         if c == 0:
             continue
         if steps == 0:
-            _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, False, False, eps1, eps2, pb, eb, ub, vb,
-                          itb, max_iter, 0, c, ub, vb, -1.0, -1.0, same)
+            newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, False, False, eps1, eps2, pb, eb, ub, vb,
+                         itb, max_iter, 0, c, ub, vb, -1.0, -1.0, same)
         else:
             for _ in range(steps):
                 for k in range(c):
@@ -482,9 +482,9 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
                             dv = (ee * fv - ff * fu) / det
                     ub[k] = min(max(ub[k] + du, u0), u1)
                     vb[k] = min(max(vb[k] + dv, v0), v1)
-                _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
+                d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
         if steps == 0:
-            _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
+            d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
         clamped = 0
         for k in range(c):
             t = idx[k]
@@ -516,7 +516,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
             else:
                 dist[t], signed[t] = _residual_at(der, k, pb[k, 0], pb[k, 1], pb[k, 2])
         if clamped:
-            _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, clamped)
+            d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, clamped)
             for k in range(clamped):
                 t = idx[k]
                 dist[t], signed[t] = _residual_at(der, k, pts[t, 0], pts[t, 1], pts[t, 2])
