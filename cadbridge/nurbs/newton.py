@@ -1,5 +1,6 @@
-"""Compiled kernels of point inversion shared by `project_to_surface`, `project_to_surfaces`
-and the fitting's foot correction.
+"""Compiled kernels of point inversion shared by `project_to_surface`, `project_to_surfaces`,
+the trim and edge-foot searches (`cadbridge.cad.trims`, `cadbridge.iges.edgefeet`) and the
+fitting's foot correction (`cadbridge.nurbs.fit`).
 
 - `ders2_one`: S and its derivatives of total order <= 2 at one (u, v) (basis function
   derivatives, P&T A2.3; rational quotient rule, P&T A4.4), with work arrays `ders2_scratch`.
@@ -89,6 +90,7 @@ def ders2_one(pw, ku, kv, p, q, rational, u, v, scratch, out):  # pragma: no cov
 
 @numba.njit(cache=True, error_model="numpy")
 def wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
+    """x wrapped into [lo, hi) where ``closed`` (periodic), else clamped to [lo, hi]."""
     if closed:
         per = hi - lo
         r = (x - lo) % per  # Python modulo: same as np.mod, in [0, per)
@@ -99,9 +101,9 @@ def wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
 @numba.njit(cache=True, error_model="numpy")
 def newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
                  max_iter, start, stop, tu, tv, ru, rv, same):  # pragma: no cover - compiled
-    """The projected Newton iterations of `cadbridge.nurbs.project` (its module docstring), point by point:
-    updates u, v (N,) and iters (N,) in place. Same tests and steps as the former vectorised
-    loop: convergence first, then the lazy line search (halve the previous step when |r|^2
+    """The projected Newton iterations of `cadbridge.nurbs.project` (its module docstring),
+    point by point: updates u, v (N,) and iters (N,) in place. Same tests and steps as the
+    former vectorised loop: convergence first, then the lazy line search (halve the previous step when |r|^2
     grew beyond round-off), then the full-Jacobian step (Gauss-Newton where not positive
     definite; 1D Newton on an edge iso-curve where one variable is clamped).
 
@@ -236,8 +238,8 @@ EDGE_SEEDS = 6  # extra starts from nearby samples for feet clamped to an edge
 @numba.njit(cache=True, error_model="numpy")
 def global_seeds(d, dk, ik, spacing, spts, pts, fu, fv, us, vs, closed_u, closed_v, max_seeds
                  ):  # pragma: no cover - compiled
-    """Extra Newton starts of the global check of `project_to_surface`, point by point: among the k nearest samples
-    (dk, ik (N, k)) within sqrt(d^2 + (2h)^2) of the point (d the distance found, h the grid
+    """Extra Newton starts of the global check of `project_to_surface`, point by point: among
+    the k nearest samples (dk, ik (N, k)) within sqrt(d^2 + (2h)^2) of the point (d the distance found, h the grid
     spacing at the nearest sample): discrete local minima of the distance over their 4 grid
     neighbours (wrapping in closed directions), the farthest sample of a flat valley, at most
     ``max_seeds`` of those, plus the nearest sample more than 2 grid cells from the foot
