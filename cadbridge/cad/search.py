@@ -401,7 +401,7 @@ def index_for(model: Model) -> SearchIndex:
     return idx
 
 
-def _candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exclude: np.ndarray | None = None,
+def candidate_pairs(index: SearchIndex, pts: np.ndarray, bound: np.ndarray, exclude: np.ndarray | None = None,
                      *, lower: bool = False) -> tuple[np.ndarray, ...]:
     """(point, face) pairs whose boxes lie within ``bound`` (N,) of the point, without the
     pairs (i, exclude[i]) (faces already projected); unique, sorted by face. Returns (point
@@ -644,7 +644,7 @@ def project_points(
     missed = np.zeros(n, dtype=bool)
     missed[cp1] = ~(p1.inside & (p1.status == CONVERGED))
     sub = np.flatnonzero(open_ & missed)
-    cpa, cfa = _candidate_pairs(index, pts[sub], np.full(len(sub), 2.0 * _ON_MODEL * size),
+    cpa, cfa = candidate_pairs(index, pts[sub], np.full(len(sub), 2.0 * _ON_MODEL * size),
                                 exclude=excl[sub] if excl is not None else None)
     cpa = sub[cpa]
     pa = _Pairs(model, index, pts, cpa, cfa, tol)
@@ -652,7 +652,7 @@ def project_points(
     open_[cpa[ona]] = False
     # 2b. the rest: every face with a box within the bound (the pairs of 2a not again)
     sub = np.flatnonzero(open_)
-    cp2, cf2, lb2 = _candidate_pairs(index, pts[sub], bound[sub], exclude=excl[sub] if excl is not None else None,
+    cp2, cf2, lb2 = candidate_pairs(index, pts[sub], bound[sub], exclude=excl[sub] if excl is not None else None,
                                      lower=True)
     cp2 = sub[cp2]
     if len(cpa) and len(cp2):

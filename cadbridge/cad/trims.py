@@ -32,10 +32,10 @@ from scipy.spatial import cKDTree
 
 from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 from cadbridge.nurbs.curve import NurbsCurve
-from cadbridge.nurbs.project import _ders2_one, _ders2_scratch
+from cadbridge.nurbs.newton import ders2_one, ders2_scratch
 
-__all__ = ["LoopBoundary", "loop_contains", "polygon_contains", "polygon_distance", "project_to_trims", "segment_distance",
-           "trim_contains"]
+__all__ = ["LoopBoundary", "curve_ders", "loop_contains", "polygon_contains", "polygon_distance", "project_to_trims",
+           "segment_distance", "trim_contains"]
 
 _START_PER_SPAN = 8  # polygon edges per knot span before refinement
 _MAX_ROUNDS = 24  # halvings of an edge at most (2^-24 of a span)
@@ -202,7 +202,7 @@ def _trim_newton_one(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cde
         _tcurve_ders_one(cpw, cknots, cdeg, crat, cmap, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
         uu = min(max(cd[0, 0], u0), u1)
         vv = min(max(cd[0, 1], v0), v1)
-        _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
+        ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
         up, vp, upp, vpp = cd[1, 0], cd[1, 1], cd[2, 0], cd[2, 1]
         f = 0.0
         c11 = 0.0
@@ -234,7 +234,7 @@ def _trim_newton_one(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cde
 def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cdeg, crat, cmap, t0, t1, closed,
                         pts, t, eps1, max_iter):  # pragma: no cover - compiled
     """`_trim_newton_one` for every point pts (N, 3) on one trim curve; updates t (N,) in place."""
-    scratch = _ders2_scratch(p, q)
+    scratch = ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     cndu = np.empty((cdeg + 1, cdeg + 1))
     cl = np.empty(cdeg + 1)
@@ -249,7 +249,7 @@ def _trim_newton_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, 
                                 cr, ca, cnd, caw, cd)
 
 
-def _curve_ders(c, t, order: int) -> np.ndarray:
+def curve_ders(c, t, order: int) -> np.ndarray:
     """d^k c / dt^k for k <= order at t (N,): (N, order+1, dim); compiled for a `NurbsCurve`,
     its own ``derivatives`` for other curves (e.g. exactly mapped analytic trims)."""
     if not isinstance(c, NurbsCurve):
@@ -370,7 +370,7 @@ def _sampled_bounds(c, ta: np.ndarray, tb: np.ndarray, pa: np.ndarray, pb: np.nd
     refinement (edges of at most a few 1e-4 of the loop size) makes the usual case."""
     s = np.linspace(0.0, 1.0, 7)
     t = (ta[:, None] + (tb - ta)[:, None] * s).ravel()
-    d = _curve_ders(c, t, 2)[:, :, :2].reshape(len(ta), len(s), 3, 2)
+    d = curve_ders(c, t, 2)[:, :, :2].reshape(len(ta), len(s), 3, 2)
     dev = np.max(segment_distance(d[:, :, 0], pa[:, None], pb[:, None]), axis=1)
     curv = np.max(np.linalg.norm(d[:, :, 2], axis=2), axis=1) * (tb - ta) ** 2 / 8.0
     chord = pb - pa
@@ -470,7 +470,7 @@ def _halve_edges(c, bounds, t: np.ndarray, p: np.ndarray, bd: np.ndarray, graph:
     polygon (B more vertices and edges, in parameter order)."""
     bi = np.flatnonzero(bad)
     tm = 0.5 * (t[bi] + t[bi + 1])
-    pm = np.asarray(_curve_ders(c, tm, 0)[:, 0], dtype=float)[:, :2]
+    pm = np.asarray(curve_ders(c, tm, 0)[:, 0], dtype=float)[:, :2]
     bl, gl = bounds(c, t[bi], tm, p[bi], pm)
     br, gr = bounds(c, tm, t[bi + 1], pm, p[bi + 1])
     m = len(bd)
@@ -693,7 +693,7 @@ class LoopBoundary:
         if not self.curves:
             raise ValueError("LoopBoundary: a trim loop needs at least one curve")
         ts = [np.asarray(c.sample_parameters(_START_PER_SPAN), dtype=float) for c in self.curves]
-        ps = [np.asarray(_curve_ders(c, t, 0)[:, 0], dtype=float)[:, :2] for c, t in zip(self.curves, ts)]
+        ps = [np.asarray(curve_ders(c, t, 0)[:, 0], dtype=float)[:, :2] for c, t in zip(self.curves, ts)]
         allp = np.concatenate(ps)
         if not np.all(np.isfinite(allp)):
             raise ValueError("LoopBoundary: a trim curve evaluates to non-finite (u, v)")
@@ -969,7 +969,7 @@ def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
     for _ in range(max_iter):
         if not len(act):
             break
-        dv = _curve_ders(c, t[act], 1)[:, :, :2]
+        dv = curve_ders(c, t[act], 1)[:, :, :2]
         g = np.einsum("ij,ij->i", dv[:, 0] - a[act], dirn[act]) - sp[act]
         gp = np.einsum("ij,ij->i", dv[:, 1], dirn[act])
         lo[act] = np.where(g < 0, t[act], lo[act])
@@ -982,12 +982,12 @@ def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
                 | (np.abs(tn - t[act]) * np.abs(gp) <= eps[act]))
         t[act] = np.where(done, t[act], tn)
         act = act[~done]
-    f = np.einsum("ij,ij->i", _curve_ders(c, t, 0)[:, 0, :2] - a, nrm)
+    f = np.einsum("ij,ij->i", curve_ders(c, t, 0)[:, 0, :2] - a, nrm)
     lens = mid & (npp * f > 0) & (np.abs(npp) < np.abs(f))
     # distance to the arc: Newton on (C - p).C' from the chord's abscissa (or the near end)
     act = np.arange(len(t))
     for _ in range(8):
-        dv = _curve_ders(c, t[act], 2)[:, :, :2]
+        dv = curve_ders(c, t[act], 2)[:, :, :2]
         r = dv[:, 0] - p[act]
         g = np.einsum("ij,ij->i", r, dv[:, 1])
         c11 = np.einsum("ij,ij->i", dv[:, 1], dv[:, 1])
@@ -999,7 +999,7 @@ def _lens(c, ta, tb, a, b, p, size: float, max_iter: int = 60):
         act = act[moved]
         if not len(act):
             break
-    dist = np.linalg.norm(_curve_ders(c, t, 0)[:, 0, :2] - p, axis=1)
+    dist = np.linalg.norm(curve_ders(c, t, 0)[:, 0, :2] - p, axis=1)
     dist = np.minimum(dist, np.minimum(np.linalg.norm(a - p, axis=1), np.linalg.norm(b - p, axis=1)))
     return lens, dist
 
@@ -1094,7 +1094,7 @@ def curve_newton(surf, curve, pts: np.ndarray, t: np.ndarray, closed: bool, eps:
         act = np.nonzero(~done)[0]
         if not len(act):
             break
-        c = _curve_ders(curve, t[act], 2)  # (A, 3, 2): uv, uv', uv''
+        c = curve_ders(curve, t[act], 2)  # (A, 3, 2): uv, uv', uv''
         d = surf.derivatives(np.clip(c[:, 0, 0], u0, u1), np.clip(c[:, 0, 1], v0, v1), order=2)
         up, vp, upp, vpp = c[:, 1, 0], c[:, 1, 1], c[:, 2, 0], c[:, 2, 1]
         su, sv = d[:, 1, 0], d[:, 0, 1]
@@ -1126,7 +1126,7 @@ def _trim_pairs_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cpw_off, 
     for c in range(cdeg.shape[0]):
         pmax = max(pmax, cdeg[c])
         dmax = max(dmax, cdim[c])
-    scratch = _ders2_scratch(p, q)
+    scratch = ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     cndu = np.empty((pmax + 1, pmax + 1))
     cl = np.empty(pmax + 1)
@@ -1148,7 +1148,7 @@ def _trim_pairs_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cpw_off, 
         _tcurve_ders_one(pw, kn, cdeg[c], crat[c], cmaps[c], ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
         uu = min(max(cd[0, 0], u0), u1)
         vv = min(max(cd[0, 1], v0), v1)
-        _ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
+        ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
         dd = 0.0
         rc = 0.0
         cc = 0.0
@@ -1196,7 +1196,7 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     u0, u1, v0, v1 = surf.domain
 
     def on_surface(curve, t, order):
-        c = _curve_ders(curve, t, 2)  # (N, 3, 2): uv, uv', uv''
+        c = curve_ders(curve, t, 2)  # (N, 3, 2): uv, uv', uv''
         uu = np.clip(c[:, 0, 0], u0, u1)
         vv = np.clip(c[:, 0, 1], v0, v1)
         d = surf.derivatives(uu, vv, order=order)

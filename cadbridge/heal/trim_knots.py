@@ -205,7 +205,7 @@ def smooth_short_knots(text: str, shorter: float, filename: str = "<mesh source>
     from cadbridge.iges.entities import Builder, to_2d
     from cadbridge.iges.globals import parse_global
     from cadbridge.iges.lexer import split_sections
-    from cadbridge.iges.writer import _curve_params, _pack
+    from cadbridge.iges.writer import curve_params, pack_lines
 
     secs = split_sections(text, filename)
     g = parse_global(secs.global_, filename)
@@ -241,7 +241,7 @@ def smooth_short_knots(text: str, shorter: float, filename: str = "<mesh source>
         return [p_first + e.param_pointer - 1 + k for k in range(e.param_count)]
 
     def fits(de: int, tokens: list[str]) -> list[str] | None:
-        body = _pack(tokens, 64)
+        body = pack_lines(tokens, 64)
         return body if len(body) <= entries[de].param_count else None
 
     def put(de: int, body: list[str]) -> None:
@@ -252,7 +252,7 @@ def smooth_short_knots(text: str, shorter: float, filename: str = "<mesh source>
 
     def append(curve: NurbsCurve, like: int) -> int:
         de = len(d_lines) + len(new_d) + 1
-        body = _pack(["126"] + _curve_params(curve), 64)
+        body = pack_lines(["126"] + curve_params(curve), 64)
         pptr = len(p_lines) + len(new_p) + 1
         new_p.extend(s.ljust(64) + f" {de:7d}P{pptr + k:7d}" for k, s in enumerate(body))
         e = entries[like]
@@ -265,7 +265,7 @@ def smooth_short_knots(text: str, shorter: float, filename: str = "<mesh source>
     def replace(de: int, parent: int, k: int, curve: NurbsCurve) -> bool:
         """The 126 ``de`` rewritten as ``curve``: in its own lines, or else appended with
         the pointer of ``parent`` (token ``k``) moved to it, where that still fits."""
-        body = fits(de, ["126"] + _curve_params(curve))
+        body = fits(de, ["126"] + curve_params(curve))
         if body is not None:
             put(de, body)
             return True

@@ -30,7 +30,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from cadbridge.nurbs.project import FAILED, _ders2_one, _ders2_scratch, project_to_surface, surface_samples
+from cadbridge.nurbs.newton import ders2_one, ders2_scratch
+from cadbridge.nurbs.project import FAILED, project_to_surface, surface_samples
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["edge_feet", "FAR_REL"]
@@ -63,7 +64,7 @@ def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, 
     pu = u1 - u0
     pv = v1 - v0
     tiny = 1e-300
-    scratch = _ders2_scratch(p, q)
+    scratch = ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     for k in range(len(starts) - 1):
         a0, b0 = starts[k], starts[k + 1]
@@ -90,7 +91,7 @@ def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, 
             f = g = lsu = lsv = 0.0
             act_u = act_v = False
             for it in range(max_iter + 1):
-                _ders2_one(pw, ku, kv, p, q, rational, uu, vv, scratch, der)
+                ders2_one(pw, ku, kv, p, q, rational, uu, vv, scratch, der)
                 rx, ry, rz = der[0, 0, 0] - px, der[0, 0, 1] - py, der[0, 0, 2] - pz
                 sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
                 svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]

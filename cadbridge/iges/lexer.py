@@ -17,7 +17,8 @@ from typing import NamedTuple
 
 from cadbridge.iges.errors import IgesError
 
-__all__ = ["Record", "RecordList", "Sections", "Token", "TokenList", "split_sections", "tokenize", "tokenize_lazy"]
+__all__ = ["NOT_DELIMS", "Record", "RecordList", "Sections", "Token", "TokenList", "new_token", "split_sections", "tokenize",
+           "tokenize_lazy"]
 
 SECTION_ORDER = "SGDPT"
 
@@ -215,8 +216,8 @@ class Token(NamedTuple):
 _HOLLERITH = re.compile(r"\s*(\d+)[Hh]")
 
 
-_new_token = tuple.__new__  # Token(text, line, is_string) without the keyword-argument wrapper
-_NOT_DELIMS = frozenset("Hh0123456789 ")  # delimiters the fast path cannot take (Hollerith syntax)
+new_token = tuple.__new__  # Token(text, line, is_string) without the keyword-argument wrapper
+NOT_DELIMS = frozenset("Hh0123456789 ")  # delimiters the fast path cannot take (Hollerith syntax)
 
 
 class TokenList(Sequence):
@@ -252,11 +253,11 @@ class TokenList(Sequence):
     def __getitem__(self, k):
         if isinstance(k, slice):
             return [self[i] for i in range(*k.indices(len(self.texts)))]
-        return _new_token(Token, (self.texts[k], self.lines[k], False))
+        return new_token(Token, (self.texts[k], self.lines[k], False))
 
     def __iter__(self):
         for text, line in zip(self.texts, self.lines):
-            yield _new_token(Token, (text, line, False))
+            yield new_token(Token, (text, line, False))
 
     def __eq__(self, other) -> bool:
         return list(self) == list(other) if isinstance(other, (list, TokenList)) else NotImplemented
@@ -274,7 +275,7 @@ def _tokenize_plain(text: str, chunks: list[tuple[str, int]], pdelim: str, rdeli
     Returns None (the caller then runs the general scanner, which also produces every
     error) when there is no record delimiter, an ``H`` before it (a possible string), too
     many tokens or chunks of unequal width."""
-    if pdelim in _NOT_DELIMS or rdelim in _NOT_DELIMS:
+    if pdelim in NOT_DELIMS or rdelim in NOT_DELIMS:
         return None
     j_r = text.find(rdelim)
     if j_r < 0:

@@ -8,7 +8,7 @@ import numpy as np
 
 from cadbridge.iges.directory import DirectoryEntry
 from cadbridge.iges.errors import IgesError
-from cadbridge.iges.lexer import _NOT_DELIMS, Record, RecordList, Token, TokenList, _new_token, tokenize_lazy
+from cadbridge.iges.lexer import NOT_DELIMS, Record, RecordList, Token, TokenList, new_token, tokenize_lazy
 from cadbridge.iges.values import MAX_TOKEN, parse_int_text, parse_real, parse_real_text
 
 __all__ = ["Params", "read_params", "prepare_params", "FastTokens"]
@@ -279,11 +279,11 @@ class FastTokens(Sequence):
     def __getitem__(self, k):
         if isinstance(k, slice):
             return [self[i] for i in range(*k.indices(self.n))]
-        return _new_token(Token, (self.texts[k], self.lines[k], False))
+        return new_token(Token, (self.texts[k], self.lines[k], False))
 
     def __iter__(self):
         for text, line in zip(self.texts, self.lines):
-            yield _new_token(Token, (text, line, False))
+            yield new_token(Token, (text, line, False))
 
     def __eq__(self, other) -> bool:
         return list(self) == list(other) if isinstance(other, (list, TokenList, FastTokens)) else NotImplemented
@@ -305,7 +305,7 @@ def prepare_params(entries: dict[int, DirectoryEntry], precs: list[Record], pdel
         return
     if isinstance(precs.derived, _PSection) and precs.derived.n == len(precs) and precs.derived.fast is not None:
         return
-    if (len(pdelim) != 1 or len(rdelim) != 1 or pdelim in _NOT_DELIMS or rdelim in _NOT_DELIMS
+    if (len(pdelim) != 1 or len(rdelim) != 1 or pdelim in NOT_DELIMS or rdelim in NOT_DELIMS
             or not (32 < ord(pdelim) < 127 and 32 < ord(rdelim) < 127) or pdelim == rdelim):
         return
     raw = "".join([r.text for r in precs])
@@ -398,7 +398,7 @@ def _read_params_bulk(entry: DirectoryEntry, precs: RecordList, pdelim: str, rde
         b += 1
     if b < bulk.n and back[b] == -2:
         return None
-    if pdelim in _NOT_DELIMS or rdelim in _NOT_DELIMS:
+    if pdelim in NOT_DELIMS or rdelim in NOT_DELIMS:
         return None
     j_r = bulk.body.find(rdelim, 64 * a, 64 * b)
     if j_r < 0:

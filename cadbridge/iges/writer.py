@@ -27,7 +27,7 @@ from cadbridge.cad.model import Face, Model, Units
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
-__all__ = ["write_iges", "iges_text", "bezier_iges_text", "format_real", "TRIM_REL_TOL"]
+__all__ = ["write_iges", "iges_text", "bezier_iges_text", "format_real", "curve_params", "pack_lines", "TRIM_REL_TOL"]
 
 TRIM_REL_TOL = 1e-10  # non-NURBS trim curves: cubic deviation / (u, v) domain diagonal
 
@@ -99,7 +99,7 @@ def _surface_params(s: NurbsSurface) -> list[str]:
     return out
 
 
-def _curve_params(c: NurbsCurve) -> list[str]:
+def curve_params(c: NurbsCurve) -> list[str]:
     n = len(c.control_points)
     cp = c.control_points
     planar = c.dim == 2
@@ -112,7 +112,7 @@ def _curve_params(c: NurbsCurve) -> list[str]:
 
 
 def _curve_entity(f: _File, pieces: list[NurbsCurve], status: str) -> int:
-    des = [f.add(_Entity(126, _curve_params(c), form=0, status=status)) for c in pieces]
+    des = [f.add(_Entity(126, curve_params(c), form=0, status=status)) for c in pieces]
     if len(des) == 1:
         return des[0]
     return f.add(_Entity(102, [str(len(des))] + [str(d) for d in des], status=status))
@@ -163,7 +163,7 @@ def _as_2d(c, surface: NurbsSurface) -> NurbsCurve:
     return NurbsCurve(c.degree, c.knots, c.control_points[:, :2], c.weights, c.domain)
 
 
-def _pack(tokens: list[str], width: int) -> list[str]:
+def pack_lines(tokens: list[str], width: int) -> list[str]:
     """Free-format lines of at most ``width`` characters; only strings are split across lines.
 
     Greedy: a line takes whole tokens, each with its delimiter, while they fit. Where no token
@@ -210,7 +210,7 @@ def _global(model: Model | None, units: Units, author: str | None, filename: str
          format_real(max_coord), _hollerith(author or (model.author if model and model.author else "") or ""),
          _hollerith(model.organization if model and model.organization else ""), "11", "0", _hollerith(now)]
     g = [x if x != "0H" else "" for x in g]
-    return _pack(g, 72)
+    return pack_lines(g, 72)
 
 
 def _check_labels(labels, n: int):
@@ -278,7 +278,7 @@ def _file_text(f: _File, description: str, gl: list[str]) -> str:
     plines: list[str] = []
     dlines: list[str] = []
     for e in f.entities:
-        body = _pack([str(e.etype)] + e.params, 64)
+        body = pack_lines([str(e.etype)] + e.params, 64)
         pptr = len(plines) + 1
         tail = f" {e.de:7d}P"
         plines += [s.ljust(64) + tail + f"{pptr + k:7d}" for k, s in enumerate(body)]

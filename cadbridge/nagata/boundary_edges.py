@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 from cadbridge.nagata.edge import edge_coefficient, edge_coefficient_conormal
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.mesh.topology import edge_table
-from cadbridge.cad.trims import _curve_ders, curve_newton
+from cadbridge.cad.trims import curve_ders, curve_newton
 
 MAX_TANGENT_DEG = 45.0
 """An end tangent further than this from the chord: the edge does not follow the curve."""
@@ -80,13 +80,13 @@ def _curve_feet(surf, curve: NurbsCurve, pts: NDArray, size: float, samples: int
     Start at the nearest of ``samples`` points per knot span, then `cadbridge.cad.trims.curve_newton`."""
     u0, u1, v0, v1 = surf.domain
     ts = curve.sample_parameters(samples)
-    c = _curve_ders(curve, ts, 0)[:, 0]
+    c = curve_ders(curve, ts, 0)[:, 0]
     xs = surf.evaluate(np.clip(c[:, 0], u0, u1), np.clip(c[:, 1], v0, v1))
     _, k = cKDTree(xs).query(pts)
     t = np.ascontiguousarray(ts[np.asarray(k)], dtype=float)
     closed = float(np.linalg.norm(xs[0] - xs[-1])) <= 1e-9 * size
     curve_newton(surf, curve, pts, t, closed, 1e-12 * size)
-    c = _curve_ders(curve, t, 0)[:, 0]
+    c = curve_ders(curve, t, 0)[:, 0]
     x = surf.evaluate(np.clip(c[:, 0], u0, u1), np.clip(c[:, 1], v0, v1))
     return np.linalg.norm(x - pts, axis=1), t
 
@@ -95,7 +95,7 @@ def _curve_tangent(surf, curve: NurbsCurve, t: NDArray) -> NDArray:
     """(M, 3) tangent ``C'(t) = Su u' + Sv v'`` of ``S(curve(t))``."""
     u0, u1, v0, v1 = surf.domain
     t0, t1 = curve.domain
-    c = _curve_ders(curve, np.clip(t, t0, t1), 1)  # (M, 2, 2): uv, uv'
+    c = curve_ders(curve, np.clip(t, t0, t1), 1)  # (M, 2, 2): uv, uv'
     d = surf.derivatives(np.clip(c[:, 0, 0], u0, u1), np.clip(c[:, 0, 1], v0, v1), order=1)
     return d[:, 1, 0] * c[:, 1, 0:1] + d[:, 0, 1] * c[:, 1, 1:2]
 

@@ -305,6 +305,139 @@ class _MeshTopology(threading.Thread):
         return self._out
 
 
+def _project_with_topology(mesh: Mesh, model: Model, nodes: np.ndarray, tol: float, orient: bool
+                           ) -> tuple[Projection, tuple]:
+    """The nodes (N, 3) projected onto the model (`project_points`, max_distance ``tol``) while
+    `_MeshTopology` runs on a second thread (compiled kernels that release the GIL; it needs
+    only the node coordinates). Returns (projection, `_MeshTopology.result()`). The mesh's
+    errors come first, as when the topology ran before the projection."""
+    topo = _MeshTopology(mesh, nodes, orient)
+    topo.start()
+    try:
+        proj = project_points(nodes, model, max_distance=tol)
+    except BaseException:
+        topo.join()
+        topo.result()  # the mesh's error first, as before
+        raise
+    topo.join()
+    return proj, topo.result()
+
+
+def _warn_non_manifold(nm) -> None:
+    """`MeshWarning` naming the first non-manifold edge of report ``nm`` (if any), at the caller
+    of `cad_normals`."""
+    if nm:
+        (a, b), el = nm.edges[0].tolist(), nm.elements[0].tolist()
+        more = f" (and {len(nm) - 1} more)" if len(nm) > 1 else ""
+        warnings.warn(
+            f"non-manifold edge between nodes {a} and {b}: shared by elements {el}{more}; every corner "
+            f"there takes its own element's face normal",
+            MeshWarning,
+            stacklevel=3,
+        )
+
+
+def _check_far(nodes: np.ndarray, proj: Projection, status: np.ndarray, tol: float) -> None:
+    """`ProjectionError` naming (up to 10 of) the nodes (N, 3) beyond tolerance or failed."""
+    far = np.flatnonzero((status == BEYOND_TOLERANCE) | (status == FAILED))
+    if not len(far):
+        return
+    worst = far[np.argsort(-np.nan_to_num(proj.distance[far], nan=np.inf))][:10]
+    lines = ", ".join(
+        f"node {i} at ({nodes[i, 0]:.6g}, {nodes[i, 1]:.6g}, {nodes[i, 2]:.6g}) "
+        + (f"distance {proj.distance[i]:.6g}" if status[i] != FAILED else
+           f"projection failed (face {int(proj.face[i])})" if proj.face[i] >= 0 else "projection failed")
+        for i in worst
+    )
+    raise ProjectionError(
+        f"{len(far)} of {len(nodes)} mesh nodes are further than {tol:.3g} from the CAD "
+        f"(or could not be projected): {lines}",
+        far,
+        proj.distance[far],
+    )
+
+
+@dataclass
+class _Corners:
+    """What the corner-normal stages of `cad_normals` share, for N nodes."""
+
+    model: Model
+    nodes: np.ndarray  # (N, 3) node coordinates
+    node_face: np.ndarray  # (N,) face of each node's foot point
+    node_n: np.ndarray  # (N, 3) oriented unit node normals
+    sign: float  # -1.0 with ``flip``, else 1.0
+    cos_crease: float  # cosine of the crease angle
+    kink_u: np.ndarray  # (N,) bool: the foot lies on a C0 knot line u = const of its face
+    kink_v: np.ndarray  # (N,) bool: ... v = const
+    knot_u: np.ndarray  # (N,) foot parameters, snapped onto such a knot line
+    knot_v: np.ndarray
+    nm_node: np.ndarray  # (N,) bool: node on a non-manifold edge
+    crease: np.ndarray  # (N,) bool, set by the stages: node with several corner normals
+
+
+def _corners_on_other_faces(cx: _Corners, c: np.ndarray, ef: np.ndarray, en: np.ndarray, cn: np.ndarray) -> None:
+    """Corners whose element lies on another face than the node's foot point take that face's
+    normal at the node where it differs by more than the crease angle. c (E, k) node ids, ef
+    (E,) element faces, en (E, 3) element normals; cn (E, k, 3) corner normals, updated."""
+    other = (ef[:, None] != cx.node_face[c]) & (ef[:, None] >= 0)
+    if np.any(other):
+        ei, ki = np.nonzero(other)
+        nid = c[ei, ki]
+        fids = ef[ei]
+        # all (corner, element face) pairs in one compiled pass (`project_to_surfaces`)
+        nrm = project_to_surfaces(index_for(cx.model).surface_pack(cx.model), fids, cx.nodes[nid]).normal
+        nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * cx.sign
+        sharp = np.einsum("ij,ij->i", nrm, cx.node_n[nid]) < cx.cos_crease
+        cn[ei[sharp], ki[sharp]] = nrm[sharp]
+        cx.crease[nid[sharp]] = True
+
+
+def _corners_on_knot_lines(cx: _Corners, c: np.ndarray, ef: np.ndarray, uc: np.ndarray, vc: np.ndarray,
+                           en: np.ndarray, cn: np.ndarray) -> None:
+    """Corners at nodes on a C0 knot line inside their own face (a crease within one NURBS
+    surface) take the one-sided normal from the element's side of the knot (uc, vc (E,): the
+    element centroids' parameters); arguments otherwise as `_corners_on_other_faces`."""
+    kink = (cx.kink_u[c] | cx.kink_v[c]) & (ef[:, None] == cx.node_face[c])
+    if np.any(kink):
+        ei, ki = np.nonzero(kink)
+        nid = c[ei, ki]
+        side_u = np.where(uc[ei] >= cx.knot_u[nid], 1, -1)
+        side_v = np.where(vc[ei] >= cx.knot_v[nid], 1, -1)
+        nrm = np.empty((len(nid), 3))
+        fids = ef[ei]
+        for f in np.unique(fids):  # loop over faces, vectorised over corners
+            sel = fids == f
+            nrm[sel] = cx.model.faces[f].surface.normal(cx.knot_u[nid[sel]], cx.knot_v[nid[sel]],
+                                                        side_u=side_u[sel], side_v=side_v[sel])
+        nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * cx.sign
+        sharp = np.einsum("ij,ij->i", nrm, cx.node_n[nid]) < cx.cos_crease
+        cn[ei[sharp], ki[sharp]] = nrm[sharp]
+        cx.crease[nid[sharp]] = True
+
+
+def _corners_at_non_manifold(cx: _Corners, c: np.ndarray, en: np.ndarray, cn: np.ndarray) -> None:
+    """At non-manifold nodes the elements of one face may be wound either way (a fin on both
+    sides of a plate): each corner follows its own element's winding."""
+    at = cx.nm_node[c]
+    turn = at & (cx.sign * np.einsum("ekj,ej->ek", cn, en) < 0)
+    cn[turn] = -cn[turn]
+    cx.crease[c[turn]] = True
+
+
+def _corners_with_their_element(cx: _Corners, c: np.ndarray, en: np.ndarray, cn: np.ndarray) -> None:
+    """A corner normal against its own element's winding, where most corners of that element
+    agree, follows its element: its node's sign, from the summed windings around it, is
+    ill-determined where those cancel (the apex node of SolidEdge face 0, DE 101) or belongs
+    to another sheet (a knife edge, two faces at 180 degrees). Elements against all their
+    corners are left as they are: a mesh that folds over itself, which the pipeline's guard
+    reports."""
+    agree = cx.sign * np.einsum("ekj,ej->ek", cn, en) >= 0
+    minority = ~agree & (2 * agree.sum(axis=1) > c.shape[1])[:, None]
+    if np.any(minority):
+        cn[minority] = -cn[minority]
+        cx.crease[c[minority]] = True
+
+
 def cad_normals(
     mesh: Mesh,
     model: Model,
@@ -339,45 +472,11 @@ def cad_normals(
     size = model.size()
     tol = 1e-4 * size if tolerance is None else float(tolerance)
 
-    # the mesh-only work (edge table, orientation, element normals and their sums around the
-    # nodes: compiled kernels that release the GIL) runs on a second thread while this one
-    # projects the nodes, which need only the node coordinates. Its errors come first, as
-    # when it ran before the projection.
-    topo = _MeshTopology(mesh, nodes, orient)
-    topo.start()
-    try:
-        proj = project_points(nodes, model, max_distance=tol)
-    except BaseException:
-        topo.join()
-        topo.result()  # the mesh's error first, as before
-        raise
-    topo.join()
-    mesh, flipped, nm, blocks, elem_normals, acc = topo.result()
-    if nm:
-        (a, b), el = nm.edges[0].tolist(), nm.elements[0].tolist()
-        more = f" (and {len(nm) - 1} more)" if len(nm) > 1 else ""
-        warnings.warn(
-            f"non-manifold edge between nodes {a} and {b}: shared by elements {el}{more}; every corner "
-            f"there takes its own element's face normal",
-            MeshWarning,
-            stacklevel=2,
-        )
+    proj, (mesh, flipped, nm, blocks, elem_normals, acc) = _project_with_topology(mesh, model, nodes, tol, orient)
+    _warn_non_manifold(nm)
     status = np.asarray(proj.status).copy()
-    far = np.flatnonzero((status == BEYOND_TOLERANCE) | (status == FAILED))
-    if len(far) and not allow_far:
-        worst = far[np.argsort(-np.nan_to_num(proj.distance[far], nan=np.inf))][:10]
-        lines = ", ".join(
-            f"node {i} at ({nodes[i, 0]:.6g}, {nodes[i, 1]:.6g}, {nodes[i, 2]:.6g}) "
-            + (f"distance {proj.distance[i]:.6g}" if status[i] != FAILED else
-               f"projection failed (face {int(proj.face[i])})" if proj.face[i] >= 0 else "projection failed")
-            for i in worst
-        )
-        raise ProjectionError(
-            f"{len(far)} of {len(nodes)} mesh nodes are further than {tol:.3g} from the CAD "
-            f"(or could not be projected): {lines}",
-            far,
-            proj.distance[far],
-        )
+    if not allow_far:
+        _check_far(nodes, proj, status, tol)
 
     node_n = np.array(proj.normal, dtype=float)
     sign = -1.0 if flip else 1.0
@@ -395,10 +494,10 @@ def cad_normals(
 
     nm_node = np.zeros(len(nodes), dtype=bool)
     nm_node[nm.edges.ravel()] = True
+    cx = _Corners(model, nodes, proj.face, node_n, sign, np.cos(np.radians(crease_angle)), kink_u, kink_v, knot_u,
+                  knot_v, nm_node, np.zeros(len(nodes), dtype=bool))
     corner_normals: list[np.ndarray] = []
     element_face: list[np.ndarray] = []
-    crease = np.zeros(len(nodes), dtype=bool)
-    cos_crease = np.cos(np.radians(crease_angle))
     offset = 0
     for c, en in zip(blocks, elem_normals):
         ef = elem_face_all[offset : offset + len(c)]
@@ -406,54 +505,11 @@ def cad_normals(
         offset += len(c)
         element_face.append(ef)
         cn = node_n[c]  # (E, k, 3): fancy indexing gives a fresh array (no second copy)
-        # corners whose element lies on another face than the node's foot point
-        other = (ef[:, None] != proj.face[c]) & (ef[:, None] >= 0)
-        if np.any(other):
-            ei, ki = np.nonzero(other)
-            nid = c[ei, ki]
-            fids = ef[ei]
-            # all (corner, element face) pairs in one compiled pass (`project_to_surfaces`)
-            nrm = project_to_surfaces(index_for(model).surface_pack(model), fids, nodes[nid]).normal
-            nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * sign
-            sharp = np.einsum("ij,ij->i", nrm, node_n[nid]) < cos_crease
-            cn[ei[sharp], ki[sharp]] = nrm[sharp]
-            crease[nid[sharp]] = True
-        # corners at nodes on a C0 knot line inside their own face (a crease within one NURBS
-        # surface): the one-sided normal from the element's side of the knot
-        kink = (kink_u[c] | kink_v[c]) & (ef[:, None] == proj.face[c])
-        if np.any(kink):
-            ei, ki = np.nonzero(kink)
-            nid = c[ei, ki]
-            side_u = np.where(uc[ei] >= knot_u[nid], 1, -1)
-            side_v = np.where(vc[ei] >= knot_v[nid], 1, -1)
-            nrm = np.empty((len(nid), 3))
-            fids = ef[ei]
-            for f in np.unique(fids):  # loop over faces, vectorised over corners
-                sel = fids == f
-                nrm[sel] = model.faces[f].surface.normal(knot_u[nid[sel]], knot_v[nid[sel]],
-                                                         side_u=side_u[sel], side_v=side_v[sel])
-            nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * sign
-            sharp = np.einsum("ij,ij->i", nrm, node_n[nid]) < cos_crease
-            cn[ei[sharp], ki[sharp]] = nrm[sharp]
-            crease[nid[sharp]] = True
+        _corners_on_other_faces(cx, c, ef, en, cn)
+        _corners_on_knot_lines(cx, c, ef, uc, vc, en, cn)
         if len(nm):
-            # at non-manifold nodes the elements of one face may be wound either way (a fin on
-            # both sides of a plate): each corner follows its own element's winding
-            at = nm_node[c]
-            turn = at & (sign * np.einsum("ekj,ej->ek", cn, en) < 0)
-            cn[turn] = -cn[turn]
-            crease[c[turn]] = True
-        # a corner normal against its own element's winding, where most corners of that
-        # element agree, follows its element: its node's sign, from the summed windings
-        # around it, is ill-determined where those cancel (the apex node of SolidEdge face 0,
-        # DE 101) or belongs to another sheet (a knife edge, two faces at 180 degrees).
-        # Elements against all their corners are left as they are: a mesh that folds over
-        # itself, which the pipeline's guard reports.
-        agree = sign * np.einsum("ekj,ej->ek", cn, en) >= 0
-        minority = ~agree & (2 * agree.sum(axis=1) > c.shape[1])[:, None]
-        if np.any(minority):
-            cn[minority] = -cn[minority]
-            crease[c[minority]] = True
+            _corners_at_non_manifold(cx, c, en, cn)
+        _corners_with_their_element(cx, c, en, cn)
         corner_normals.append(cn)
 
     # every corner at a crease node takes its own element's face normal, including the
@@ -466,7 +522,7 @@ def cad_normals(
         v=np.asarray(proj.v),
         distance=np.asarray(proj.distance),
         status=status,
-        crease=crease,
+        crease=cx.crease,
         element_face=element_face,
         projection=proj,
         mesh=mesh,

@@ -48,8 +48,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from cadbridge.nurbs.basis import ders_basis_funs, ders_basis_one, find_span, find_span_one, validate_knots
-from cadbridge.nurbs.project import _newton_range
-from cadbridge.nurbs.surface import NurbsSurface, _d01_range
+from cadbridge.nurbs.newton import newton_range
+from cadbridge.nurbs.surface import NurbsSurface, d01_range
 
 __all__ = [
     "FitError",
@@ -390,7 +390,7 @@ _CORRECT_BLOCK = 2048  # points per task of the parallel correction kernel
 @numba.njit(cache=True, error_model="numpy")
 def _residual_at(der, k, px, py, pz):  # pragma: no cover - compiled
     """(|x - S|, (x - S) . unit Su x Sv, or the distance where the normal is undefined) from
-    der[k] = (S, Sv; Su, Suv) of `_d01_range`."""
+    der[k] = (S, Sv; Su, Suv) of `d01_range`."""
     rx, ry, rz = px - der[k, 0, 0, 0], py - der[k, 0, 0, 1], pz - der[k, 0, 0, 2]
     d = np.sqrt(rx * rx + ry * ry + rz * rz)
     sux, suy, suz = der[k, 1, 0, 0], der[k, 1, 0, 1], der[k, 1, 0, 2]
@@ -409,7 +409,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
     """Parameter correction and residuals in one pass over the points (`reproject`).
 
     Point t with movable[t] and |x_t - S(u_t, v_t)| <= near (near < 0: no correction) gets, with
-    steps = 0, the projected Newton iterations of `cadbridge.nurbs.project` (`_newton_range`, the
+    steps = 0, the projected Newton iterations of `cadbridge.nurbs.project` (`nurbs.newton.newton_range`, the
     kernel of `project_to_surface`) from its (u_t, v_t), and the new foot is taken (moved[t] =
     True) if it passes that module's orthogonality check and is not farther than the old one;
     with steps > 0, that many Gauss-Newton steps of Hoschek's parameter correction (Hoschek 1988;
@@ -418,7 +418,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
     foot with
     edge flags (bits 1, 2, 4, 8: u = u0, u1, v = v0, v1) is put back on its edge. Then
     dist[t] = |x - S|, signed[t] = (x - S) . Su x Sv / |Su x Sv| (dist where the normal is
-    undefined), S and its first derivatives by `NurbsSurface.derivatives`' kernel (`_d01_range`)."""
+    undefined), S and its first derivatives by `NurbsSurface.derivatives`' kernel (`d01_range`)."""
     n = pts.shape[0]
     nblk = (n + _CORRECT_BLOCK - 1) // _CORRECT_BLOCK
     for blk in numba.prange(nblk):
@@ -426,12 +426,12 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
         b = min(n, a + _CORRECT_BLOCK)
         m = b - a
         der = np.empty((m, 2, 2, 3))
-        _d01_range(pw, ku, kv, p, q, 1, rational, u[a:b], v[a:b], der, 0, m)
+        d01_range(pw, ku, kv, p, q, 1, rational, u[a:b], v[a:b], der, 0, m)
         for k in range(m):
             dist[a + k], signed[a + k] = _residual_at(der, k, pts[a + k, 0], pts[a + k, 1], pts[a + k, 2])
         if near < 0.0:
             continue
-        # the block's points to correct, gathered for one `_newton_range` call
+        # the block's points to correct, gathered for one `newton_range` call
         idx = np.empty(m, dtype=np.int64)
         pb = np.empty((m, 3))
         eb = np.empty(m)
@@ -453,8 +453,8 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
         if c == 0:
             continue
         if steps == 0:
-            _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, False, False, eps1, eps2, pb, eb, ub, vb,
-                          itb, max_iter, 0, c, ub, vb, -1.0, -1.0, same)
+            newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, False, False, eps1, eps2, pb, eb, ub, vb,
+                         itb, max_iter, 0, c, ub, vb, -1.0, -1.0, same)
         else:
             for _ in range(steps):
                 for k in range(c):
@@ -482,9 +482,9 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
                             dv = (ee * fv - ff * fu) / det
                     ub[k] = min(max(ub[k] + du, u0), u1)
                     vb[k] = min(max(vb[k] + dv, v0), v1)
-                _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
+                d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
         if steps == 0:
-            _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
+            d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, c)
         clamped = 0
         for k in range(c):
             t = idx[k]
@@ -516,7 +516,7 @@ def _correct_kernel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, eps1, eps2, pts,
             else:
                 dist[t], signed[t] = _residual_at(der, k, pb[k, 0], pb[k, 1], pb[k, 2])
         if clamped:
-            _d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, clamped)
+            d01_range(pw, ku, kv, p, q, 1, rational, ub, vb, der, 0, clamped)
             for k in range(clamped):
                 t = idx[k]
                 dist[t], signed[t] = _residual_at(der, k, pts[t, 0], pts[t, 1], pts[t, 2])
@@ -716,6 +716,428 @@ def _variation(cell, bins, r, n_cells) -> np.ndarray:
     return np.where(ok.sum(axis=1) >= 3, var, np.inf)
 
 
+@dataclass
+class _FitRun:
+    """What the stages of one `fit_surface` call share: the points, the options, and the state
+    kept across solves. N points; lengths in model units."""
+
+    x: np.ndarray  # (N, 3) points
+    pw_user: np.ndarray  # (N,) point weights >= 0
+    p: int  # degrees
+    q: int
+    base: NurbsSurface | None  # the rational base on the fit's domain; knots inserted as the fit refines
+    tolerance: float
+    smoothing: float
+    robust: str | None
+    correct_parameters: bool
+    refine: bool
+    rational_base: NurbsSurface | None  # as given (the subset fit starts from it again)
+    max_ctrl: tuple[int, int]
+    max_levels: int
+    robust_iterations: int
+    max_points_per_level: int
+    project_final: bool
+    progress: object
+    sigma: float  # noise sigma of the data
+    u0_par: np.ndarray  # (N,) start parameters, clipped into the domain
+    v0_par: np.ndarray
+    edge: np.ndarray  # (N,) uint8 domain-edge flags of the start parameters (1, 2, 4, 8: u0, u1, v0, v1)
+    first_surf: NurbsSurface | None = None  # the first fit: scales the (u, v) of the neighbour search
+    nbr: np.ndarray | None = None  # (N, k) nearest neighbours of each point, on first use
+    weighted: bool = False  # robust weights exist: points may get corrected parameters
+    done: bool = False  # the final reweighting ran on the current net
+
+    @property
+    def n(self) -> int:
+        return len(self.x)
+
+    @property
+    def noisy(self) -> bool:
+        return self.sigma > 0.05 * self.tolerance
+
+    @property
+    def near(self) -> float:
+        """Parameters are corrected only on a fit this close (model units)."""
+        return 10.0 * self.tolerance + 5.0 * self.sigma
+
+    def stage(self, text: str) -> None:
+        report = getattr(self.progress, "stage", None)
+        if report:
+            report(text)
+
+
+def _check_inputs(points, u, v, tolerance: float, smoothing: float, point_weights
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Validated copies: points (N, 3), u, v (N,), point weights (N,); FitError otherwise."""
+    x = np.asarray(points, dtype=float)
+    if x.ndim != 2 or x.shape[1] != 3:
+        raise FitError(f"points must have shape (N, 3), got {x.shape}")
+    u = np.array(u, dtype=float).ravel()
+    v = np.array(v, dtype=float).ravel()
+    n = len(x)
+    if len(u) != n or len(v) != n:
+        raise FitError(f"{n} points but {len(u)} u and {len(v)} v parameters")
+    bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(u) & np.isfinite(v))
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise FitError(f"{int(bad.sum())} points or parameters are not finite (first: point {k}, 0-based)")
+    if not tolerance > 0:
+        raise FitError(f"tolerance must be > 0, got {tolerance}")
+    if smoothing < 0:
+        raise FitError(f"smoothing must be >= 0, got {smoothing}")
+    pw_user = np.ones(n) if point_weights is None else np.asarray(point_weights, dtype=float).ravel()
+    if pw_user.shape != (n,) or not np.all(np.isfinite(pw_user)) or np.any(pw_user < 0):
+        raise FitError("point_weights must be (N,) finite and >= 0")
+    return x, u, v, pw_user
+
+
+def _start_net(n: int, u: np.ndarray, v: np.ndarray, degree: tuple[int, int], knots, initial_spans,
+               max_ctrl: tuple[int, int], rational_base: NurbsSurface | None, domain
+               ) -> tuple[int, int, NurbsSurface | None, np.ndarray, np.ndarray, tuple]:
+    """Degrees, rational base (restricted to ``domain``; None for a polynomial fit), start knot
+    vectors and domain (u0, u1, v0, v1) of a fit of n points with parameters u, v (N,)."""
+    if rational_base is not None:
+        p, q = rational_base.degree_u, rational_base.degree_v
+        from cadbridge.nurbs.edits import restrict_surface
+
+        base = restrict_surface(rational_base, domain) if domain is not None else restrict_surface(rational_base)
+        ku, kv = base.knots_u.copy(), base.knots_v.copy()
+        dom = (ku[p], ku[-p - 1], kv[q], kv[-q - 1])
+    else:
+        p, q = (int(degree[0]), int(degree[1]))
+        base = None
+        if domain is None:
+            span_u, span_v = float(np.ptp(u)), float(np.ptp(v))
+            if not (span_u > 0 and span_v > 0):
+                raise FitError("the point parameters span no area (all points on one iso-line of the base): "
+                               "are the points collinear?")
+            dom = (float(u.min()), float(u.max()), float(v.min()), float(v.max()))
+        else:
+            dom = tuple(float(t) for t in domain)
+        if knots is not None:
+            ku, kv = (np.asarray(k, dtype=float) for k in knots)
+        else:
+            lu_, lv_ = dom[1] - dom[0], dom[3] - dom[2]
+            if initial_spans is None:
+                s = 4
+                initial_spans = (max(1, round(s * lu_ / max(lu_, lv_))), max(1, round(s * lv_ / max(lu_, lv_))))
+            ku = uniform_knots(p, int(initial_spans[0]), dom[0], dom[1])
+            kv = uniform_knots(q, int(initial_spans[1]), dom[2], dom[3])
+    validate_knots(ku, p, len(ku) - p - 1, "knots_u")
+    validate_knots(kv, q, len(kv) - q - 1, "knots_v")
+    dom = (ku[p], ku[-p - 1], kv[q], kv[-q - 1])
+    nu, nv = len(ku) - p - 1, len(kv) - q - 1
+    if n < nu * nv:
+        raise FitError(f"{n} points are fewer than the {nu}x{nv} = {nu * nv} control points of the start net")
+    if nu > max_ctrl[0] or nv > max_ctrl[1]:
+        raise FitError(f"the start net {nu}x{nv} exceeds the control net limit {max_ctrl[0]}x{max_ctrl[1]}")
+    return p, q, base, ku, kv, dom
+
+
+def _correct_on(run: _FitRun, surf: NurbsSurface, u: np.ndarray, v: np.ndarray, movable: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Foot parameters, distances and signed distances (each (N,)) of all points on surf (one
+    compiled pass, `_correct`: `CORRECTION_STEPS` Gauss-Newton steps of Hoschek's correction).
+    Only points within ``run.near`` of the fit (and ``movable``, (N,) bool) get corrected
+    parameters: on a coarse fit that cuts a corner, projection would slide the points along it
+    and spoil a good base parametrisation. Points on the domain's edge stay on it (else they
+    slide inward and the fit's edge floats past the data: 0.006 mm at the end of an FE-node die
+    strip)."""
+    if not run.correct_parameters:
+        return (u, v) + _residuals(surf, run.x, u, v)
+    return _correct(surf, run.x, u, v, near=run.near, movable=movable, edge=run.edge, steps=CORRECTION_STEPS)
+
+
+def _contrast(run: _FitRun, r: np.ndarray) -> np.ndarray:
+    """Residuals r (N,) less the median of each point's 8 nearest neighbours' on the surface.
+
+    The residual a point is judged by: an isolated outlier stands out, a region the fit does
+    not follow yet (a radius on a coarse net) does not, and is refined instead of rejected.
+    Neighbours in (u, v) scaled by the mean |S_u|, |S_v| of the first fit (lengths)."""
+    if run.nbr is None:
+        gu, gv = run.first_surf.grid(12, 12)
+        der = run.first_surf.derivatives(gu, gv, order=1)
+        su = float(np.mean(np.linalg.norm(der[:, 1, 0], axis=1))) or 1.0
+        sv = float(np.mean(np.linalg.norm(der[:, 0, 1], axis=1))) or 1.0
+        run.stage(f"neighbours of {run.n} points")
+        run.nbr = nearest_neighbours(np.column_stack([run.u0_par * su, run.v0_par * sv]), min(8, run.n - 1))
+    nbr = run.nbr
+    if not nbr.shape[1]:
+        return r
+    out = np.empty(run.n)
+    _median_contrast(np.ascontiguousarray(r, dtype=float), nbr, out)
+    return out
+
+
+def _final_projection(run: _FitRun, surf: NurbsSurface, u: np.ndarray, v: np.ndarray, dist: np.ndarray,
+                      signed: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every point projected onto the final fit for the reported deviations: the point
+    inversion of `cadbridge.nurbs.project` (its Newton kernel and orthogonality check, as
+    `project_to_surface` from given start parameters) from its parameters, tol 1e-12, in one
+    compiled pass (`reproject`). Returns (u, v, dist, signed), each (N,); unchanged inputs when
+    ``run.project_final`` is False."""
+    if not run.project_final:
+        return u, v, dist, signed
+    run.stage(f"projecting all {run.n} points onto the fit")
+    return reproject(surf, run.x, u, v, tol=1e-12, max_iter=30)[:4]
+
+
+def _solve(run: _FitRun, ku: np.ndarray, kv: np.ndarray, rob_w: np.ndarray, u: np.ndarray, v: np.ndarray,
+           text: str, correct_now: bool = True
+           ) -> tuple[NurbsSurface, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The control points on knots (ku, kv) for the points at parameters u, v (N,) with weights
+    point weight x rob_w (N,), then the parameter correction on the new fit (`_correct_on`;
+    without correct_now only the residuals). Returns (surface, u, v, dist, signed)."""
+    p, q = run.p, run.q
+    nu, nv = len(ku) - p - 1, len(kv) - q - 1
+    gram = bending_matrix(ku, p, kv, q) if run.smoothing > 0 else None
+    cw = run.base.weights if run.base is not None else None
+    run.stage(f"{nu}x{nv} control points: {text}")
+    cp = solve_control_points(u, v, run.x, run.pw_user * rob_w, ku, p, kv, q, ctrl_weights=cw,
+                              smoothing=run.smoothing, gram=gram)
+    surf = NurbsSurface(p, q, ku, kv, cp, cw if run.base is not None else None)
+    if run.first_surf is None:
+        run.first_surf = surf
+    if not correct_now:
+        return (surf, u, v) + _residuals(surf, run.x, u, v)
+    # a point the reweighting distrusts keeps its parameters: an outlier that slid onto the
+    # bump it pulled would look like an inlier and keep the bump (no correction before the
+    # first weights exist, for the same reason)
+    if run.robust is not None and not run.weighted:
+        run.weighted = True
+        return (surf,) + _correct_on(run, surf, u, v, np.zeros(run.n, dtype=bool))
+    return (surf,) + _correct_on(run, surf, u, v, None if run.robust is None else rob_w >= 0.5)
+
+
+def _finish_robust(run: _FitRun, ku: np.ndarray, kv: np.ndarray, rob_w: np.ndarray, u: np.ndarray, v: np.ndarray,
+                   surf: NurbsSurface, dist: np.ndarray, signed: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, NurbsSurface, np.ndarray, np.ndarray]:
+    """IRLS on the final net: Huber until the weights settle, then Tukey (module doc). Returns
+    (rob_w, u, v, surface, dist, signed), arrays (N,)."""
+    kinds = ["huber"] * run.robust_iterations + (["tukey"] * run.robust_iterations if run.robust == "tukey" else [])
+    phase = None
+    for it, kind in enumerate(kinds):
+        if kind != phase:
+            phase, settled = kind, False
+        elif settled:
+            continue
+        new_w = _robust_weights(_contrast(run, signed), kind, run.tolerance)
+        settled = np.max(np.abs(new_w - rob_w)) < 1e-2 and it > 0
+        rob_w = new_w
+        surf, u, v, dist, signed = _solve(run, ku, kv, rob_w, u, v, f"robust iteration {it + 1} ({kind})")
+    return rob_w, u, v, surf, dist, signed
+
+
+def _fit_subset_then_all(run: _FitRun, ku: np.ndarray, kv: np.ndarray, u: np.ndarray, v: np.ndarray,
+                         dom: tuple) -> SurfaceFit:
+    """`fit_surface` of more than ``max_points_per_level`` points: knots from a random subset
+    (a net of at most max_ctrl needs far fewer points than a dense scan has), then the final
+    net solved on all points: parameters of all points corrected onto the subset's fit, weights
+    from their residuals, two more solves. No further correction between them: the net is the
+    subset's, its solution moves by the subset's sampling error (~sigma / sqrt(points per
+    control point), microns), and the final projection puts every point on the final fit
+    anyway. u, v (N,) are updated in place with the subset's feet."""
+    x, n, p, q, robust, tolerance = run.x, run.n, run.p, run.q, run.robust, run.tolerance
+    rng = np.random.default_rng(0)
+    sub = np.sort(rng.choice(n, size=run.max_points_per_level, replace=False))
+    f0 = fit_surface(x[sub], u[sub], v[sub], degree=(p, q), tolerance=tolerance, knots=(ku, kv),
+                     max_ctrl=run.max_ctrl, smoothing=run.smoothing, robust=robust,
+                     correct_parameters=run.correct_parameters, refine=True, rational_base=run.rational_base,
+                     domain=dom, noise=run.sigma, point_weights=run.pw_user[sub], max_levels=run.max_levels,
+                     robust_iterations=run.robust_iterations, max_points_per_level=run.max_points_per_level,
+                     project_final=False, progress=run.progress)
+    ku, kv = f0.surface.knots_u, f0.surface.knots_v
+    if run.base is not None:
+        from cadbridge.nurbs.edits import refine_surface
+
+        extra_u = [t for t in ku[p + 1 : -p - 1] if t not in run.base.knots_u]
+        extra_v = [t for t in kv[q + 1 : -q - 1] if t not in run.base.knots_v]
+        run.base = refine_surface(run.base, extra_u, extra_v)
+    u[sub], v[sub] = f0.u, f0.v
+    run.weighted = True
+    run.first_surf = f0.surface
+    u, v, dist, signed = _correct_on(run, f0.surface, u, v)
+    history = [dict(h, subset=len(sub)) for h in f0.history]
+    rob_w = np.ones(n)
+    n_full = 2 if robust is not None else 1
+    for it in range(n_full):
+        if robust is not None:
+            rob_w = _robust_weights(_contrast(run, signed), robust, tolerance)
+        surf, u, v, dist, signed = _solve(run, ku, kv, rob_w, u, v, f"all {n} points, solve {it + 1}",
+                                          correct_now=False)
+    if robust is not None:
+        rob_w = _robust_weights(_contrast(run, signed), robust, tolerance)
+    history.append(dict(ctrl=surf.shape, max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
+                        worst_cell=float("nan"), outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
+    final_w = rob_w if robust is not None else np.ones(n)
+    u, v, dist, signed = _final_projection(run, surf, u, v, dist, signed)
+    return SurfaceFit(surf, u, v, dist, signed, final_w * (run.pw_user > 0), f0.stop, float(tolerance), run.sigma,
+                      history)
+
+
+def _sub_statistic(run: _FitRun, ku: np.ndarray, kv: np.ndarray, u: np.ndarray, v: np.ndarray, iu: np.ndarray,
+                   iv: np.ndarray, cell: np.ndarray, keep: np.ndarray, dist: np.ndarray, signed_now: np.ndarray
+                   ) -> np.ndarray:
+    """Per cell (knot span pair, (cells,)) the largest statistic of its 4 x 4 sub-cells: a misfit
+    on a tenth of a cell (a radius inside a wide span) must not hide under the cell's 90 %
+    quantile. Points: parameters u, v, spans iu, iv, flat cell, keep (bool), dist, signed_now,
+    each (N,)."""
+    p, q = run.p, run.q
+    bu = np.clip(((u - ku[p + iu]) / np.maximum(ku[p + iu + 1] - ku[p + iu], 1e-300) * 4).astype(np.int64), 0, 3)
+    bv = np.clip(((v - kv[q + iv]) / np.maximum(kv[q + iv + 1] - kv[q + iv], 1e-300) * 4).astype(np.int64), 0, 3)
+    key = (cell * 4 + bu) * 4 + bv
+    n_cells = (len(ku) - 2 * p - 1) * (len(kv) - 2 * q - 1)
+    if not run.noisy:
+        return _cell_statistic(key[keep], dist[keep], 1.0, 16 * n_cells).reshape(n_cells, 16).max(axis=1)
+    # noisy data: the sub-cell's mean signed residual (the fit's offset from the data's local
+    # mean), less 3 standard errors of that mean; sub-cells with fewer than 4 points abstain
+    k = key[keep]
+    cnt = np.bincount(k, minlength=16 * n_cells)
+    sm = np.bincount(k, weights=signed_now[keep], minlength=16 * n_cells)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        st = np.abs(sm / cnt) - 3.0 * run.sigma / np.sqrt(cnt)
+    st = np.where(cnt >= 4, st, -np.inf)
+    return st.reshape(n_cells, 16).max(axis=1)
+
+
+def _cell_stats(run: _FitRun, ku: np.ndarray, kv: np.ndarray, u: np.ndarray, v: np.ndarray, keep: np.ndarray,
+                dist: np.ndarray, signed: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Knot spans iu, iv (N,) and flat cell iu * (v spans) + iv (N,) of each point, and each
+    cell's deviation statistic (`_sub_statistic`) over the points with keep (N,)."""
+    iu = find_span(ku, run.p, u) - run.p
+    iv = find_span(kv, run.q, v) - run.q
+    cell = iu * (len(kv) - 2 * run.q - 1) + iv
+    return iu, iv, cell, _sub_statistic(run, ku, kv, u, v, iu, iv, cell, keep, dist, signed)
+
+
+def _choose_knots(run: _FitRun, ku: np.ndarray, kv: np.ndarray, u: np.ndarray, v: np.ndarray, iu: np.ndarray,
+                  iv: np.ndarray, cell: np.ndarray, keep: np.ndarray, signed: np.ndarray, stat: np.ndarray,
+                  focus: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """New u and v knots: the middles of the spans with the worst flagged cells (focus, cell
+    indices), along the direction(s) in which those cells' residuals vary, as many as the
+    control-net limit leaves room for, where the data can carry them. Points as in
+    `_sub_statistic`; stat (cells,). Returns (new_u, new_v), both empty when no span qualifies."""
+    p, q = run.p, run.q
+    nu, nv = len(ku) - p - 1, len(kv) - q - 1
+    nsu, nsv = len(ku) - 2 * p - 1, len(kv) - 2 * q - 1
+    # direction of refinement: the direction(s) along which a flagged cell's residuals vary
+    lo_u, hi_u = ku[p + iu], ku[p + iu + 1]
+    lo_v, hi_v = kv[q + iv], kv[q + iv + 1]
+    bu = np.clip(((u - lo_u) / np.maximum(hi_u - lo_u, 1e-300) * 4).astype(np.int64), 0, 3)
+    bv = np.clip(((v - lo_v) / np.maximum(hi_v - lo_v, 1e-300) * 4).astype(np.int64), 0, 3)
+    var_u = _variation(cell[keep], bu[keep], signed[keep], nsu * nsv)
+    var_v = _variation(cell[keep], bv[keep], signed[keep], nsu * nsv)
+    top = np.maximum(var_u, var_v)
+    with np.errstate(invalid="ignore"):
+        want_u = focus[(var_u[focus] >= 0.3 * top[focus]) | np.isinf(var_u[focus])]
+        want_v = focus[(var_v[focus] >= 0.3 * top[focus]) & ~np.isinf(var_u[focus])]
+    cnt = np.bincount(cell, minlength=nsu * nsv).reshape(nsu, nsv)
+    score_u = np.full(nsu, -np.inf)
+    score_v = np.full(nsv, -np.inf)
+    np.maximum.at(score_u, want_u // nsv, stat[want_u])
+    np.maximum.at(score_v, want_v % nsv, stat[want_v])
+    score_u[cnt.sum(axis=1) < 2 * nv] = -np.inf  # a u knot adds nv control points: enough data for them
+    score_v[cnt.sum(axis=0) < 2 * nu] = -np.inf  # a v knot adds nu
+    # and data spread along the span (>= 2 of its 8 eighths hold points), so the new basis
+    # functions have data under them (Schoenberg-Whitney); rows of FE nodes 1 mm apart
+    # cannot carry knots 0.25 mm apart
+    iu0 = find_span(ku, p, run.u0_par) - p
+    iv0 = find_span(kv, q, run.v0_par) - q
+    for score, i_s, t, kn, deg, ns in ((score_u, iu0, run.u0_par, ku, p, nsu), (score_v, iv0, run.v0_par, kv, q, nsv)):
+        lo, hi = kn[deg + i_s], kn[deg + i_s + 1]
+        eighth = np.clip(((t - lo) / np.maximum(hi - lo, 1e-300) * 8).astype(np.int64), 0, 7)
+        occ = np.bincount(i_s * 8 + eighth, minlength=8 * ns).reshape(ns, 8) > 0
+        score[occ.sum(axis=1) < 2] = -np.inf
+    room_u, room_v = run.max_ctrl[0] - nu, run.max_ctrl[1] - nv
+    su_idx = np.argsort(-score_u)[: max(room_u, 0)]
+    su_idx = su_idx[np.isfinite(score_u[su_idx])]
+    sv_idx = np.argsort(-score_v)[: max(room_v, 0)]
+    sv_idx = sv_idx[np.isfinite(score_v[sv_idx])]
+    new_u = 0.5 * (ku[p + su_idx] + ku[p + su_idx + 1])
+    new_v = 0.5 * (kv[q + sv_idx] + kv[q + sv_idx + 1])
+    return new_u, new_v
+
+
+def _insert_knots(run: _FitRun, ku: np.ndarray, kv: np.ndarray, new_u: np.ndarray, new_v: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Knot vectors with new_u, new_v inserted (into ``run.base`` too, whose weights they carry)."""
+    if run.base is not None:
+        from cadbridge.nurbs.edits import refine_surface
+
+        run.base = refine_surface(run.base, new_u, new_v)
+        return run.base.knots_u.copy(), run.base.knots_v.copy()
+    return np.sort(np.concatenate([ku, new_u])), np.sort(np.concatenate([kv, new_v]))
+
+
+def _fit_levels(run: _FitRun, ku: np.ndarray, kv: np.ndarray, u: np.ndarray, v: np.ndarray
+                ) -> tuple[NurbsSurface, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str, list[dict]]:
+    """Solve, judge the cells, insert knots, level by level until the tolerance, the control-net
+    limit or no improvement; the final reweighting on the last net. Returns (surface, u, v,
+    dist, signed, rob_w, stop, history), arrays (N,)."""
+    robust, tolerance, n = run.robust, run.tolerance, run.n
+    thresh = tolerance
+    history: list[dict] = []
+    stop = "tolerance"
+    rob_w = np.ones(n)
+    best_worst = np.inf
+    stale = 0
+    for level in range(run.max_levels + 1):
+        n_iter = 1  # Huber weights from the previous solve; the full IRLS runs on the final net
+        for it in range(n_iter):
+            surf, u, v, dist, signed = _solve(run, ku, kv, rob_w, u, v, f"level {level + 1}, solve {it + 1}/{n_iter}")
+            if robust is not None:
+                rob_w = _robust_weights(_contrast(run, signed), "huber", tolerance)
+        nu, nv = len(ku) - run.p - 1, len(kv) - run.q - 1
+        # cell (knot span pair) of each point and its deviation statistic; isolated outliers
+        # (beyond Tukey's cut at the current MAD, never within 4.685 tol) do not ask for knots
+        if robust is not None:
+            keep = _robust_weights(_contrast(run, signed), "tukey", tolerance) > 0
+        else:
+            keep = np.ones(n, bool)
+        iu, iv, cell, stat = _cell_stats(run, ku, kv, u, v, keep, dist, signed)
+        flagged = np.nonzero(stat > thresh)[0]
+        if (flagged.size == 0 or not run.refine or level == run.max_levels) and robust is not None and not run.done:
+            rob_w, u, v, surf, dist, signed = _finish_robust(run, ku, kv, rob_w, u, v, surf, dist, signed)
+            run.done = True
+            keep = rob_w > 0
+            iu, iv, cell, stat = _cell_stats(run, ku, kv, u, v, keep, dist, signed)
+            flagged = np.nonzero(stat > thresh)[0]
+        worst = float(stat.max())
+        # knots go where the error comes from: cells within a factor 3 of the worst (a least-squares
+        # misfit rings into the neighbouring spans; they settle once its source is resolved)
+        focus = flagged[stat[flagged] >= worst / 3.0]
+        history.append(dict(ctrl=(nu, nv), max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
+                            worst_cell=worst, outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
+        if not run.refine:
+            stop = "tolerance" if flagged.size == 0 else "fixed knots"
+            break
+        if flagged.size == 0:
+            stop = "tolerance"
+            break
+        if level == run.max_levels:
+            stop = "no improvement"
+            break
+        if worst < 0.98 * best_worst:
+            best_worst, stale = worst, 0
+        else:
+            stale += 1
+            if stale >= 3:
+                stop = "no improvement"
+                break
+        new_u, new_v = _choose_knots(run, ku, kv, u, v, iu, iv, cell, keep, signed, stat, focus)
+        if new_u.size == 0 and new_v.size == 0:
+            stop = "control-net limit" if (run.max_ctrl[0] <= nu or run.max_ctrl[1] <= nv) else "no improvement"
+            break
+        ku, kv = _insert_knots(run, ku, kv, new_u, new_v)
+        run.done = False
+    if robust is not None and not run.done:
+        rob_w, u, v, surf, dist, signed = _finish_robust(run, ku, kv, rob_w, u, v, surf, dist, signed)
+        history[-1].update(max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
+                           outliers=int(np.count_nonzero(rob_w <= 0)))
+    return surf, u, v, dist, signed, rob_w, stop, history
+
+
 def fit_surface(
     points,
     u,
@@ -759,319 +1181,19 @@ def fit_surface(
     `project_to_surface` for the reported deviations (False: the parameters and residuals of the
     last correction, as for the subset of a large input whose points are re-projected anyway).
     """
-    x = np.asarray(points, dtype=float)
-    if x.ndim != 2 or x.shape[1] != 3:
-        raise FitError(f"points must have shape (N, 3), got {x.shape}")
-    u = np.array(u, dtype=float).ravel()
-    v = np.array(v, dtype=float).ravel()
+    x, u, v, pw_user = _check_inputs(points, u, v, tolerance, smoothing, point_weights)
     n = len(x)
-    if len(u) != n or len(v) != n:
-        raise FitError(f"{n} points but {len(u)} u and {len(v)} v parameters")
-    bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(u) & np.isfinite(v))
-    if bad.any():
-        k = int(np.argmax(bad))
-        raise FitError(f"{int(bad.sum())} points or parameters are not finite (first: point {k}, 0-based)")
-    if not tolerance > 0:
-        raise FitError(f"tolerance must be > 0, got {tolerance}")
-    if smoothing < 0:
-        raise FitError(f"smoothing must be >= 0, got {smoothing}")
-    pw_user = np.ones(n) if point_weights is None else np.asarray(point_weights, dtype=float).ravel()
-    if pw_user.shape != (n,) or not np.all(np.isfinite(pw_user)) or np.any(pw_user < 0):
-        raise FitError("point_weights must be (N,) finite and >= 0")
-
-    if rational_base is not None:
-        p, q = rational_base.degree_u, rational_base.degree_v
-        from cadbridge.nurbs.edits import restrict_surface
-
-        base = restrict_surface(rational_base, domain) if domain is not None else restrict_surface(rational_base)
-        ku, kv = base.knots_u.copy(), base.knots_v.copy()
-        dom = (ku[p], ku[-p - 1], kv[q], kv[-q - 1])
-    else:
-        p, q = (int(degree[0]), int(degree[1]))
-        base = None
-        if domain is None:
-            span_u, span_v = float(np.ptp(u)), float(np.ptp(v))
-            if not (span_u > 0 and span_v > 0):
-                raise FitError("the point parameters span no area (all points on one iso-line of the base): "
-                               "are the points collinear?")
-            dom = (float(u.min()), float(u.max()), float(v.min()), float(v.max()))
-        else:
-            dom = tuple(float(t) for t in domain)
-        if knots is not None:
-            ku, kv = (np.asarray(k, dtype=float) for k in knots)
-        else:
-            lu_, lv_ = dom[1] - dom[0], dom[3] - dom[2]
-            if initial_spans is None:
-                s = 4
-                initial_spans = (max(1, round(s * lu_ / max(lu_, lv_))), max(1, round(s * lv_ / max(lu_, lv_))))
-            ku = uniform_knots(p, int(initial_spans[0]), dom[0], dom[1])
-            kv = uniform_knots(q, int(initial_spans[1]), dom[2], dom[3])
-    validate_knots(ku, p, len(ku) - p - 1, "knots_u")
-    validate_knots(kv, q, len(kv) - q - 1, "knots_v")
-    dom = (ku[p], ku[-p - 1], kv[q], kv[-q - 1])
-    nu, nv = len(ku) - p - 1, len(kv) - q - 1
-    if n < nu * nv:
-        raise FitError(f"{n} points are fewer than the {nu}x{nv} = {nu * nv} control points of the start net")
-    if nu > max_ctrl[0] or nv > max_ctrl[1]:
-        raise FitError(f"the start net {nu}x{nv} exceeds the control net limit {max_ctrl[0]}x{max_ctrl[1]}")
+    p, q, base, ku, kv, dom = _start_net(n, u, v, degree, knots, initial_spans, max_ctrl, rational_base, domain)
     u = np.clip(u, dom[0], dom[1])
     v = np.clip(v, dom[2], dom[3])
-
     sigma = estimate_noise(x) if noise is None else float(noise)
-    noisy = sigma > 0.05 * tolerance
-    thresh = tolerance
-    stage = getattr(progress, "stage", None) or (lambda text: None)
-
-    def make_surface(ku, kv, cp, cw):
-        return NurbsSurface(p, q, ku, kv, cp, cw if base is not None else None)
-
-    near = 10.0 * tolerance + 5.0 * sigma  # parameters are corrected only on a fit this close
-
     edge = ((u <= dom[0]) * 1 + (u >= dom[1]) * 2 + (v <= dom[2]) * 4 + (v >= dom[3]) * 8).astype(np.uint8)
-
-    def correct(surf, u, v, movable=None, steps=CORRECTION_STEPS):
-        """Foot parameters, distances and signed distances of all points on surf (one compiled
-        pass, `_correct`: ``steps`` Gauss-Newton steps of Hoschek's correction, 0: Newton to
-        the foot). Only points within ``near`` of the fit (and ``movable``, (N,) bool)
-        get corrected parameters: on a coarse fit that cuts a corner, projection would slide the
-        points along it and spoil a good base parametrisation. Points on the domain's edge stay
-        on it (else they slide inward and the fit's edge floats past the data: 0.006 mm at the
-        end of an FE-node die strip)."""
-        if not correct_parameters:
-            return (u, v) + _residuals(surf, x, u, v)
-        return _correct(surf, x, u, v, near=near, movable=movable, edge=edge, steps=steps)
-
-    if robust is not None:
-        # the residual a point is judged by is its contrast to its 8 nearest neighbours on the
-        # surface (minus their median): an isolated outlier stands out, a region the fit does not
-        # follow yet (a radius on a coarse net) does not, and is refined instead of rejected.
-        # Neighbours in (u, v) scaled by the mean |S_u|, |S_v| of the first fit (lengths).
-        def contrast(r):
-            if "nbr" not in state:
-                gu, gv = state["surf"].grid(12, 12)
-                der = state["surf"].derivatives(gu, gv, order=1)
-                su = float(np.mean(np.linalg.norm(der[:, 1, 0], axis=1))) or 1.0
-                sv = float(np.mean(np.linalg.norm(der[:, 0, 1], axis=1))) or 1.0
-                stage(f"neighbours of {n} points")
-                state["nbr"] = nearest_neighbours(np.column_stack([u0_par * su, v0_par * sv]), min(8, n - 1))
-            nbr = state["nbr"]
-            if not nbr.shape[1]:
-                return r
-            out = np.empty(n)
-            _median_contrast(np.ascontiguousarray(r, dtype=float), nbr, out)
-            return out
-    u0_par, v0_par = u.copy(), v.copy()
-    def final_projection(surf, u, v, dist, signed):
-        """Every point projected onto the final fit for the reported deviations: the point
-        inversion of `cadbridge.nurbs.project` (its Newton kernel and orthogonality check, as
-        `project_to_surface` from given start parameters) from its parameters, tol 1e-12, in one
-        compiled pass (`reproject`)."""
-        if not project_final:
-            return u, v, dist, signed
-        stage(f"projecting all {n} points onto the fit")
-        return reproject(surf, x, u, v, tol=1e-12, max_iter=30)[:4]
-
-    history: list[dict] = []
-    stop = "tolerance"
-    rob_w = np.ones(n)
-    best_worst = np.inf
-    stale = 0
-    state = {}
-
-    def solve(ku, kv, rob_w, u, v, text, correct_now=True):
-        nu, nv = len(ku) - p - 1, len(kv) - q - 1
-        if state.get("knots") is not (ku, kv):
-            state["gram"] = bending_matrix(ku, p, kv, q) if smoothing > 0 else None
-            state["knots"] = (ku, kv)
-        cw = base.weights if base is not None else None
-        stage(f"{nu}x{nv} control points: {text}")
-        cp = solve_control_points(u, v, x, pw_user * rob_w, ku, p, kv, q, ctrl_weights=cw, smoothing=smoothing,
-                                  gram=state["gram"])
-        surf = make_surface(ku, kv, cp, cw)
-        state.setdefault("surf", surf)
-        if not correct_now:
-            return (surf, u, v) + _residuals(surf, x, u, v)
-        # a point the reweighting distrusts keeps its parameters: an outlier that slid onto the
-        # bump it pulled would look like an inlier and keep the bump (no correction before the
-        # first weights exist, for the same reason)
-        if robust is not None and not state.get("weighted"):
-            state["weighted"] = True
-            return (surf,) + correct(surf, u, v, np.zeros(n, dtype=bool))
-        return (surf,) + correct(surf, u, v, None if robust is None else rob_w >= 0.5)
-
-    def finish_robust(ku, kv, rob_w, u, v, surf, dist, signed):
-        """IRLS on the final net: Huber until the weights settle, then Tukey (module doc)."""
-        kinds = ["huber"] * robust_iterations + (["tukey"] * robust_iterations if robust == "tukey" else [])
-        phase = None
-        for it, kind in enumerate(kinds):
-            if kind != phase:
-                phase, settled = kind, False
-            elif settled:
-                continue
-            new_w = _robust_weights(contrast(signed), kind, tolerance)
-            settled = np.max(np.abs(new_w - rob_w)) < 1e-2 and it > 0
-            rob_w = new_w
-            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"robust iteration {it + 1} ({kind})")
-        return rob_w, u, v, surf, dist, signed
-
+    run = _FitRun(x, pw_user, p, q, base, tolerance, smoothing, robust, correct_parameters, refine, rational_base,
+                  max_ctrl, max_levels, robust_iterations, max_points_per_level, project_final, progress, sigma,
+                  u.copy(), v.copy(), edge)
     if refine and n > max_points_per_level:
-        # knots from a random subset (a net of at most max_ctrl needs far fewer points than a
-        # dense scan has), then the final net solved on all points: parameters of all points
-        # corrected onto the subset's fit, weights from their residuals, two more solves. No
-        # further correction between them: the net is the subset's, its solution moves by the
-        # subset's sampling error (~sigma / sqrt(points per control point), microns), and the
-        # final projection puts every point on the final fit anyway.
-        rng = np.random.default_rng(0)
-        sub = np.sort(rng.choice(n, size=max_points_per_level, replace=False))
-        f0 = fit_surface(x[sub], u[sub], v[sub], degree=(p, q), tolerance=tolerance, knots=(ku, kv),
-                         max_ctrl=max_ctrl, smoothing=smoothing, robust=robust, correct_parameters=correct_parameters,
-                         refine=True, rational_base=rational_base, domain=dom, noise=sigma,
-                         point_weights=pw_user[sub], max_levels=max_levels, robust_iterations=robust_iterations,
-                         max_points_per_level=max_points_per_level, project_final=False, progress=progress)
-        ku, kv = f0.surface.knots_u, f0.surface.knots_v
-        if base is not None:
-            from cadbridge.nurbs.edits import refine_surface
-
-            extra_u = [t for t in ku[p + 1 : -p - 1] if t not in base.knots_u]
-            extra_v = [t for t in kv[q + 1 : -q - 1] if t not in base.knots_v]
-            base = refine_surface(base, extra_u, extra_v)
-        u[sub], v[sub] = f0.u, f0.v
-        state["weighted"] = True
-        state["surf"] = f0.surface
-        u, v, dist, signed = correct(f0.surface, u, v)
-        history = [dict(h, subset=len(sub)) for h in f0.history]
-        n_full = 2 if robust is not None else 1
-        for it in range(n_full):
-            if robust is not None:
-                rob_w = _robust_weights(contrast(signed), robust, tolerance)
-            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"all {n} points, solve {it + 1}",
-                                             correct_now=False)
-        if robust is not None:
-            rob_w = _robust_weights(contrast(signed), robust, tolerance)
-        history.append(dict(ctrl=surf.shape, max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
-                            worst_cell=float("nan"), outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
-        final_w = rob_w if robust is not None else np.ones(n)
-        u, v, dist, signed = final_projection(surf, u, v, dist, signed)
-        return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), f0.stop, float(tolerance), sigma,
-                          history)
-
-    def sub_statistic(iu, iv, cell, keep, dist, signed_now):
-        """Per cell the largest statistic of its 4 x 4 sub-cells: a misfit on a tenth of a cell
-        (a radius inside a wide span) must not hide under the cell's 90 % quantile."""
-        bu = np.clip(((u - ku[p + iu]) / np.maximum(ku[p + iu + 1] - ku[p + iu], 1e-300) * 4).astype(np.int64), 0, 3)
-        bv = np.clip(((v - kv[q + iv]) / np.maximum(kv[q + iv + 1] - kv[q + iv], 1e-300) * 4).astype(np.int64), 0, 3)
-        key = (cell * 4 + bu) * 4 + bv
-        n_cells = (len(ku) - 2 * p - 1) * (len(kv) - 2 * q - 1)
-        if not noisy:
-            return _cell_statistic(key[keep], dist[keep], 1.0, 16 * n_cells).reshape(n_cells, 16).max(axis=1)
-        # noisy data: the sub-cell's mean signed residual (the fit's offset from the data's local
-        # mean), less 3 standard errors of that mean; sub-cells with fewer than 4 points abstain
-        k = key[keep]
-        cnt = np.bincount(k, minlength=16 * n_cells)
-        sm = np.bincount(k, weights=signed_now[keep], minlength=16 * n_cells)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            st = np.abs(sm / cnt) - 3.0 * sigma / np.sqrt(cnt)
-        st = np.where(cnt >= 4, st, -np.inf)
-        return st.reshape(n_cells, 16).max(axis=1)
-
-    for level in range(max_levels + 1):
-        n_iter = 1  # Huber weights from the previous solve; the full IRLS runs on the final net
-        for it in range(n_iter):
-            surf, u, v, dist, signed = solve(ku, kv, rob_w, u, v, f"level {level + 1}, solve {it + 1}/{n_iter}")
-            if robust is not None:
-                rob_w = _robust_weights(contrast(signed), "huber", tolerance)
-        nu, nv = len(ku) - p - 1, len(kv) - q - 1
-        # cell (knot span pair) of each point and its deviation statistic; isolated outliers
-        # (beyond Tukey's cut at the current MAD, never within 4.685 tol) do not ask for knots
-        iu = find_span(ku, p, u) - p
-        iv = find_span(kv, q, v) - q
-        nsu, nsv = len(ku) - 2 * p - 1, len(kv) - 2 * q - 1
-        cell = iu * nsv + iv
-        keep = _robust_weights(contrast(signed), "tukey", tolerance) > 0 if robust is not None else np.ones(n, bool)
-        stat = sub_statistic(iu, iv, cell, keep, dist, signed)
-        flagged = np.nonzero(stat > thresh)[0]
-        if (flagged.size == 0 or not refine or level == max_levels) and robust is not None and not state.get("done"):
-            rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
-            state["done"] = True
-            iu = find_span(ku, p, u) - p
-            iv = find_span(kv, q, v) - q
-            cell = iu * nsv + iv
-            keep = rob_w > 0
-            stat = sub_statistic(iu, iv, cell, keep, dist, signed)
-            flagged = np.nonzero(stat > thresh)[0]
-        worst = float(stat.max())
-        # knots go where the error comes from: cells within a factor 3 of the worst (a least-squares
-        # misfit rings into the neighbouring spans; they settle once its source is resolved)
-        focus = flagged[stat[flagged] >= worst / 3.0]
-        history.append(dict(ctrl=(nu, nv), max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
-                            worst_cell=worst, outliers=int(np.count_nonzero(rob_w <= 0)) if robust else 0))
-        if not refine:
-            stop = "tolerance" if flagged.size == 0 else "fixed knots"
-            break
-        if flagged.size == 0:
-            stop = "tolerance"
-            break
-        if level == max_levels:
-            stop = "no improvement"
-            break
-        if worst < 0.98 * best_worst:
-            best_worst, stale = worst, 0
-        else:
-            stale += 1
-            if stale >= 3:
-                stop = "no improvement"
-                break
-        # direction of refinement: the direction(s) along which a flagged cell's residuals vary
-        lo_u, hi_u = ku[p + iu], ku[p + iu + 1]
-        lo_v, hi_v = kv[q + iv], kv[q + iv + 1]
-        bu = np.clip(((u - lo_u) / np.maximum(hi_u - lo_u, 1e-300) * 4).astype(np.int64), 0, 3)
-        bv = np.clip(((v - lo_v) / np.maximum(hi_v - lo_v, 1e-300) * 4).astype(np.int64), 0, 3)
-        var_u = _variation(cell[keep], bu[keep], signed[keep], nsu * nsv)
-        var_v = _variation(cell[keep], bv[keep], signed[keep], nsu * nsv)
-        top = np.maximum(var_u, var_v)
-        with np.errstate(invalid="ignore"):
-            want_u = focus[(var_u[focus] >= 0.3 * top[focus]) | np.isinf(var_u[focus])]
-            want_v = focus[(var_v[focus] >= 0.3 * top[focus]) & ~np.isinf(var_u[focus])]
-        cnt = np.bincount(cell, minlength=nsu * nsv).reshape(nsu, nsv)
-        score_u = np.full(nsu, -np.inf)
-        score_v = np.full(nsv, -np.inf)
-        np.maximum.at(score_u, want_u // nsv, stat[want_u])
-        np.maximum.at(score_v, want_v % nsv, stat[want_v])
-        score_u[cnt.sum(axis=1) < 2 * nv] = -np.inf  # a u knot adds nv control points: enough data for them
-        score_v[cnt.sum(axis=0) < 2 * nu] = -np.inf  # a v knot adds nu
-        # and data spread along the span (>= 2 of its 8 eighths hold points), so the new basis
-        # functions have data under them (Schoenberg-Whitney); rows of FE nodes 1 mm apart
-        # cannot carry knots 0.25 mm apart
-        iu0 = find_span(ku, p, u0_par) - p
-        iv0 = find_span(kv, q, v0_par) - q
-        for score, i_s, t, kn, deg, ns in ((score_u, iu0, u0_par, ku, p, nsu), (score_v, iv0, v0_par, kv, q, nsv)):
-            lo, hi = kn[deg + i_s], kn[deg + i_s + 1]
-            eighth = np.clip(((t - lo) / np.maximum(hi - lo, 1e-300) * 8).astype(np.int64), 0, 7)
-            occ = np.bincount(i_s * 8 + eighth, minlength=8 * ns).reshape(ns, 8) > 0
-            score[occ.sum(axis=1) < 2] = -np.inf
-        room_u, room_v = max_ctrl[0] - nu, max_ctrl[1] - nv
-        su_idx = np.argsort(-score_u)[: max(room_u, 0)]
-        su_idx = su_idx[np.isfinite(score_u[su_idx])]
-        sv_idx = np.argsort(-score_v)[: max(room_v, 0)]
-        sv_idx = sv_idx[np.isfinite(score_v[sv_idx])]
-        if su_idx.size == 0 and sv_idx.size == 0:
-            stop = "control-net limit" if (room_u <= 0 or room_v <= 0) else "no improvement"
-            break
-        new_u = 0.5 * (ku[p + su_idx] + ku[p + su_idx + 1])
-        new_v = 0.5 * (kv[q + sv_idx] + kv[q + sv_idx + 1])
-        if base is not None:
-            from cadbridge.nurbs.edits import refine_surface
-
-            base = refine_surface(base, new_u, new_v)
-            ku, kv = base.knots_u.copy(), base.knots_v.copy()
-        else:
-            ku = np.sort(np.concatenate([ku, new_u]))
-            kv = np.sort(np.concatenate([kv, new_v]))
-        state["done"] = False
-    if robust is not None and not state.get("done"):
-        rob_w, u, v, surf, dist, signed = finish_robust(ku, kv, rob_w, u, v, surf, dist, signed)
-        history[-1].update(max=float(dist.max()), rms=float(np.sqrt(np.mean(dist**2))),
-                           outliers=int(np.count_nonzero(rob_w <= 0)))
+        return _fit_subset_then_all(run, ku, kv, u, v, dom)
+    surf, u, v, dist, signed, rob_w, stop, history = _fit_levels(run, ku, kv, u, v)
     final_w = rob_w if robust is not None else np.ones(n)
-    u, v, dist, signed = final_projection(surf, u, v, dist, signed)
+    u, v, dist, signed = _final_projection(run, surf, u, v, dist, signed)
     return SurfaceFit(surf, u, v, dist, signed, final_w * (pw_user > 0), stop, float(tolerance), sigma, history)

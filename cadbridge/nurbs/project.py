@@ -32,7 +32,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cadbridge.nurbs.basis import ders_basis_one, find_span_one
+from cadbridge.nurbs.newton import CHECK_K, CHECK_SEEDS, EDGE_SEEDS, global_seeds, newton_range
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = [
@@ -47,6 +47,7 @@ __all__ = [
     "surface_samples",
     "sample_parameters",
     "closed_directions",
+    "nearest_of_pieces",
 ]
 
 CONVERGED: int = 0  # interior stationary point of the distance (foot is orthogonal)
@@ -229,7 +230,7 @@ def project_to_surface(
     pieces = smooth_pieces(surface)
     if len(pieces) > 1 and uv0 is None:
         kw = dict(tol=tol, max_iter=max_iter, max_distance=max_distance, n_starts=n_starts, global_check=global_check)
-        return _nearest_of_pieces(surface, pieces, [project_to_surface(pc, pts, **kw) for pc in pieces])
+        return nearest_of_pieces(surface, pieces, [project_to_surface(pc, pts, **kw) for pc in pieces])
     n = len(pts)
     samples = surface_samples(surface)
     if uv0 is not None:
@@ -294,8 +295,8 @@ def smooth_pieces(surface: NurbsSurface) -> list[NurbsSurface]:
     return hit
 
 
-def _nearest_of_pieces(surface: NurbsSurface, pieces: list[NurbsSurface], results: list[SurfaceProjection]
-                       ) -> SurfaceProjection:
+def nearest_of_pieces(surface: NurbsSurface, pieces: list[NurbsSurface], results: list[SurfaceProjection]
+                      ) -> SurfaceProjection:
     """Per point the nearest valid foot over the pieces; a foot on an internal crease line is
     an interior point of the whole surface (CONVERGED, normal one-sided from its piece's side)."""
     d = np.stack([np.where(r.status == FAILED, np.inf, r.distance) for r in results])
@@ -330,108 +331,6 @@ def _nearest_of_pieces(surface: NurbsSurface, pieces: list[NurbsSurface], result
     return out
 
 
-_CHECK_K = 16  # nearest samples examined by the global check
-_CHECK_SEEDS = 4  # extra Newton starts per point at most
-_EDGE_SEEDS = 6  # extra starts from nearby samples for feet clamped to an edge
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _global_seeds(d, dk, ik, spacing, spts, pts, fu, fv, us, vs, closed_u, closed_v, max_seeds
-                  ):  # pragma: no cover - compiled
-    """Extra Newton starts of `_global_check`, point by point: among the k nearest samples
-    (dk, ik (N, k)) within sqrt(d^2 + (2h)^2) of the point (d the distance found, h the grid
-    spacing at the nearest sample): discrete local minima of the distance over their 4 grid
-    neighbours (wrapping in closed directions), the farthest sample of a flat valley, at most
-    ``max_seeds`` of those, plus the nearest sample more than 2 grid cells from the foot
-    (fu, fv). Returns (point rows (S,), sample indices (S,)), rows ascending."""
-    n, k = dk.shape
-    mu, mv = us.shape[0], vs.shape[0]
-    rows = np.empty(n * k, dtype=np.int64)
-    cols = np.empty(n * k, dtype=np.int64)
-    m = 0
-    is_min = np.zeros(k, dtype=np.bool_)
-    cand = np.zeros(k, dtype=np.bool_)
-    for i in range(n):
-        h0 = spacing[ik[i, 0]]
-        rad = np.sqrt(d[i] * d[i] + (2.0 * h0) ** 2)
-        any_c = False
-        for c in range(k):
-            cand[c] = dk[i, c] <= rad
-            any_c = any_c or cand[c]
-        if not any_c:
-            continue
-        px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
-        for c in range(k):
-            ok = cand[c]
-            if ok:
-                s = ik[i, c]
-                ii = s // mv
-                jj = s - ii * mv
-                for t in range(4):
-                    ni = ii + (1 if t == 0 else (-1 if t == 1 else 0))
-                    nj = jj + (1 if t == 2 else (-1 if t == 3 else 0))
-                    if closed_u:
-                        ni = ni % (mu - 1)
-                    if closed_v:
-                        nj = nj % (mv - 1)
-                    if 0 <= ni < mu and 0 <= nj < mv:
-                        q = ni * mv + nj
-                        ex, ey, ez = spts[q, 0] - px, spts[q, 1] - py, spts[q, 2] - pz
-                        if not (dk[i, c] <= np.sqrt(ex * ex + ey * ey + ez * ez)):
-                            ok = False
-                            break
-            is_min[c] = ok
-        is_min[0] = False
-        # flat valley: the ball sample farthest (> 2 cells) from the first start whose
-        # distance grows slower than one cell of tangential offset
-        s0 = ik[i, 0]
-        best = -1.0
-        far = -1
-        for c in range(k):
-            if cand[c] and dk[i, c] * dk[i, c] <= dk[i, 0] * dk[i, 0] + h0 * h0:
-                s = ik[i, c]
-                ex, ey, ez = spts[s, 0] - spts[s0, 0], spts[s, 1] - spts[s0, 1], spts[s, 2] - spts[s0, 2]
-                sep = np.sqrt(ex * ex + ey * ey + ez * ez)
-                if sep > 2.0 * h0 and sep > best:
-                    best = sep
-                    far = c
-        if far >= 0:
-            is_min[far] = True
-        # the nearest ball sample more than 2 grid cells away from the foot found
-        first_away = -1
-        if np.isfinite(d[i]):
-            fi = min(max(np.searchsorted(us, fu[i]), 0), mu - 1)
-            fj = min(max(np.searchsorted(vs, fv[i]), 0), mv - 1)
-            for c in range(1, k):
-                if not cand[c]:
-                    continue
-                s = ik[i, c]
-                ii = s // mv
-                jj = s - ii * mv
-                away = abs(ii - fi) > 2 or abs(jj - fj) > 2
-                if closed_u and abs(ii - fi) >= mu - 3:
-                    away = False
-                if closed_v and abs(jj - fj) >= mv - 3:
-                    away = False
-                if away:
-                    first_away = c
-                    break
-        cnt = 0
-        for c in range(k):
-            if is_min[c]:
-                cnt += 1
-                if cnt > max_seeds:
-                    is_min[c] = False
-        if first_away >= 0:
-            is_min[first_away] = True
-        for c in range(k):
-            if is_min[c]:
-                rows[m] = i
-                cols[m] = ik[i, c]
-                m += 1
-    return rows[:m], cols[:m]
-
-
 def _global_check(
     surface: NurbsSurface, samples: SurfaceSamples, pts: np.ndarray, res: SurfaceProjection, tol: float, max_iter: int
 ) -> None:
@@ -440,16 +339,16 @@ def _global_check(
     n = len(pts)
     m = len(samples.uv)
     mu, mv = len(samples.us), len(samples.vs)
-    k = min(_CHECK_K, m)
+    k = min(CHECK_K, m)
     if n == 0 or m < 2:
         return
     d = np.where(res.status == FAILED, np.inf, res.distance)
     d = np.where(np.isfinite(d), d, np.inf)
     dk, ik = samples.tree.query(pts, k=k)
     dk, ik = dk.reshape(n, k), ik.reshape(n, k)
-    rows, sidx = _global_seeds(d, dk, ik.astype(np.int64), samples.spacing, samples.points, pts,
-                               np.ascontiguousarray(res.u), np.ascontiguousarray(res.v), samples.us, samples.vs,
-                               samples.closed_u, samples.closed_v, _CHECK_SEEDS)
+    rows, sidx = global_seeds(d, dk, ik.astype(np.int64), samples.spacing, samples.points, pts,
+                              np.ascontiguousarray(res.u), np.ascontiguousarray(res.v), samples.us, samples.vs,
+                              samples.closed_u, samples.closed_v, CHECK_SEEDS)
     if rows.size == 0:
         return
     uv = samples.uv[sidx]
@@ -550,7 +449,7 @@ def _edge_check(
     # ... and from the nearest grid samples within the global check's radius: along an edge
     # the sampled distance may fall monotonically towards the edge foot although a nearer
     # interior minimum sits between two samples of that edge (steep, wavy surfaces)
-    k = min(_CHECK_K, len(samples.uv))
+    k = min(CHECK_K, len(samples.uv))
     if k > 1:
         dk, ik = samples.tree.query(pts[rows], k=k)
         dk, ik = dk.reshape(len(rows), k), ik.reshape(len(rows), k)
@@ -558,7 +457,7 @@ def _edge_check(
         rad = np.sqrt(d * d + (2.0 * samples.spacing[ik[:, 0]]) ** 2)
         cand = dk <= rad[:, None]
         cand[:, 0] = False
-        cand &= np.cumsum(cand, axis=1) <= _EDGE_SEEDS
+        cand &= np.cumsum(cand, axis=1) <= EDGE_SEEDS
         rr, cc = np.nonzero(cand)
         uv = samples.uv[ik[rr, cc]]
         starts_u.append(uv[:, 0])
@@ -584,212 +483,6 @@ def _edge_check(
     res.iterations[tgt] += extra.iterations[idx]
 
 
-@numba.njit(cache=True)
-def _ders2_scratch(p, q):  # pragma: no cover - compiled
-    """The work arrays of `_ders2_one` for degrees (p, q), allocated once per kernel call."""
-    return (np.empty((p + 1, p + 1)), np.empty((q + 1, q + 1)), np.empty(p + 1), np.empty(p + 1),
-            np.empty(q + 1), np.empty(q + 1), np.empty((2, p + 1)), np.empty((2, q + 1)),
-            np.empty((3, p + 1)), np.empty((3, q + 1)), np.empty((3, 3, 4)))
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _ders2_one(pw, ku, kv, p, q, rational, u, v, scratch, out):  # pragma: no cover - compiled
-    """S and its derivatives of total order <= 2 at one (u, v) into out (3, 3, 3): out[k, l] =
-    d^(k+l) S / du^k dv^l for k + l <= 2 (what Newton uses; out[2, 1], out[1, 2], out[2, 2] are
-    not computed), the same sums in the same order as `NurbsSurface.derivatives` (its
-    compiled kernel); ``scratch`` from `_ders2_scratch(p, q)`."""
-    ndu_u, ndu_v, lu, ru, lv, rv, au, av, bu, bv, aw = scratch
-    nu, nv = pw.shape[0], pw.shape[1]
-    su = find_span_one(ku, p, nu, u)
-    sv = find_span_one(kv, q, nv, v)
-    ders_basis_one(su, u, p, ku, 2, ndu_u, lu, ru, au, bu)
-    ders_basis_one(sv, v, q, kv, 2, ndu_v, lv, rv, av, bv)
-    aw[:] = 0.0
-    for a in range(p + 1):
-        row = pw[su - p + a]
-        for l in range(3):
-            t0 = 0.0
-            t1 = 0.0
-            t2 = 0.0
-            t3 = 0.0
-            for b in range(q + 1):
-                w = bv[l, b]
-                pt = row[sv - q + b]
-                t0 += w * pt[0]
-                t1 += w * pt[1]
-                t2 += w * pt[2]
-                t3 += w * pt[3]
-            for k in range(3 - l):
-                w = bu[k, a]
-                aw[k, l, 0] += w * t0
-                aw[k, l, 1] += w * t1
-                aw[k, l, 2] += w * t2
-                aw[k, l, 3] += w * t3
-    if not rational:
-        for k in range(3):
-            for l in range(3 - k):
-                for c in range(3):
-                    out[k, l, c] = aw[k, l, c]
-        return
-    # quotient rule (P&T A4.4) with binomials of row 2: (1, 1), (1, 2, 1)
-    w0 = aw[0, 0, 3]
-    for k in range(3):
-        for l in range(3 - k):
-            for c in range(3):
-                val = aw[k, l, c]
-                for j in range(1, l + 1):
-                    bl = 2.0 if (l == 2 and j == 1) else 1.0
-                    val -= bl * aw[0, j, 3] * out[k, l - j, c]
-                for i in range(1, k + 1):
-                    bk = 2.0 if (k == 2 and i == 1) else 1.0
-                    val -= bk * aw[i, 0, 3] * out[k - i, l, c]
-                    for j in range(1, l + 1):
-                        bl = 2.0 if (l == 2 and j == 1) else 1.0
-                        val -= bk * bl * aw[i, j, 3] * out[k - i, l - j, c]
-                out[k, l, c] = val / w0
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
-    if closed:
-        per = hi - lo
-        r = (x - lo) % per  # Python modulo: same as np.mod, in [0, per)
-        return lo + r
-    return min(max(x, lo), hi)
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                  max_iter, start, stop, tu, tv, ru, rv, same):  # pragma: no cover - compiled
-    """The projected Newton iterations of `_newton` (module docstring), point by point:
-    updates u, v (N,) and iters (N,) in place. Same tests and steps as the former vectorised
-    loop: convergence first, then the lazy line search (halve the previous step when |r|^2
-    grew beyond round-off), then the full-Jacobian step (Gauss-Newton where not positive
-    definite; 1D Newton on an edge iso-curve where one variable is clamped).
-
-    Restarts (ru >= 0): an iterate after the start that comes within (ru, rv) of the known
-    foot (tu, tv) of its point is heading back to that foot: it stops there with same[t] True
-    (the restart cannot be nearer)."""
-    tiny = 1e-300
-    pu = u1 - u0
-    pv = v1 - v0
-    scratch = _ders2_scratch(p, q)
-    der = np.empty((3, 3, 3))
-    for t in range(start, stop):
-        px, py, pz = pts[t, 0], pts[t, 1], pts[t, 2]
-        e = noise[t]
-        uu, vv = u[t], v[t]
-        u_prev, v_prev = uu, vv
-        d2_prev = np.inf
-        du_prev = 0.0
-        dv_prev = 0.0
-        hit_u = False  # the last Newton step was cut at an edge in u / in v
-        hit_v = False
-        it = 0
-        for _ in range(max_iter):
-            if ru >= 0.0 and it > 0 and abs(uu - tu[t]) <= ru and abs(vv - tv[t]) <= rv:
-                same[t] = True
-                break
-            _ders2_one(pw, ku, kv, p, q, rational, uu, vv, scratch, der)
-            it += 1
-            rx, ry, rz = der[0, 0, 0] - px, der[0, 0, 1] - py, der[0, 0, 2] - pz
-            sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
-            svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]
-            d2 = rx * rx + ry * ry + rz * rz
-            f = sux * rx + suy * ry + suz * rz
-            g = svx * rx + svy * ry + svz * rz
-            guu = sux * sux + suy * suy + suz * suz
-            gvv = svx * svx + svy * svy + svz * svz
-            lsu = np.sqrt(guu)
-            lsv = np.sqrt(gvv)
-            lr = np.sqrt(d2)
-            act_u = (not cu) and ((uu <= u0 and f > 0) or (uu >= u1 and f < 0))
-            act_v = (not cv) and ((vv <= v0 and g > 0) or (vv >= v1 and g < 0))
-            cos_u = abs(f) / max(lsu * lr, tiny)
-            cos_v = abs(g) / max(lsv * lr, tiny)
-            conv = (lr <= eps1) or ((cos_u <= eps2 or act_u) and (cos_v <= eps2 or act_v))
-            if np.isfinite(d2_prev) and not conv:
-                if d2 > d2_prev * (1.0 + 1e-13) + 2.0 * np.sqrt(d2_prev) * e + e * e:
-                    if (hit_u and u_prev != uu) or (hit_v and v_prev != vv):
-                        # the step was cut at an edge and went up: halving along the cut
-                        # direction need not descend (it stalled off the edge, FAILED); go to
-                        # the previous point projected onto that edge instead and go on from
-                        # there (the edge test then decides: 1D Newton along it, or back in)
-                        uu = uu if hit_u else u_prev
-                        vv = vv if hit_v else v_prev
-                        hit_u = False
-                        hit_v = False
-                        d2_prev = np.inf
-                        continue
-                    # distance went up: back to the previous point with half the step
-                    du_prev *= 0.5
-                    dv_prev *= 0.5
-                    un = _wrap_clamp(u_prev + du_prev, u0, u1, cu)
-                    vn = _wrap_clamp(v_prev + dv_prev, v0, v1, cv)
-                    a_ = un - uu
-                    b_ = vn - vv
-                    sx = a_ * sux + b_ * svx
-                    sy = a_ * suy + b_ * svy
-                    sz = a_ * suz + b_ * svz
-                    step = np.sqrt(sx * sx + sy * sy + sz * sz)
-                    uu, vv = un, vn
-                    if step <= eps1:  # halving at noise level: the previous point is the answer
-                        uu, vv = u_prev, v_prev
-                        break
-                    continue
-            guv = sux * svx + suy * svy + suz * svz
-            a = guu + rx * der[2, 0, 0] + ry * der[2, 0, 1] + rz * der[2, 0, 2]
-            b = guv + rx * der[1, 1, 0] + ry * der[1, 1, 1] + rz * der[1, 1, 2]
-            c = gvv + rx * der[0, 2, 0] + ry * der[0, 2, 1] + rz * der[0, 2, 2]
-            det = a * c - b * b
-            pd = (a > 0) and (c > 0) and (det > 1e-12 * abs(a * c))
-            lam = 1e-12 * (guu + gvv) + tiny
-            a1 = a if a > 0 else guu + lam
-            c1 = c if c > 0 else gvv + lam
-            if not pd:
-                a = guu + lam
-                c = gvv + lam
-                b = guv
-            det = a * c - b * b
-            if act_u and act_v:
-                du = 0.0
-                dv = 0.0
-            elif act_v:
-                du = -f / a1
-                dv = 0.0
-            elif act_u:
-                du = 0.0
-                dv = -g / c1
-            else:
-                du = (-c * f + b * g) / det
-                dv = (b * f - a * g) / det
-            if not (np.isfinite(du) and np.isfinite(dv)):
-                du = 0.0
-                dv = 0.0
-            un = _wrap_clamp(uu + du, u0, u1, cu)
-            vn = _wrap_clamp(vv + dv, v0, v1, cv)
-            hit_u = (not cu) and un != uu + du
-            hit_v = (not cv) and vn != vv + dv
-            ddu = un - uu
-            ddv = vn - vv
-            if cu:
-                ddu = ddu - pu * np.rint(ddu / pu)
-            if cv:
-                ddv = ddv - pv * np.rint(ddv / pv)
-            sx = ddu * sux + ddv * svx
-            sy = ddu * suy + ddv * svy
-            sz = ddu * suz + ddv * svz
-            step = np.sqrt(sx * sx + sy * sy + sz * sz)
-            u_prev, v_prev, d2_prev = uu, vv, d2
-            du_prev, dv_prev = ddu, ddv
-            uu, vv = un, vn
-            if conv or step <= eps1:
-                break
-        u[t] = uu
-        v[t] = vv
-        iters[t] += it
-
-
 _NEWTON_BLOCK = 1024  # points per task of the parallel Newton kernel
 _NEWTON_PARALLEL_MIN = 16384  # fewer points: serial (thread start-up costs more than it saves)
 
@@ -797,8 +490,8 @@ _NEWTON_PARALLEL_MIN = 16384  # fewer points: serial (thread start-up costs more
 @numba.njit(cache=True, error_model="numpy")
 def _newton_serial(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
                    max_iter):  # pragma: no cover - compiled
-    _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                  max_iter, 0, pts.shape[0], u, v, -1.0, -1.0, np.zeros(0, dtype=np.bool_))
+    newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                 max_iter, 0, pts.shape[0], u, v, -1.0, -1.0, np.zeros(0, dtype=np.bool_))
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -806,9 +499,9 @@ def _newton_parallel(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, e
                      max_iter):  # pragma: no cover - compiled
     n = pts.shape[0]
     for blk in numba.prange((n + _NEWTON_BLOCK - 1) // _NEWTON_BLOCK):
-        _newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
-                      max_iter, blk * _NEWTON_BLOCK, min(n, (blk + 1) * _NEWTON_BLOCK), u, v, -1.0, -1.0,
-                      np.zeros(0, dtype=np.bool_))
+        newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, noise, u, v, iters,
+                     max_iter, blk * _NEWTON_BLOCK, min(n, (blk + 1) * _NEWTON_BLOCK), u, v, -1.0, -1.0,
+                     np.zeros(0, dtype=np.bool_))
 
 
 def _newton(

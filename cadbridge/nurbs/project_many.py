@@ -22,23 +22,25 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from cadbridge.nurbs.newton import (
+    CHECK_K,
+    CHECK_SEEDS,
+    EDGE_SEEDS,
+    ders2_one,
+    ders2_scratch,
+    global_seeds,
+    newton_range,
+    wrap_clamp,
+)
 from cadbridge.nurbs.project import (
-    _CHECK_K,
-    _CHECK_SEEDS,
-    _EDGE_SEEDS,
     CONVERGED,
     FAILED,
     ON_BOUNDARY,
     SurfaceProjection,
-    _ders2_one,
-    _ders2_scratch,
-    _global_seeds,
-    _newton_range,
-    _wrap_clamp,
-    _nearest_of_pieces,
-    smooth_pieces,
+    nearest_of_pieces,
     pole_edges,
     pole_starts,
+    smooth_pieces,
     surface_samples,
 )
 from cadbridge.nurbs.surface import NurbsSurface
@@ -160,17 +162,17 @@ def _surface(pw, pw_off, ku, ku_off, kv, kv_off, shape, s):  # pragma: no cover 
 @numba.njit(cache=True, error_model="numpy")
 def _newton_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, domain, closed, sid, eps1, tol,
                  pts, noise, u, v, iters, max_iter, a, b, tu, tv, reach, same):  # pragma: no cover - compiled
-    """`_newton_range` on pairs a..b-1 (one surface, sid[a]); restarts (reach[s, 0] >= 0) stop
+    """`newton_range` on pairs a..b-1 (one surface, sid[a]); restarts (reach[s, 0] >= 0) stop
     within reach of the known foot (tu, tv)."""
     s = sid[a]
     net, kku, kkv = _surface(pw, pw_off, ku, ku_off, kv, kv_off, shape, s)
     u0, u1, v0, v1 = domain[s, 0], domain[s, 1], domain[s, 2], domain[s, 3]
     cu, cv = closed[s, 0], closed[s, 1]
     for t in range(a, b):  # start values wrapped / clamped into the domain (as `_newton`)
-        u[t] = _wrap_clamp(u[t], u0, u1, cu)
-        v[t] = _wrap_clamp(v[t], v0, v1, cv)
-    _newton_range(net, kku, kkv, deg[s, 0], deg[s, 1], rational[s], u0, u1, v0, v1, cu, cv, eps1[s], tol,
-                  pts, noise, u, v, iters, max_iter, a, b, tu, tv, reach[s, 0], reach[s, 1], same)
+        u[t] = wrap_clamp(u[t], u0, u1, cu)
+        v[t] = wrap_clamp(v[t], v0, v1, cv)
+    newton_range(net, kku, kkv, deg[s, 0], deg[s, 1], rational[s], u0, u1, v0, v1, cu, cv, eps1[s], tol,
+                 pts, noise, u, v, iters, max_iter, a, b, tu, tv, reach[s, 0], reach[s, 1], same)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -186,11 +188,11 @@ def _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, dom
     cu, cv = closed[s, 0], closed[s, 1]
     e1 = eps1[s]
     tiny = 1e-300
-    scratch = _ders2_scratch(p, q)
+    scratch = ders2_scratch(p, q)
     der = np.empty((3, 3, 3))
     for t in range(a, b):
         uu, vv = u[t], v[t]
-        _ders2_one(net, kku, kkv, p, q, rational[s], uu, vv, scratch, der)
+        ders2_one(net, kku, kkv, p, q, rational[s], uu, vv, scratch, der)
         rx, ry, rz = der[0, 0, 0] - pts[t, 0], der[0, 0, 1] - pts[t, 1], der[0, 0, 2] - pts[t, 2]
         sux, suy, suz = der[1, 0, 0], der[1, 0, 1], der[1, 0, 2]
         svx, svy, svz = der[0, 1, 0], der[0, 1, 1], der[0, 1, 2]
@@ -434,7 +436,7 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: floa
     single = pack.single[np.minimum(sid, len(pack.single) - 1)] & (sid < len(pack.single))
     for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
         getattr(out, name)[order[single]] = getattr(res, name)[single]
-    for f in faces_m:  # nearest over the pieces (`_nearest_of_pieces`: feet on crease lines)
+    for f in faces_m:  # nearest over the pieces (`nearest_of_pieces`: feet on crease lines)
         ids = pack.pieces[f]
         parts = []
         for i in ids:
@@ -443,7 +445,7 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: floa
             parts.append(SurfaceProjection(*(getattr(res, name)[sel] for name in
                                              ("u", "v", "foot", "distance", "normal", "status", "iterations"))))
         rows = np.sort(order[sid == ids[0]])
-        r = _nearest_of_pieces(pack.faces_of[f], [pack.surfaces[i] for i in ids], parts)
+        r = nearest_of_pieces(pack.faces_of[f], [pack.surfaces[i] for i in ids], parts)
         for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
             getattr(out, name)[rows] = getattr(r, name)
     return out
@@ -457,7 +459,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     n = len(p)
     # the nearest sample of each pair's surface starts Newton; the k nearest (global and edge
     # checks) are queried afterwards, only for the pairs that get restarts
-    k = _CHECK_K
+    k = CHECK_K
     cuts = np.flatnonzero(np.diff(sid)) + 1
     starts, stops = np.concatenate([[0], cuts]), np.concatenate([cuts, [n]])
     if resume is not None:
@@ -480,7 +482,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     need = ~np.isnan(d_seed) | (res.status == ON_BOUNDARY)
     dk = np.full((n, k), np.inf)
     ik = np.repeat(first[:, None], k, axis=1)
-    kk = np.minimum(k, np.diff(pack.s_off)[sid])  # k of the surface: min(_CHECK_K, samples)
+    kk = np.minimum(k, np.diff(pack.s_off)[sid])  # k of the surface: min(CHECK_K, samples)
     rows = np.flatnonzero(need)
     if len(rows):
         d_, i_ = pack.nearest_samples(sid[rows], p[rows], k)
@@ -495,9 +497,9 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         if ks < 2:
             continue
         o = pack.s_off[s]
-        rows, sidx = _global_seeds(d_seed[a:b], np.ascontiguousarray(dk[a:b, :ks]),
-                                   np.ascontiguousarray(ik[a:b, :ks] - o), smp.spacing, smp.points, p[a:b],
-                                   res.u[a:b], res.v[a:b], smp.us, smp.vs, smp.closed_u, smp.closed_v, _CHECK_SEEDS)
+        rows, sidx = global_seeds(d_seed[a:b], np.ascontiguousarray(dk[a:b, :ks]),
+                                  np.ascontiguousarray(ik[a:b, :ks] - o), smp.spacing, smp.points, p[a:b],
+                                  res.u[a:b], res.v[a:b], smp.us, smp.vs, smp.closed_u, smp.closed_v, CHECK_SEEDS)
         if len(rows):
             rows_all.append(rows + a)
             seeds_all.append(sidx + o)
@@ -526,7 +528,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
             cand = dkr <= rad[:, None]
             cand[:, 0] = False
             cand &= np.arange(k)[None, :] < kk[r][:, None]
-            cand &= np.cumsum(cand, axis=1) <= _EDGE_SEEDS
+            cand &= np.cumsum(cand, axis=1) <= EDGE_SEEDS
             rr, cc = np.nonzero(cand)
             uv = pack.suv[ikr[rr, cc]]
             starts_u.append(uv[:, 0])

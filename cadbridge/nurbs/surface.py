@@ -10,7 +10,7 @@ import numpy as np
 from cadbridge.nurbs.basis import (ders1_basis_one, ders_basis_funs, ders_basis_one, find_span, find_span_one,
                                    validate_knots)
 
-__all__ = ["NurbsSurface"]
+__all__ = ["NurbsSurface", "d01_range"]
 
 _CHUNK = 32768  # points per evaluation block of the numpy path (bounds temporary memory)
 _BLOCK = 1024  # points per task of the parallel kernel
@@ -88,7 +88,7 @@ def _ders_range(pw, ku, kv, p, q, d, rational, u, v, out, start, stop, binom):  
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _d01_range(pw, ku, kv, p, q, d, rational, u, v, out, start, stop):  # pragma: no cover - compiled
+def d01_range(pw, ku, kv, p, q, d, rational, u, v, out, start, stop):  # pragma: no cover - compiled
     """`_ders_range` for d = 0 (S into out (N, 1, 1, 3)) or d = 1 (S, Su, Sv, Suv into out
     (N, 2, 2, 3)), specialised (one compiled kernel serves `evaluate` and first derivatives): basis values
     and first derivatives by `ders1_basis_one` into (2, p+1) / (2, q+1), the 16 homogeneous sums in scalars, the
@@ -212,7 +212,7 @@ def _ders_parallel(pw, ku, kv, p, q, d, rational, u, v, out, binom):  # pragma: 
 def _d01_parallel(pw, ku, kv, p, q, d, rational, u, v, out):  # pragma: no cover - compiled
     n = u.shape[0]
     for blk in numba.prange((n + _BLOCK - 1) // _BLOCK):
-        _d01_range(pw, ku, kv, p, q, d, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK))
+        d01_range(pw, ku, kv, p, q, d, rational, u, v, out, blk * _BLOCK, min(n, (blk + 1) * _BLOCK))
 
 
 class NurbsSurface:
@@ -347,7 +347,7 @@ class NurbsSurface:
             raise ValueError(f"order must be >= 0, got {order}")
         out = np.empty((u.size, d + 1, d + 1, 3))
         if u.size:
-            # compiled kernels, loaded lazily: orders 0 and 1 share the specialised `_d01_range`,
+            # compiled kernels, loaded lazily: orders 0 and 1 share the specialised `d01_range`,
             # higher orders the generic `_ders_range`; the serial kernels are called directly and
             # the parallel (prange) ones, slower to compile, only for many points
             args = (self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, d, self.rational, u, v, out)
@@ -355,7 +355,7 @@ class NurbsSurface:
                 if u.size >= _PARALLEL_MIN:
                     _d01_parallel(*args)
                 else:
-                    _d01_range(*args, 0, u.size)
+                    d01_range(*args, 0, u.size)
             elif u.size >= _PARALLEL_MIN:
                 _ders_parallel(*args, _binomials(d))
             else:

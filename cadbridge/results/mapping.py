@@ -238,6 +238,132 @@ def _unwrap(uv: np.ndarray, ef: np.ndarray, model: Model, topo: list[FaceTopolog
             uv[sel, :, axis] = x
 
 
+@dataclass
+class _SubTriangles:
+    """Parameter-space sub-triangles collected in pieces: (T_i, 3, 2) (u, v), (T_i, 3) field,
+    (T_i, 3) int64 vertex keys and (T_i,) faces per piece."""
+
+    uv: list = field(default_factory=list)
+    f: list = field(default_factory=list)
+    key: list = field(default_factory=list)
+    face: list = field(default_factory=list)
+
+    def add(self, uv: np.ndarray, f: np.ndarray, key: np.ndarray, face: np.ndarray) -> None:
+        self.uv.append(uv)
+        self.f.append(f)
+        self.key.append(key)
+        self.face.append(face)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(T, 3, 2) uv, (T, 3) field, (T, 3) keys, (T,) faces of all pieces in order."""
+        return (np.concatenate(self.uv).astype(float), np.concatenate(self.f).astype(float),
+                np.concatenate(self.key), np.concatenate(self.face).astype(np.int64))
+
+
+def _checked_values(mesh: Mesh, values) -> np.ndarray:
+    """``values`` as (N,) floats; ValueError unless one finite value per node."""
+    vals = np.asarray(values, dtype=float).reshape(-1)
+    if len(vals) != mesh.n_nodes:
+        raise ValueError(f"{len(vals)} values for {mesh.n_nodes} nodes")
+    if not np.all(np.isfinite(vals)):
+        raise ValueError(f"values are not finite at nodes {np.flatnonzero(~np.isfinite(vals))[:5].tolist()}")
+    return vals
+
+
+def _snap_and_mark(c: np.ndarray, ef: np.ndarray, uv: np.ndarray, model: Model, topo: list[FaceTopology],
+                   seam: np.ndarray, pole: np.ndarray) -> np.ndarray:
+    """Corner parameters uv (E, k, 2) of one cell block (c (E, k) nodes, ef (E,) faces) snapped
+    onto their face's domain bounds (in place); marks seam and pole nodes in seam, pole (N,).
+    Returns the (E, k) bool mask of the corners at a pole."""
+    pm = np.zeros(c.shape, dtype=bool)
+    for f in np.unique(ef):
+        sel = np.flatnonzero(ef == f)
+        dom = model.faces[f].surface.domain
+        for axis in (0, 1):
+            uv[sel, :, axis] = _snap(uv[sel, :, axis], dom[2 * axis], dom[2 * axis + 1])
+            if topo[f].closed[axis]:
+                x = uv[sel, :, axis]
+                on = (x == dom[2 * axis]) | (x == dom[2 * axis + 1])
+                seam[c[sel][on]] = True
+        for axis, val in topo[f].poles:
+            pm[sel] |= uv[sel, :, axis] == val
+    pole[c[pm]] = True
+    return pm
+
+
+def _regular_triangles(out: _SubTriangles, c: np.ndarray, uv: np.ndarray, fv: np.ndarray, ef: np.ndarray,
+                       reg: np.ndarray, eidx: np.ndarray, n: int) -> None:
+    """Sub-triangles of the elements ``reg`` (indices into the block) without a pole corner:
+    triangles as they are, quadrilaterals split at their centre (key n + element index eidx).
+    c (E, k) nodes, uv (E, k, 2), fv (E, k) field, ef (E,) faces, eidx (E,) global indices."""
+    if c.shape[1] == 3:
+        out.add(uv[reg], fv[reg], c[reg].astype(np.int64), ef[reg])
+        return
+    cu = uv[reg].mean(axis=1)
+    cf = fv[reg].mean(axis=1)
+    ck = n + eidx[reg]
+    for k in range(4):
+        k1 = (k + 1) % 4
+        out.add(np.stack([cu, uv[reg, k], uv[reg, k1]], axis=1), np.column_stack([cf, fv[reg, k], fv[reg, k1]]),
+                np.column_stack([ck, c[reg, k], c[reg, k1]]).astype(np.int64), ef[reg])
+
+
+def _pole_triangles(out: _SubTriangles, e: int, f: int, keys: np.ndarray, uv: np.ndarray, fv: np.ndarray,
+                    pm: np.ndarray, topo: list[FaceTopology], n: int) -> None:
+    """Sub-triangles of element e (face f) with a pole corner: the corner doubled under its
+    neighbours on the pole line, the polygon split at its centre (key n + e). keys (k,) nodes,
+    uv (k, 2), fv (k,) field, pm (k,) pole corners."""
+    k = len(keys)
+    axis = next(a for a, val in topo[f].poles if np.any(uv[pm, a] == val))
+    pu, pf, pk = [], [], []
+    for i in range(k):
+        if pm[i]:
+            for j in ((i - 1) % k, (i + 1) % k):
+                if pm[j]:
+                    continue
+                q = uv[i].copy()
+                q[1 - axis] = uv[j, 1 - axis]
+                if j == (i - 1) % k or not pu or not np.array_equal(pu[-1], q):
+                    pu.append(q)
+                    pf.append(fv[i])
+                    pk.append(keys[i])
+        else:
+            pu.append(uv[i])
+            pf.append(fv[i])
+            pk.append(keys[i])
+    pu, pf, pk = np.array(pu), np.array(pf), np.array(pk, dtype=np.int64)
+    if len(pu) < 3:
+        return  # an element with all corners at the pole covers nothing
+    if len(pu) == 3:
+        out.add(pu[None], pf[None], pk[None], np.array([f]))
+        return
+    cu, cf = pu.mean(axis=0), pf.mean()
+    for i in range(len(pu)):
+        i1 = (i + 1) % len(pu)
+        out.add(np.array([[cu, pu[i], pu[i1]]]), np.array([[cf, pf[i], pf[i1]]]),
+                np.array([[n + e, pk[i], pk[i1]]], dtype=np.int64), np.array([f]))
+
+
+def _counter_clockwise(t_uv: np.ndarray, t_f: np.ndarray, t_key: np.ndarray) -> None:
+    """In place: vertices 1 and 2 swapped where a triangle (T, 3, 2) runs clockwise in (u, v)."""
+    e1 = t_uv[:, 1] - t_uv[:, 0]
+    e2 = t_uv[:, 2] - t_uv[:, 0]
+    cw = (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0
+    for a in (t_uv, t_f, t_key):
+        a[cw, 1], a[cw, 2] = a[cw, 2].copy(), a[cw, 1].copy()
+
+
+def _exact_areas(model: Model, t_face: np.ndarray, t_uv: np.ndarray, quadrature: int) -> np.ndarray:
+    """(T,) exact surface area of each sub-triangle (faces (T,), (u, v) (T, 3, 2)), face by face."""
+    area = np.zeros(len(t_face))
+    order = np.argsort(t_face, kind="stable")
+    cuts = np.flatnonzero(np.diff(t_face[order])) + 1
+    for grp in np.split(order, cuts):
+        if len(grp):
+            area[grp] = surface_area_of_triangles(model.faces[int(t_face[grp[0]])].surface, t_uv[grp], quadrature)
+    return area
+
+
 def map_results(mesh: Mesh, values, model: Model, *, field_name: str = "field", source: str = "point data",
                 tolerance: float | None = None, quadrature: int = 4, progress=None) -> ResultMapping:
     """Map nodal ``values`` (N,) on ``mesh`` onto the faces of ``model`` (see the module text).
@@ -256,11 +382,7 @@ def map_results(mesh: Mesh, values, model: Model, *, field_name: str = "field", 
     from cadbridge.normals.cad import cad_normals
 
     t0 = time.perf_counter()
-    vals = np.asarray(values, dtype=float).reshape(-1)
-    if len(vals) != mesh.n_nodes:
-        raise ValueError(f"{len(vals)} values for {mesh.n_nodes} nodes")
-    if not np.all(np.isfinite(vals)):
-        raise ValueError(f"values are not finite at nodes {np.flatnonzero(~np.isfinite(vals))[:5].tolist()}")
+    vals = _checked_values(mesh, values)
     if progress is not None:
         progress.stage(f"inverting {mesh.n_nodes} nodes onto {len(model.faces)} faces")
     cn = cad_normals(mesh, model, tolerance=tolerance, orient=True)
@@ -279,110 +401,32 @@ def map_results(mesh: Mesh, values, model: Model, *, field_name: str = "field", 
     nodes = np.asarray(mesh.nodes, dtype=float)
     seam = np.zeros(n, dtype=bool)
     pole = np.zeros(n, dtype=bool)
-    tris_uv, tris_f, tris_key, tris_face = [], [], [], []
+    tris = _SubTriangles()
     special = []  # (element index, face, corner keys, corner uv, corner f, pole mask)
     off = 0
     for blk, uv in zip(mesh.cells, corner_uv):
         c = np.asarray(blk.data)
         ef = element_face[off : off + len(c)]
-        # snap to the domain bounds, mark pole corners
-        pm = np.zeros(c.shape, dtype=bool)
-        for f in np.unique(ef):
-            sel = np.flatnonzero(ef == f)
-            dom = model.faces[f].surface.domain
-            for axis in (0, 1):
-                uv[sel, :, axis] = _snap(uv[sel, :, axis], dom[2 * axis], dom[2 * axis + 1])
-                if topo[f].closed[axis]:
-                    x = uv[sel, :, axis]
-                    on = (x == dom[2 * axis]) | (x == dom[2 * axis + 1])
-                    seam[c[sel][on]] = True
-            for axis, val in topo[f].poles:
-                pm[sel] |= uv[sel, :, axis] == val
-        pole[c[pm]] = True
+        pm = _snap_and_mark(c, ef, uv, model, topo, seam, pole)
         _unwrap(uv, ef, model, topo, pm)
         fv = vals[c]
         has_pole = pm.any(axis=1)
-        reg = np.flatnonzero(~has_pole)
-        eidx = off + np.arange(len(c))
-        if c.shape[1] == 3:
-            tris_uv.append(uv[reg])
-            tris_f.append(fv[reg])
-            tris_key.append(c[reg].astype(np.int64))
-            tris_face.append(ef[reg])
-        else:
-            cu = uv[reg].mean(axis=1)
-            cf = fv[reg].mean(axis=1)
-            ck = n + eidx[reg]
-            for k in range(4):
-                k1 = (k + 1) % 4
-                tris_uv.append(np.stack([cu, uv[reg, k], uv[reg, k1]], axis=1))
-                tris_f.append(np.column_stack([cf, fv[reg, k], fv[reg, k1]]))
-                tris_key.append(np.column_stack([ck, c[reg, k], c[reg, k1]]).astype(np.int64))
-                tris_face.append(ef[reg])
+        _regular_triangles(tris, c, uv, fv, ef, np.flatnonzero(~has_pole), off + np.arange(len(c)), n)
         for e in np.flatnonzero(has_pole):
             special.append((off + e, int(ef[e]), c[e], uv[e], fv[e], pm[e]))
         off += len(c)
-
-    # elements with a pole corner: the corner doubled under its neighbours, centre split
     for e, f, keys, uv, fv, pm in special:
-        k = len(keys)
-        axis = next(a for a, val in topo[f].poles if np.any(uv[pm, a] == val))
-        pu, pf, pk = [], [], []
-        for i in range(k):
-            if pm[i]:
-                for j in ((i - 1) % k, (i + 1) % k):
-                    if pm[j]:
-                        continue
-                    q = uv[i].copy()
-                    q[1 - axis] = uv[j, 1 - axis]
-                    if j == (i - 1) % k or not pu or not np.array_equal(pu[-1], q):
-                        pu.append(q)
-                        pf.append(fv[i])
-                        pk.append(keys[i])
-            else:
-                pu.append(uv[i])
-                pf.append(fv[i])
-                pk.append(keys[i])
-        pu, pf, pk = np.array(pu), np.array(pf), np.array(pk, dtype=np.int64)
-        if len(pu) < 3:
-            continue  # an element with all corners at the pole covers nothing
-        if len(pu) == 3:
-            tris_uv.append(pu[None])
-            tris_f.append(pf[None])
-            tris_key.append(pk[None])
-            tris_face.append(np.array([f]))
-            continue
-        cu, cf = pu.mean(axis=0), pf.mean()
-        for i in range(len(pu)):
-            i1 = (i + 1) % len(pu)
-            tris_uv.append(np.array([[cu, pu[i], pu[i1]]]))
-            tris_f.append(np.array([[cf, pf[i], pf[i1]]]))
-            tris_key.append(np.array([[n + e, pk[i], pk[i1]]], dtype=np.int64))
-            tris_face.append(np.array([f]))
+        _pole_triangles(tris, e, f, keys, uv, fv, pm, topo, n)
 
-    t_uv = np.concatenate(tris_uv).astype(float)
-    t_f = np.concatenate(tris_f).astype(float)
-    t_key = np.concatenate(tris_key)
-    t_face = np.concatenate(tris_face).astype(np.int64)
+    t_uv, t_f, t_key, t_face = tris.arrays()
     n_keys = n + len(element_face)
     t_uv, t_f, t_key, t_face, n_keys = _cut_seams(t_uv, t_f, t_key, t_face, model, topo, n_keys)
-
-    # counter-clockwise in (u, v)
-    e1 = t_uv[:, 1] - t_uv[:, 0]
-    e2 = t_uv[:, 2] - t_uv[:, 0]
-    cw = (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]) < 0
-    for a in (t_uv, t_f, t_key):
-        a[cw, 1], a[cw, 2] = a[cw, 2].copy(), a[cw, 1].copy()
+    _counter_clockwise(t_uv, t_f, t_key)
     timings["sub-triangles"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     if progress is not None:
         progress.stage(f"exact areas of {len(t_face)} parameter triangles")
-    area = np.zeros(len(t_face))
-    order = np.argsort(t_face, kind="stable")
-    cuts = np.flatnonzero(np.diff(t_face[order])) + 1
-    for grp in np.split(order, cuts):
-        if len(grp):
-            area[grp] = surface_area_of_triangles(model.faces[int(t_face[grp[0]])].surface, t_uv[grp], quadrature)
+    area = _exact_areas(model, t_face, t_uv, quadrature)
     timings["areas"] = time.perf_counter() - t2
     t3 = time.perf_counter()
     from cadbridge.results.borders import find_border_arcs

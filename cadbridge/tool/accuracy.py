@@ -315,7 +315,7 @@ def own_face_nearest(model: Model, pts: np.ndarray, face: np.ndarray, uv: np.nda
     index, which holds the surfaces) comes within the foot's distance d of the point.
     Faces with crease knot lines (measured on one smooth piece) are left out.
     Returns (ok (M,) bool, d (M,) = |x - S(u, v)|, NaN where not computed)."""
-    from cadbridge.cad.search import _candidate_pairs, index_for
+    from cadbridge.cad.search import candidate_pairs, index_for
 
     rep, inv = _unique_points(pts, COINCIDENT * model.size(), key=face)  # shared samples once
     if len(rep) < len(pts):
@@ -335,7 +335,7 @@ def own_face_nearest(model: Model, pts: np.ndarray, face: np.ndarray, uv: np.nda
     if len(sel):
         d = dist[sel]
         bound = d + 1e-9 * d + 1e-12 * model.size()
-        cp, _ = _candidate_pairs(index_for(model), pts[sel], bound, exclude=face[sel])
+        cp, _ = candidate_pairs(index_for(model), pts[sel], bound, exclude=face[sel])
         ok[sel[cp]] = False
     return ok, dist
 

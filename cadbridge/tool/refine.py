@@ -38,11 +38,15 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cadbridge.heal.folds import FOLD_RADIUS
 from cadbridge.mesh.mesh import Mesh
+
+if TYPE_CHECKING:
+    from cadbridge.mesh.sizing import SizeField
 
 __all__ = ["AdaptiveResult", "FloorElement", "PassReport", "element_marks", "mesh_command", "next_sizes", "refine_mesh", "shape_check"]
 
@@ -336,6 +340,284 @@ def _inflection_curves(model, progress) -> tuple[list, list[str]]:
     return curves, notes
 
 
+@dataclass
+class _Sizing:
+    """The size fields of one `refine_mesh` call (lengths in model units; S law samples, F faces)."""
+
+    tolerance: float
+    t_loop: float  # what the loop aims at: a little below the tolerance (the denser check decides)
+    h_min: float  # size floor
+    h_max: float  # largest element
+    gradation: float
+    frames: object  # `cadbridge.mesh.sizing.CurvatureFrames` of the curvature samples
+    law_pts: np.ndarray  # (S, 3) samples of the error law (fold radii excluded)
+    law_h: np.ndarray  # (S,) the law's sizes there
+    law_face: np.ndarray  # (S,) their faces
+    law: SizeField  # the law alone: what face scales refer to
+    marks: SizeField  # refinement requests only
+    field: SizeField  # the field gmsh gets: rebuilt with the scales and marks after every pass
+    face_scale: np.ndarray  # (F,) the law's scale per face (`scale_face_law`)
+
+    def side_sizes(self, x, k) -> tuple[np.ndarray, np.ndarray]:
+        """Sizes along a side of a mapped face (`mesh_cad`'s ``curve_size``): the law for the
+        mesh lines along the side inside its faces (`CurvatureFrames.side_curvature`: normal
+        and geodesic curvature along it, half the tolerance where the face also curves across
+        it), integrated along it, no edge turning by more than MAX_TURN; and the refinement
+        marks (a request that holds along the whole, uniformly divided side). x: ordered
+        points (M, 3) along the side."""
+        from cadbridge.mesh.sizing import MAX_TURN, edge_length_for_tolerance
+
+        x = np.asarray(x, dtype=float).reshape(-1, 3)
+        tan = np.gradient(x, axis=0) if len(x) > 1 else np.zeros_like(x)
+        tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
+        k_side = self.frames.side_curvature(x, tan, k)
+        h = edge_length_for_tolerance(self.t_loop, k_side, self.h_max, MAX_TURN, k)
+        return (np.maximum(h, self.h_min), self.marks(x))
+
+
+def _size_law(model, tolerance: float, min_size: float | None, max_size: float | None, gradation: float,
+              progress) -> _Sizing:
+    """The sizes of the Nagata error law from the exact principal curvatures of the CAD, the
+    size floor and largest size, no marks yet (module docs, step 1)."""
+    from cadbridge.mesh.sizing import (MAX_TURN, SizeField, curvature_samples, edge_length_for_tolerance,
+                                       patch_curvature)
+
+    size = model.size()
+    h_max = float(max_size) if max_size else size / 4.0
+    if min_size is not None and not (0 < float(min_size) <= h_max):
+        raise ValueError(f"size floor {min_size!r} must be positive and at most the largest size {h_max!r}")
+    t_loop = 0.95 * tolerance  # the loop aims a little below: the denser check decides
+
+    progress.stage("principal curvatures of the CAD faces (sizing by the Nagata error law)")
+    pts, kmax, frames = curvature_samples(model, frames=True)
+    # isotropic elements (unmapped faces): both directions' errors add up on doubly curved
+    # surfaces (`patch_curvature`); no edge turns the normal by more than MAX_TURN
+    h_law = edge_length_for_tolerance(t_loop, patch_curvature(frames.k1, frames.k2), h_max, MAX_TURN, kmax)
+    # radii below the fold radius are no tool radius (`cadbridge.heal.folds`): they size nothing
+    real = kmax < 1.0 / (FOLD_RADIUS * size)
+    h_min = float(min_size) if min_size is not None else default_floor(size, h_law[real])
+    law_pts, law_h, law_face = pts[real], h_law[real], frames.face[real]
+    law = SizeField(law_pts, law_h, h_min, h_max, gradation)  # the law alone: what face scales refer to
+    # the law's sizes of each face, scaled down where its unmapped elements stayed above the
+    # tolerance (`scale_face_law`)
+    face_scale = np.ones(len(model.faces))
+    marks = SizeField(np.zeros((0, 3)), np.zeros(0), h_min, h_max, gradation)  # refinement requests only
+    return _Sizing(tolerance, t_loop, h_min, h_max, gradation, frames, law_pts, law_h, law_face, law, marks, law,
+                   face_scale)
+
+
+def _embedded_curves(model, inflections: bool, progress) -> tuple[list, list[str]]:
+    """The curves the meshes keep as edges: the crease lines and, with ``inflections``, the
+    iso inflection lines (module docs, step 2); and the actions noted for them."""
+    from cadbridge.heal.creases import crease_lines
+
+    embed = [c.curve for c in crease_lines(model)]
+    actions: list[str] = []
+    if inflections:
+        progress.stage("inflection lines of the CAD faces")
+        curves, notes = _inflection_curves(model, progress)
+        embed += curves
+        actions += notes
+    return embed, actions
+
+
+def _mesh_pass(geometry: Path, embed: list, mesh_kw: dict, model, inflections: bool, actions: list[str], p: int,
+               progress, can_stop: bool) -> tuple[Mesh | None, list]:
+    """Pass p's mesh (`mesh_cad`), without the inflection curves where gmsh cannot fragment
+    the faces with them (for this and later passes). A pass gmsh and the (u, v) fill cannot
+    mesh gives None where ``can_stop`` (a pass before it stands). Returns (mesh, embedded
+    curves)."""
+    from cadbridge.heal.creases import crease_lines
+    from cadbridge.mesh.generate import mesh_cad
+    from cadbridge.mesh.mesh import MeshError
+
+    try:
+        try:
+            mesh = mesh_cad(geometry, embed_curves=embed, **mesh_kw)
+        except MeshError:
+            if inflections and len(embed) > len(crease_lines(model)):
+                # gmsh could not fragment the faces with the inflection curves: keep node moving only
+                embed = [c.curve for c in crease_lines(model)]
+                actions.append("inflection lines could not be inserted as mesh edges (gmsh fragment failed): "
+                               "nodes are moved onto them instead")
+                mesh = mesh_cad(geometry, embed_curves=embed, **mesh_kw)
+            else:
+                raise
+    except MeshError as exc:
+        if not can_stop:
+            raise
+        # a later pass's sizes that gmsh and the (u, v) fill cannot mesh: the passes
+        # before it stand, the best of them is the result
+        actions.append(f"pass {p}: meshing failed, the loop stops at its best pass: {str(exc)[:400]}")
+        progress.stage(f"pass {p}: meshing failed ({str(exc)[:160]}); keeping the best pass")
+        return None, embed
+    return mesh, embed
+
+
+def _move_onto_inflections(mesh: Mesh, model, p: int, actions: list[str], progress) -> tuple[Mesh, int, object]:
+    """Nodes of edges across inflection lines moved onto them (module docs, step 2). Returns
+    (mesh, nodes moved, the `CadNormals` before the move)."""
+    from cadbridge.normals.cad import cad_normals
+    from cadbridge.tool.inflection_nodes import move_nodes_to_inflections
+
+    progress.stage(f"pass {p}: edges across inflections ({len(mesh.nodes)} nodes)")
+    cn = cad_normals(mesh, model, orient=True, allow_far=True)
+    mesh = cn.mesh if cn.mesh is not None else mesh
+    mesh, moves = move_nodes_to_inflections(mesh, model, cn)
+    if moves and p == 1:
+        actions += [str(m) for m in moves[:50]]
+    elif moves:
+        actions.append(f"pass {p}: {len(moves)} nodes moved onto inflection lines")
+    return mesh, len(moves), cn
+
+
+@dataclass
+class _PassMarks:
+    """The refinement marks of one pass (module docs, step 5)."""
+
+    pass_scale: np.ndarray  # (F,) the law's scale per face this pass asks for (`scale_face_law`)
+    points: list = field(default_factory=list)  # (M_i, 3) mark points
+    sizes: list = field(default_factory=list)  # (M_i,) sizes asked there
+    log: dict = field(default_factory=dict)  # reason -> [elements, marks, smallest size asked]
+    floor: list = field(default_factory=list)  # FloorElement: elements at the size floor
+
+
+def _mark(sz: _Sizing, pm: _PassMarks, t, elems: np.ndarray, e: np.ndarray, factor_cap: float, order, reason: str,
+          adm_bad: set, scale_faces: bool = True) -> None:
+    """Refinement marks over balls about the elements ``elems`` (K,) of tool t with errors e
+    (K,); floor elements noted. ``order`` (K,): the rate at which each element's error falls
+    with its size (4 for the surface error, 2 where the boundary error of a chord along a
+    curved border dominates); ``reason`` names them in the pass's log of marks; ``adm_bad``:
+    the tool's elements with an inadmissible edge. ``scale_faces``: unmapped elements above
+    by their surface error scale their face's law too (`scale_face_law`)."""
+    hs = _element_sizes(t.nagata)[elems]
+    cen = _centroids(t.mesh)[elems]
+    # the law's factor times the smallest of the element's size (its most curved edge),
+    # what earlier marks asked there and, outside mapped faces, the size field there
+    # (`next_sizes`: gmsh can make elements larger than asked, and a mark above the
+    # field changes nothing; the production die's two stalled elements)
+    f = np.clip(0.9 * (sz.t_loop / np.maximum(e, 1e-300)) ** (1.0 / order), 0.3, factor_cap)
+    free = ~_in_grid_faces(t, elems)
+    h_new = np.maximum(next_sizes(hs, f, sz.marks(cen), np.where(free, sz.field(cen), np.inf)), sz.h_min)
+    if scale_faces and t.element_face is not None:
+        surf = free & (np.asarray(order) == 4.0)
+        scale_face_law(pm.pass_scale, t.element_face[elems[surf]], h_new[surf], sz.law(cen[surf]))
+    at_floor = hs <= 1.3 * sz.h_min
+    for k in np.flatnonzero(at_floor):  # loop over the (few) floor elements
+        pm.floor.append(FloorElement(t.name, int(elems[k]) + 1, float(e[k]), float(hs[k]),
+                                     _floor_reason(t, int(elems[k]), float(e[k]), adm_bad, sz.tolerance, sz.h_min)))
+    # the size is asked over the element and half a new element around it (a ball
+    # about its centroid), not at its corners: gmsh reads the field at the nodes it
+    # makes, where point marks graded at g are h_new + g h / 2 (`ball_marks`: the
+    # production die's 7.3 mm elements were remade at 7.3 mm for 5.5 asked)
+    bp, bh = element_marks(t.mesh, elems, h_new, cen)
+    pm.points.append(bp)
+    pm.sizes.append(bh)
+    _log_marks(pm.log, reason, len(elems), bh)
+    # a marked element of an unmapped strip fewer than STRIP_ELEMENTS of the sizes asked
+    # wide: the whole strip is marked (a local mark only moves gmsh's skewed quads
+    # along it)
+    sp, sh = strip_marks(t, elems[free], h_new[free] / np.maximum(hs[free], 1e-300), h_new[free])
+    if len(sp):
+        pm.points.append(sp)
+        pm.sizes.append(np.maximum(sh, sz.h_min))
+        _log_marks(pm.log, reason + ", over narrow unmapped strips", 0, pm.sizes[-1])
+    # an element inside a mapped face: its sides' divisions come from the face's
+    # boundary curves, which a mark at the element does not reach: marks on the
+    # face's border too, none below h_new (the sides across the refined direction keep
+    # their law's size)
+    bp, bh = _mapped_border_marks(t, elems, np.maximum(h_new, sz.h_min) / np.maximum(hs, 1e-300), hs)
+    if len(bp):
+        pm.points.append(bp)
+        pm.sizes.append(np.maximum(bh, sz.h_min))
+        _log_marks(pm.log, reason + ", on mapped faces' borders", 0, pm.sizes[-1])
+
+
+def _mark_loop_errors(sz: _Sizing, pm: _PassMarks, tools: list, model
+                      ) -> tuple[int, int, list[tuple[str, int, float]], list[str], int]:
+    """Marks at the elements above the loop's tolerance on the loop grid and at those whose
+    CAD normal turns too far between their corners (module docs, steps 4-5). Returns
+    (elements above, elements with an inadmissible edge, the elements above as (tool,
+    element 1-based, error), descriptions of the worst, elements refined for their turn)."""
+    from cadbridge.mesh.sizing import MAX_TURN
+    from cadbridge.nagata.admissibility import edge_admissibility
+
+    above_all: list[tuple[str, int, float]] = []
+    n_above = n_inadm = 0
+    n_turned = 0
+    worst: list[str] = []
+    for t in tools:
+        e = np.zeros(t.nagata.n_elements)
+        np.maximum.at(e, t.grid["element"], _shape_error(t.grid))
+        order = _error_order(t.nagata.n_elements, t.grid["element"], t.grid)
+        adm = edge_admissibility(t.nagata)
+        adm_bad = set(adm.bad_elements().tolist())
+        n_inadm += len(adm_bad)
+        bad = np.flatnonzero(e > sz.t_loop)
+        n_above += len(bad)
+        above_all += [(t.name, int(i) + 1, float(e[i])) for i in bad]
+        worst += _worst_elements(t, e, bad, model)
+        if len(bad):
+            _mark(sz, pm, t, bad, e[bad], 0.75, order[bad], "error above the loop's tolerance", adm_bad)
+        # elements whose CAD normal turns by more than MAX_TURN between their corners (a
+        # quadratic patch over a nearly reversing normal breaks) are halved too, whatever
+        # their error on the loop grid
+        turn = _normal_turn(t.nagata)
+        hs_all = _element_sizes(t.nagata)
+        turned = np.setdiff1d(np.flatnonzero((turn > MAX_TURN * 1.05) & (hs_all > 1.3 * sz.h_min)), bad)
+        n_turned += len(turned)
+        if len(turned):
+            _mark(sz, pm, t, turned, np.full(len(turned), sz.t_loop * 16.0), 0.5, np.full(len(turned), 4.0),
+                  "normal turn", adm_bad, scale_faces=False)
+    return n_above, n_inadm, above_all, worst, n_turned
+
+
+def _independent_check(sz: _Sizing, pm: _PassMarks, tools: list, model, projector, check_grid: int | None,
+                       grid: int, p: int, progress) -> tuple[dict, float, list[tuple[str, int, float]]]:
+    """The check on a denser grid once the loop grid is within tolerance: ``check_grid``
+    divisions per patch (default 2 x the grid the loop used - 1, so most points are new);
+    marks at its failures. Returns (summary of `shape_check`, its max error, the elements
+    above as (tool, element 1-based, error))."""
+    from cadbridge.nagata.admissibility import edge_admissibility
+
+    # odd multiple-ish of the grid the loop really used (big models get fewer divisions
+    # from the sample budget of `cadbridge.tool.build.sample_divisions`), so most points are new
+    used = min(int(t.stats.get("grid", grid)) for t in tools)
+    check_grid = check_grid or 2 * used - 1
+    progress.stage(f"pass {p}: independent check on {check_grid} divisions per patch")
+    check, per, per_order = shape_check(tools, model, projector, check_grid, orders=True)
+    above_all: list[tuple[str, int, float]] = []
+    for t in tools:
+        # 2 % margin: a still denser sampling finds up to ~0.5 % more (OCC, 15 divisions)
+        bad = np.flatnonzero(per[t.name] > 0.98 * sz.tolerance)
+        above_all += [(t.name, int(i) + 1, float(per[t.name][i])) for i in bad]
+        if len(bad):
+            adm_bad = set(edge_admissibility(t.nagata).bad_elements().tolist())
+            _mark(sz, pm, t, bad, per[t.name][bad] / 0.95 * 1.05, 0.75, per_order[t.name][bad],
+                  "error above the check's margin", adm_bad)
+    return check, check["max_error"], above_all
+
+
+def _next_field(sz: _Sizing, pm: _PassMarks, h_all: np.ndarray, model, p: int, actions: list[str]) -> None:
+    """The pass's marks added to ``sz.marks`` (sizes h_all (M,)), the face scales lowered (at
+    most by half per pass: one element's mark is a local estimate) and ``sz.field`` rebuilt."""
+    from cadbridge.mesh.sizing import SizeField
+
+    sz.marks.add(np.concatenate(pm.points), h_all)
+    # at most half the face's scale per pass (one element's mark is a local estimate)
+    new_scale = np.maximum(np.minimum(sz.face_scale, pm.pass_scale), 0.5 * sz.face_scale)
+    changed = np.flatnonzero(new_scale < sz.face_scale * 0.999)
+    if len(changed):
+        actions.append(f"pass {p}: the error law's sizes scaled on {len(changed)} face(s) whose unmapped elements "
+                       "stayed above: " + ", ".join(
+                           f"{model.faces[i].name or i} x{new_scale[i]:.2f}" for i in changed[:12]) +
+                       (f" and {len(changed) - 12} more" if len(changed) > 12 else ""))
+    sz.face_scale = new_scale
+    scaled = np.where(sz.law_h < sz.h_max, sz.law_h * sz.face_scale[sz.law_face], sz.law_h)  # flat samples stay at h_max
+    sz.field = SizeField(np.vstack([sz.law_pts, sz.marks.points]), np.concatenate([scaled, sz.marks.sizes]),
+                         sz.h_min, sz.h_max, sz.gradation)
+
+
 def refine_mesh(
     cad: str | Path,
     tolerance: float,
@@ -375,14 +657,8 @@ def refine_mesh(
 
     Returns an `AdaptiveResult` (``met`` False when some elements stay above the tolerance
     at the size floor or after ``max_passes``; the best mesh is still in it)."""
-    from cadbridge.heal.creases import crease_lines
     from cadbridge.iges import read_iges
-    from cadbridge.tool.inflection_nodes import move_nodes_to_inflections
-    from cadbridge.mesh.generate import mesh_cad
-    from cadbridge.mesh.mesh import MeshError
-    from cadbridge.mesh.sizing import (MAX_TURN, SizeField, curvature_samples, edge_length_for_tolerance,
-                                       patch_curvature)
-    from cadbridge.nagata.admissibility import edge_admissibility
+    from cadbridge.mesh.sizing import MAX_TURN
     from cadbridge.normals.cad import cad_normals
     from cadbridge.tool.build import NoProgress, tools_from_mesh
 
@@ -393,52 +669,12 @@ def refine_mesh(
     cad = Path(cad)
     model = model if model is not None else read_iges(cad)
     projector = _projector(model, projector)
-    size = model.size()
-    h_max = float(max_size) if max_size else size / 4.0
-    if min_size is not None and not (0 < float(min_size) <= h_max):
-        raise ValueError(f"size floor {min_size!r} must be positive and at most the largest size {h_max!r}")
+    sz = _size_law(model, tolerance, min_size, max_size, gradation, progress)
     user_check_grid = check_grid
-    t_loop = 0.95 * tolerance  # the loop aims a little below: the denser check decides
-
-    progress.stage("principal curvatures of the CAD faces (sizing by the Nagata error law)")
-    pts, kmax, frames = curvature_samples(model, frames=True)
-    # isotropic elements (unmapped faces): both directions' errors add up on doubly curved
-    # surfaces (`patch_curvature`); no edge turns the normal by more than MAX_TURN
-    h_law = edge_length_for_tolerance(t_loop, patch_curvature(frames.k1, frames.k2), h_max, MAX_TURN, kmax)
-    # radii below the fold radius are no tool radius (`cadbridge.heal.folds`): they size nothing
-    real = kmax < 1.0 / (FOLD_RADIUS * size)
-    h_min = float(min_size) if min_size is not None else default_floor(size, h_law[real])
-    law_pts, law_h, law_face = pts[real], h_law[real], frames.face[real]
-    law = SizeField(law_pts, law_h, h_min, h_max, gradation)  # the law alone: what face scales refer to
-    # the law's sizes of each face, scaled down where its unmapped elements stayed above the
-    # tolerance (`scale_face_law`)
-    face_scale = np.ones(len(model.faces))
-    field_ = law  # the field gmsh gets: rebuilt with the scales and marks after every pass
-    marks = SizeField(np.zeros((0, 3)), np.zeros(0), h_min, h_max, gradation)  # refinement requests only
     structured = (element == "quad") if structured is None else bool(structured)
-
-    def curve_size(x, k):
-        # sides of mapped faces: the law for the mesh lines along the side inside its faces
-        # (`CurvatureFrames.side_curvature`: normal and geodesic curvature along it, half the
-        # tolerance where the face also curves across it), integrated along it, no edge
-        # turning by more than MAX_TURN; and the refinement marks (a request that holds along
-        # the whole, uniformly divided side). x: ordered points along the side.
-        x = np.asarray(x, dtype=float).reshape(-1, 3)
-        tan = np.gradient(x, axis=0) if len(x) > 1 else np.zeros_like(x)
-        tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
-        k_side = frames.side_curvature(x, tan, k)
-        h = edge_length_for_tolerance(t_loop, k_side, h_max, MAX_TURN, k)
-        return (np.maximum(h, h_min), marks(x))
-
-    mesh_kw = dict(element=element, size=h_max, curvature_elements=0, structured=structured,
-                   curve_size=curve_size if structured else None, loop_cuts=list(loop_cuts))
-    embed = [c.curve for c in crease_lines(model)]
-    actions: list[str] = []
-    if inflections:
-        progress.stage("inflection lines of the CAD faces")
-        curves, notes = _inflection_curves(model, progress)
-        embed += curves
-        actions += notes
+    mesh_kw = dict(element=element, size=sz.h_max, curvature_elements=0, structured=structured,
+                   curve_size=sz.side_sizes if structured else None, loop_cuts=list(loop_cuts))
+    embed, actions = _embedded_curves(model, inflections, progress)
 
     passes: list[PassReport] = []
     best = None  # (checked max error, mesh, tools, above list, floor list)
@@ -462,41 +698,16 @@ def refine_mesh(
     for p in range(1, max_passes + 1):
         t0 = time.perf_counter()
         progress.stage(f"pass {p}: meshing {cad.name} with the Nagata size field")
-        mesh_kw["background_sizes"] = field_.background(carriers)
-        try:
-            try:
-                mesh = mesh_cad(geometry, embed_curves=embed, **mesh_kw)
-            except MeshError:
-                if inflections and len(embed) > len(crease_lines(model)):
-                    # gmsh could not fragment the faces with the inflection curves: keep node moving only
-                    embed = [c.curve for c in crease_lines(model)]
-                    actions.append("inflection lines could not be inserted as mesh edges (gmsh fragment failed): "
-                                   "nodes are moved onto them instead")
-                    mesh = mesh_cad(geometry, embed_curves=embed, **mesh_kw)
-                else:
-                    raise
-        except MeshError as exc:
-            if best is None:
-                raise
-            # a later pass's sizes that gmsh and the (u, v) fill cannot mesh: the passes
-            # before it stand, the best of them is the result
-            actions.append(f"pass {p}: meshing failed, the loop stops at its best pass: {str(exc)[:400]}")
-            progress.stage(f"pass {p}: meshing failed ({str(exc)[:160]}); keeping the best pass")
+        mesh_kw["background_sizes"] = sz.field.background(carriers)
+        mesh, embed = _mesh_pass(geometry, embed, mesh_kw, model, inflections, actions, p, progress, best is not None)
+        if mesh is None:
             break
         mesh.name = cad.stem
         if carriers is None:
             carriers = mesh.nodes
         moved = 0
         if inflections:
-            progress.stage(f"pass {p}: edges across inflections ({len(mesh.nodes)} nodes)")
-            cn = cad_normals(mesh, model, orient=True, allow_far=True)
-            mesh = cn.mesh if cn.mesh is not None else mesh
-            mesh, moves = move_nodes_to_inflections(mesh, model, cn)
-            moved = len(moves)
-            if moves and p == 1:
-                actions += [str(m) for m in moves[:50]]
-            elif moves:
-                actions.append(f"pass {p}: {len(moves)} nodes moved onto inflection lines")
+            mesh, moved, cn = _move_onto_inflections(mesh, model, p, actions, progress)
         bad_full: dict[int, str] = {}
         if inflections:  # what one quadratic patch cannot hold: edges across inflections, bad edges
             from cadbridge.tool.inflection_nodes import inadmissible_elements
@@ -510,90 +721,10 @@ def refine_mesh(
                                  orient=True, meshed_per_face=True)
         surf = np.concatenate([_shape_error(t.grid) for t in tools])
         nerr = np.concatenate([t.grid["normal_error"] for t in tools])
-        marks_p, marks_h = [], []
-        mark_log: dict[str, list] = {}  # reason -> [elements, marks, smallest size asked]
-        above_all: list[tuple[str, int, float]] = []
-        n_above = n_inadm = 0
-        floor_p: list[FloorElement] = []
-
-        def mark(t, elems, e, factor_cap, order, reason, scale_faces=True):
-            """Refinement marks over balls about the elements; floor elements noted.
-            ``order`` (K,): the rate at which each element's error falls with its size (4 for
-            the surface error, 2 where the boundary error of a chord along a curved border
-            dominates); ``reason`` names them in the pass's log of marks. ``scale_faces``:
-            unmapped elements above by their surface error scale their face's law too
-            (`scale_face_law`)."""
-            nonlocal floor_p
-            hs = _element_sizes(t.nagata)[elems]
-            cen = _centroids(t.mesh)[elems]
-            # the law's factor times the smallest of the element's size (its most curved edge),
-            # what earlier marks asked there and, outside mapped faces, the size field there
-            # (`next_sizes`: gmsh can make elements larger than asked, and a mark above the
-            # field changes nothing; the production die's two stalled elements)
-            f = np.clip(0.9 * (t_loop / np.maximum(e, 1e-300)) ** (1.0 / order), 0.3, factor_cap)
-            free = ~_in_grid_faces(t, elems)
-            h_new = np.maximum(next_sizes(hs, f, marks(cen), np.where(free, field_(cen), np.inf)), h_min)
-            if scale_faces and t.element_face is not None:
-                surf = free & (np.asarray(order) == 4.0)
-                scale_face_law(pass_scale, t.element_face[elems[surf]], h_new[surf], law(cen[surf]))
-            at_floor = hs <= 1.3 * h_min
-            for k in np.flatnonzero(at_floor):  # loop over the (few) floor elements
-                floor_p.append(FloorElement(t.name, int(elems[k]) + 1, float(e[k]), float(hs[k]),
-                                            _floor_reason(t, int(elems[k]), float(e[k]), adm_bad, tolerance, h_min)))
-            # the size is asked over the element and half a new element around it (a ball
-            # about its centroid), not at its corners: gmsh reads the field at the nodes it
-            # makes, where point marks graded at g are h_new + g h / 2 (`ball_marks`: the
-            # production die's 7.3 mm elements were remade at 7.3 mm for 5.5 asked)
-            bp, bh = element_marks(t.mesh, elems, h_new, cen)
-            marks_p.append(bp)
-            marks_h.append(bh)
-            _log_marks(mark_log, reason, len(elems), bh)
-            # a marked element of an unmapped strip fewer than STRIP_ELEMENTS of the sizes asked
-            # wide: the whole strip is marked (a local mark only moves gmsh's skewed quads
-            # along it)
-            sp, sh = strip_marks(t, elems[free], h_new[free] / np.maximum(hs[free], 1e-300), h_new[free])
-            if len(sp):
-                marks_p.append(sp)
-                marks_h.append(np.maximum(sh, h_min))
-                _log_marks(mark_log, reason + ", over narrow unmapped strips", 0, marks_h[-1])
-            # an element inside a mapped face: its sides' divisions come from the face's
-            # boundary curves, which a mark at the element does not reach: marks on the
-            # face's border too, none below h_new (the sides across the refined direction keep
-            # their law's size)
-            bp, bh = _mapped_border_marks(t, elems, np.maximum(h_new, h_min) / np.maximum(hs, 1e-300), hs)
-            if len(bp):
-                marks_p.append(bp)
-                marks_h.append(np.maximum(bh, h_min))
-                _log_marks(mark_log, reason + ", on mapped faces' borders", 0, marks_h[-1])
-
-        pass_scale = np.ones(len(model.faces))
-        n_turned = 0
-        worst: list[str] = []
-        for t in tools:
-            e = np.zeros(t.nagata.n_elements)
-            np.maximum.at(e, t.grid["element"], _shape_error(t.grid))
-            order = _error_order(t.nagata.n_elements, t.grid["element"], t.grid)
-            adm = edge_admissibility(t.nagata)
-            adm_bad = set(adm.bad_elements().tolist())
-            n_inadm += len(adm_bad)
-            bad = np.flatnonzero(e > t_loop)
-            n_above += len(bad)
-            above_all += [(t.name, int(i) + 1, float(e[i])) for i in bad]
-            worst += _worst_elements(t, e, bad, model)
-            if len(bad):
-                mark(t, bad, e[bad], 0.75, order[bad], "error above the loop's tolerance")
-            # elements whose CAD normal turns by more than MAX_TURN between their corners (a
-            # quadratic patch over a nearly reversing normal breaks) are halved too, whatever
-            # their error on the loop grid
-            turn = _normal_turn(t.nagata)
-            hs_all = _element_sizes(t.nagata)
-            turned = np.setdiff1d(np.flatnonzero((turn > MAX_TURN * 1.05) & (hs_all > 1.3 * h_min)), bad)
-            n_turned += len(turned)
-            if len(turned):
-                mark(t, turned, np.full(len(turned), t_loop * 16.0), 0.5, np.full(len(turned), 4.0),
-                     "normal turn", scale_faces=False)
+        pm = _PassMarks(np.ones(len(model.faces)))
+        n_above, n_inadm, above_all, worst, n_turned = _mark_loop_errors(sz, pm, tools, model)
         if worst:
-            actions.append(f"pass {p}: worst elements above {t_loop:.3g}: " + "; ".join(worst[:6]))
+            actions.append(f"pass {p}: worst elements above {sz.t_loop:.3g}: " + "; ".join(worst[:6]))
         if n_turned:
             actions.append(f"pass {p}: {n_turned} elements whose CAD normal turns by more than "
                            f"{math.degrees(MAX_TURN):.0f} degrees between corners: refined")
@@ -605,59 +736,33 @@ def refine_mesh(
                     f"{k + 1}: {r}" for k, r in sorted(bad_full.items())[:10]) + more)
         checked = math.nan
         if n_above == 0:
-            # odd multiple-ish of the grid the loop really used (big models get fewer divisions
-            # from the sample budget of `cadbridge.tool.build.sample_divisions`), so most points are new
-            used = min(int(t.stats.get("grid", grid)) for t in tools)
-            check_grid = user_check_grid or 2 * used - 1
-            progress.stage(f"pass {p}: independent check on {check_grid} divisions per patch")
-            check, per, per_order = shape_check(tools, model, projector, check_grid, orders=True)
-            checked = check["max_error"]
-            above_all = []
-            for t in tools:
-                # 2 % margin: a still denser sampling finds up to ~0.5 % more (OCC, 15 divisions)
-                bad = np.flatnonzero(per[t.name] > 0.98 * tolerance)
-                above_all += [(t.name, int(i) + 1, float(per[t.name][i])) for i in bad]
-                if len(bad):
-                    adm_bad = set(edge_admissibility(t.nagata).bad_elements().tolist())
-                    mark(t, bad, per[t.name][bad] / 0.95 * 1.05, 0.75, per_order[t.name][bad],
-                         "error above the check's margin")
+            check, checked, above_all = _independent_check(sz, pm, tools, model, projector, user_check_grid, grid, p,
+                                                           progress)
             met = not above_all
-        if mark_log:
+        if pm.log:
             actions.append(f"pass {p}: marks by reason: " + "; ".join(
                 f"{r}: {n_el} elements, {n_m} marks, smallest {h:.3g}" if n_el else f"{r}: {n_m} marks, smallest {h:.3g}"
-                for r, (n_el, n_m, h) in mark_log.items()))
+                for r, (n_el, n_m, h) in pm.log.items()))
         passes.append(PassReport(p, len(mesh.nodes), int(mesh.n_elements), float(np.max(np.abs(surf))),
                                  float(np.sqrt(np.mean(surf ** 2))), float(np.max(nerr)),
                                  float(np.sqrt(np.mean(nerr ** 2))), n_above, n_inadm, moved, checked,
                                  time.perf_counter() - t0))
         progress.stage(f"pass {p} done: {len(mesh.nodes)} nodes, max shape error {np.max(np.abs(surf)):.3g} on the loop "
                        f"grid" + (f", {checked:.3g} on the check" if math.isfinite(checked) else "") +
-                       f", {n_above} elements above {t_loop:.3g}" + (f" (worst: {worst[0]})" if worst else "") +
+                       f", {n_above} elements above {sz.t_loop:.3g}" + (f" (worst: {worst[0]})" if worst else "") +
                        f", {time.perf_counter() - t0:.0f} s")
         score = checked if math.isfinite(checked) else float(np.max(np.abs(surf)))
         if best is None or met or score < best[0]:
-            best = (score, mesh, tools, above_all, floor_p, check if math.isfinite(checked) else None)
+            best = (score, mesh, tools, above_all, pm.floor, check if math.isfinite(checked) else None)
         if met:
             break
-        n_marks = sum(len(h) for h in marks_h)
+        n_marks = sum(len(h) for h in pm.sizes)
         if n_marks == 0:
             break
-        h_all = np.concatenate(marks_h)
-        if floor_p and len(floor_p) >= len(above_all) and np.all(h_all <= h_min * 1.0001):
+        h_all = np.concatenate(pm.sizes)
+        if pm.floor and len(pm.floor) >= len(above_all) and np.all(h_all <= sz.h_min * 1.0001):
             break  # every element above the tolerance is at the floor: nothing left to refine
-        marks.add(np.concatenate(marks_p), h_all)
-        # at most half the face's scale per pass (one element's mark is a local estimate)
-        new_scale = np.maximum(np.minimum(face_scale, pass_scale), 0.5 * face_scale)
-        changed = np.flatnonzero(new_scale < face_scale * 0.999)
-        if len(changed):
-            actions.append(f"pass {p}: the error law's sizes scaled on {len(changed)} face(s) whose unmapped elements "
-                           "stayed above: " + ", ".join(
-                               f"{model.faces[i].name or i} x{new_scale[i]:.2f}" for i in changed[:12]) +
-                           (f" and {len(changed) - 12} more" if len(changed) > 12 else ""))
-        face_scale = new_scale
-        scaled = np.where(law_h < h_max, law_h * face_scale[law_face], law_h)  # flat samples stay at h_max
-        field_ = SizeField(np.vstack([law_pts, marks.points]), np.concatenate([scaled, marks.sizes]),
-                           h_min, h_max, gradation)
+        _next_field(sz, pm, h_all, model, p, actions)
     tmp.cleanup()
     score, mesh, tools, above_all, floor, check_best = best
     if check_best is None:  # the best pass was never checked on the dense grid: check it now
@@ -666,7 +771,7 @@ def refine_mesh(
         above_all = [(t.name, int(i) + 1, float(per[t.name][i])) for t in tools
                      for i in np.flatnonzero(per[t.name] > tolerance)]
     met = not above_all
-    return AdaptiveResult(mesh, tools, passes, tolerance, met, check_best, floor, actions, above_all, h_min,
+    return AdaptiveResult(mesh, tools, passes, tolerance, met, check_best, floor, actions, above_all, sz.h_min,
                           time.perf_counter() - t_start)
 
 

@@ -1271,7 +1271,7 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
     triangulation by smallest angle, largest angle (up to ``strip_max_angle``), angle spread,
     size spread, folds and the face's Q is kept, else the paper's (`cadbridge.mesh.qit.relax`). Local
     vertices 0..n_si-1 are the SI ones; the edge vertices stay. Returns triangles, uv, x."""
-    from cadbridge.mesh.qit.relax import _tri_angles, max_angle_flips, relax_vertices, valence_flips, vertex_angle_sums
+    from cadbridge.mesh.qit.relax import max_angle_flips, relax_vertices, tri_angles, valence_flips, vertex_angle_sums
     from cadbridge.mesh.quality import mesh_quality
 
     local0, uv0, x0 = local, all_uv, all_x
@@ -1299,14 +1299,14 @@ def _relax_strip(local, all_uv, all_x, n_si, s, face, opt: QitOptions, edge_dist
         rep.relaxed = max(rep.relaxed, nm)
 
     def measures(uv, x, t):
-        a = np.degrees(_tri_angles(x, t))
+        a = np.degrees(tri_angles(x, t))
         p = x[t]
         area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
         q = mesh_quality(x, t, R).q
         return a.min(), a.max(), a.std(), (area / (R * R * np.sqrt(3) / 4)).std(), _n_folded(s, uv, x, t), q
 
     m0 = measures(uv0, x0, local0)
-    over = np.degrees(_tri_angles(all_x, local)).max(axis=1) > opt.strip_max_angle
+    over = np.degrees(tri_angles(all_x, local)).max(axis=1) > opt.strip_max_angle
     fix = np.zeros(len(all_uv), dtype=bool)
     fix[local[over].ravel()] = True
     uv_a, x_a, _ = relax_vertices(local, all_uv, all_x, fix & ~is_edge, s, R, admissible, keep_max=True)

@@ -31,7 +31,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["vertex_angle_sums", "valence_flips", "relax_vertices", "max_angle_flips"]
+__all__ = ["vertex_angle_sums", "valence_flips", "relax_vertices", "max_angle_flips", "tri_angles"]
 
 
 def _edges(tris: np.ndarray) -> np.ndarray:
@@ -40,7 +40,7 @@ def _edges(tris: np.ndarray) -> np.ndarray:
     return np.unique(e, axis=0)
 
 
-def _tri_angles(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
+def tri_angles(x: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Interior angles (T, 3) in radians of triangles (T, 3) on points x (N, 3)."""
     p = x[tris]
     out = np.empty(tris.shape)
@@ -59,7 +59,7 @@ def _orient_uv(uv: np.ndarray, tris: np.ndarray) -> np.ndarray:
 def vertex_angle_sums(tris: np.ndarray, x: np.ndarray, is_boundary: np.ndarray) -> np.ndarray:
     """Angle alpha (N,) a vertex's triangles share: 2 pi inside, the sum of the 3D angles of
     its triangles ``tris`` (T, 3) on points ``x`` (N, 3) where ``is_boundary`` (N,)."""
-    ang = _tri_angles(x, tris)
+    ang = tri_angles(x, tris)
     s = np.zeros(len(x))
     for i in range(3):
         np.add.at(s, tris[:, i], ang[:, i])
@@ -108,8 +108,8 @@ def valence_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, alpha: np.nda
             n1, n2 = [c, d, b], [d, c, a]  # a-b-c is CCW in t1
             if _orient_uv(uv, np.array([n1, n2])).min() <= 0:
                 continue
-            old_a = _tri_angles(x, np.array([tris[t1], tris[t2]]))
-            new_a = _tri_angles(x, np.array([n1, n2]))
+            old_a = tri_angles(x, np.array([tris[t1], tris[t2]]))
+            new_a = tri_angles(x, np.array([n1, n2]))
             if new_a.min() < min(old_a.min(), lo) or new_a.max() > max(old_a.max(), hi):
                 continue
             for t in (t1, t2):
@@ -141,7 +141,7 @@ def max_angle_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, constrained
     flips = 0
     adj = None
     for _ in range(max_sweeps):
-        ang = _tri_angles(x, np.array(tris))
+        ang = tri_angles(x, np.array(tris))
         over = np.flatnonzero(ang.max(axis=1) > thr)
         if over.size == 0:
             break
@@ -150,7 +150,7 @@ def max_angle_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, constrained
         changed = 0
         for t1 in over:
             tt = tris[t1]
-            k = int(np.argmax(_tri_angles(x, np.array([tt]))[0]))
+            k = int(np.argmax(tri_angles(x, np.array([tt]))[0]))
             c, a, b = tt[k], tt[(k + 1) % 3], tt[(k + 2) % 3]
             t2 = adj.get((b, a))
             if (min(a, b), max(a, b)) in constrained or t2 is None:
@@ -161,7 +161,7 @@ def max_angle_flips(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, constrained
             n1, n2 = [c, a, d], [c, d, b]
             if _orient_uv(uv, np.array([n1, n2])).min() <= 0:
                 continue
-            if _tri_angles(x, np.array([n1, n2])).max() >= _tri_angles(x, np.array([tris[t1], tris[t2]])).max() - 1e-12:
+            if tri_angles(x, np.array([n1, n2])).max() >= tri_angles(x, np.array([tris[t1], tris[t2]])).max() - 1e-12:
                 continue
             for t in (t1, t2):
                 for i in range(3):
@@ -223,7 +223,7 @@ def relax_vertices(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, free: np.nda
         cand_x[fk[ok]] = new_x[ok]
         moved = np.zeros(len(uv), dtype=bool)
         moved[fk[ok]] = True
-        old_min = _tri_angles(x, tk).min(axis=1)
+        old_min = tri_angles(x, tk).min(axis=1)
         star_old = np.full(len(x), np.inf)
         for i in range(3):
             np.minimum.at(star_old, tk[:, i], old_min)
@@ -232,13 +232,13 @@ def relax_vertices(tris: np.ndarray, uv: np.ndarray, x: np.ndarray, free: np.nda
         while True:
             bad = _invalid(tk, cand_uv, cand_x, surface, lo, hi)
             star_new = np.full(len(x), np.inf)
-            new_min = _tri_angles(cand_x, tk).min(axis=1)
+            new_min = tri_angles(cand_x, tk).min(axis=1)
             for i in range(3):
                 np.minimum.at(star_new, tk[:, i], new_min)
             worse = moved & (star_new < star_old - 1e-12)
             if keep_max:
                 smax_old, smax_new = np.zeros(len(x)), np.zeros(len(x))
-                mo, mn = _tri_angles(x, tk).max(axis=1), _tri_angles(cand_x, tk).max(axis=1)
+                mo, mn = tri_angles(x, tk).max(axis=1), tri_angles(cand_x, tk).max(axis=1)
                 for i in range(3):
                     np.maximum.at(smax_old, tk[:, i], mo)
                     np.maximum.at(smax_new, tk[:, i], mn)
