@@ -68,8 +68,8 @@ def measure(path: Path, mesh, model, projector, grid: int) -> tuple[float, float
     from cadbridge.tool.build import NoProgress, tools_from_mesh
     from cadbridge.tool.refine import shape_check
 
-    tools = tools_from_mesh(mesh, model, "cad", None, 2, None, False, False, projector, NoProgress(),
-                             orient=True, meshed_per_face=True)
+    tools = tools_from_mesh(mesh, model, method="cad", grid=2, projector=projector, progress=NoProgress(),
+                            orient=True, meshed_per_face=True)
     c, _ = shape_check(tools, model, projector, grid)
     return c["max_error"], c["max_normal_error"]
 

@@ -12,37 +12,21 @@ from cadbridge.common.errors import EXIT_OK, UsageError
 from cadbridge.common.progress import say
 
 
-def _normals_for(mesh, args, model=None):
-    """(node normals (N,3), corner normals per block, source label, CadNormals|None)."""
-    from cadbridge.normals.cad import cad_normals
-    from cadbridge.normals.estimators import estimate_normals
-
-    if args.method == "cad":
-        cn = cad_normals(mesh, model, tolerance=args.tolerance, flip=args.flip, allow_far=args.allow_far,
-                         orient=getattr(args, "orient", False))
-        return cn.normals, cn.corner_normals, "cad", cn
-    blocks = [np.asarray(b.data) for b in mesh.cells]
-    n = estimate_normals(mesh.nodes, blocks, method=args.method)
-    if args.flip:
-        n = -n
-    return n, [n[b] for b in blocks], args.method, None
-
-
 def cmd_normals(args: argparse.Namespace) -> int:
     from cadbridge.io.vtu import write_mesh_vtu
     from cadbridge.mesh.io import read_mesh
 
     if args.method == "cad" and not args.cad:
         raise UsageError("--method cad (the default) needs --cad FILE.igs; or pick an estimator, e.g. --method mwe")
-    from cadbridge.tool.build import consistently_oriented
+    from cadbridge.tool.build import consistently_oriented, tool_normals
+    from cadbridge.tool.meshing import read_cad
 
     mesh = consistently_oriented(read_mesh(args.mesh), args.orient)
-    model = None
-    if args.cad:
-        from cadbridge.iges import read_iges
-
-        model = read_iges(args.cad)
-    normals, corners, source, cn = _normals_for(mesh, args, model)
+    model = read_cad(args.cad)[0] if args.cad else None  # as convert and nagata read it
+    # the normals stage of convert and nagata (the fold rule applied to CAD normals)
+    normals, _, _, _, _, cn = tool_normals(mesh, model, args.method, tolerance=args.tolerance, flip=args.flip,
+                                           allow_far=args.allow_far)
+    source = args.method
     point_data = {"normal": normals}
     if cn is not None:
         point_data.update(face_id=cn.face, distance=cn.distance, status=cn.status, crease=cn.crease.astype(np.int32))

@@ -409,8 +409,9 @@ def _mesher_feet(cn, mesh, model: Model, folds: Folds, blocks: list[np.ndarray],
         return 0
     uv = np.asarray(uv, dtype=float)
     nodes = np.asarray(mesh.nodes, dtype=float)
-    if uv.shape != (len(nodes), 2):
+    if uv.ndim != 2 or uv.shape[0] != len(nodes) or uv.shape[1] not in (2, 3):
         return 0
+    uv = uv[:, :2]  # (N, 2); a gmsh .msh file holds it as a 3-vector (u, v, 0)
     tol = 1e-9 * model.size()
     count = 0
     for f in sorted({line.face for line in folds.lines}):  # loop over folded faces

@@ -17,7 +17,7 @@ import numpy as np
 from cadbridge.common.progress import NoProgress
 from cadbridge.mesh.mesh import CellBlock, Mesh
 
-__all__ = ['CadProjector', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'folded_elements', 'reversed_normal_elements', 'sample_divisions', 'tool_groups']
+__all__ = ['CadProjector', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
 
 
 class ToolQualityError(ValueError):
@@ -420,11 +420,28 @@ def consistently_oriented(mesh: Mesh, orient: bool) -> Mesh:
     oriented.name = mesh.name
     return oriented
 
-def tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress,
-                     orient: bool = False, meshed_per_face: bool = False) -> list[ToolResult]:
-    """Tools of ``mesh`` (normals, Nagata patches, errors). ``meshed_per_face``: the mesh was
-    made face by face from this CAD (gmsh), so no element can span two faces; only crease
-    lines inside faces are checked for straddling elements."""
+def tools_from_mesh(
+    mesh: Mesh,
+    model,
+    *,
+    method: str = "cad",
+    name: str | None = None,
+    grid: int = 10,
+    tolerance: float | None = None,
+    flip: bool = False,
+    allow_far: bool = False,
+    projector: CadProjector | None = None,
+    progress=None,
+    orient: bool = False,
+    meshed_per_face: bool = False,
+) -> list[ToolResult]:
+    """Tools of ``mesh`` on ``model`` (None: estimated normals, no CAD errors): normals
+    (`tool_normals`), one tool per connected part (`tool_groups`), Nagata patches and their
+    errors (`build_tool`). ``orient``: re-orient an inconsistently wound mesh
+    (`consistently_oriented`) instead of raising. ``meshed_per_face``: the mesh was made face
+    by face from this CAD (gmsh), so no element can span two faces; only crease lines inside
+    faces are checked for straddling elements."""
+    progress = progress or NoProgress()
     mesh = consistently_oriented(mesh, orient)
     progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
                    f" ({len(mesh.nodes)} nodes)")
@@ -446,6 +463,7 @@ def tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far,
         groups = {"": [np.ones(len(b), dtype=bool) for b in mesh.cells]}
     else:
         if elem_face is None:  # estimated normals: the CAD still names the tools
+            projector = projector or CadProjector(model, progress)
             cent = np.concatenate([mesh.nodes[b].mean(axis=1) for b in element_blocks(mesh)])
             elem_face = _split(projector.project(cent).face, mesh)
         groups = tool_groups(mesh, model, elem_face)

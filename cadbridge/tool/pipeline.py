@@ -14,6 +14,7 @@ from pathlib import Path
 from cadbridge.mesh.mesh import Mesh
 from cadbridge.tool.build import CadProjector, check_tools, NoProgress, ToolQualityError, ToolResult, tools_from_mesh
 from cadbridge.tool import outputs
+from cadbridge.tool.meshing import healed_notes, mesh_for_tools, read_cad
 from cadbridge.tool.outputs import staged_output, write_tool_outputs
 
 __all__ = ["RunResult", "convert", "nagata_from_mesh"]
@@ -49,18 +50,6 @@ class RunResult:
         return "\n".join(lines)
 
 
-"""Corner normals of one element further apart than this: the surface turns back inside it."""
-
-
-"""Most patch sample points the error measurement takes (the grid is coarsened to fit)."""
-
-
-"""Largest tool whose report includes the per-patch text listings (grid CSV, appendix-D
-coefficient listing, Nagata IGES) unless asked for: on the 134 338-element production die
-they are 2.4 M + 8 M formatted floats and 134 338 IGES surfaces, 65 s of a 255 s convert,
-and repeat what the tool file and the VTU hold."""
-
-
 def nagata_from_mesh(
     mesh_path: str,
     *,
@@ -92,21 +81,16 @@ def nagata_from_mesh(
     progress = progress or NoProgress()
     if cad is None and method == "cad":
         raise ValueError("--method cad needs --cad FILE.igs")
-    model = None
-    if cad is not None:
-        from cadbridge.iges import read_iges
-
-        progress.stage(f"reading {cad}")
-        model = read_iges(cad)
+    model, excursions = read_cad(cad, progress) if cad is not None else (None, [])  # as convert reads it
     progress.stage(f"reading {mesh_path}")
     mesh = read_mesh(mesh_path)
     mesh.name = Path(mesh_path).stem
     projector = CadProjector(model, progress) if model is not None else None
-    tools = tools_from_mesh(mesh, model, method, name, grid, tolerance, flip, allow_far, projector, progress,
-                             orient)
+    tools = tools_from_mesh(mesh, model, method=method, name=name, grid=grid, tolerance=tolerance, flip=flip,
+                            allow_far=allow_far, projector=projector, progress=progress, orient=orient)
     check_tools(tools, allow_worse)
     units = model.units.name if model is not None else "MM"
-    result = RunResult(Path(output), tools)
+    result = RunResult(Path(output), tools, notes=healed_notes(excursions))
     with staged_output(output) as tmp:
         for t in tools:
             progress.stage(f"{t.name}: writing tool file{' and report' if report else ''}")
@@ -157,47 +141,30 @@ def convert(
         >>> run = cadbridge.convert("die.igs", "die_out/", element="quad")   # doctest: +SKIP
         >>> [t.name for t in run.tools], run.tools[0].stats["max_abs_surface_error"]  # doctest: +SKIP
     """
-    from cadbridge.iges import read_iges
-    from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.io import write_mesh
 
     cad = str(cad)  # a Path as well (the tool file records the source as text)
     progress = progress or NoProgress()
-    progress.stage(f"reading {cad}")
-    model = read_iges(cad)  # fails early, before anything is meshed or written, on a bad file
-    from cadbridge.heal.loop_excursions import heal_excursions
-
-    excursions = heal_excursions(model)  # trim loops that run back beside themselves: cut out
-    from cadbridge.heal.creases import crease_lines
-    from cadbridge.heal.folds import folds_for
-
-    creases = crease_lines(model)  # C0 knot lines where the normal jumps: mesh edges go there
-    folds = folds_for(model).lines  # lines where a face runs back over itself: mesh edges too
-    progress.stage(f"meshing {Path(cad).name} with {mesher}"
-                   + (f" ({len(creases)} crease lines inside faces become mesh edges)" if creases else "")
-                   + (f" ({len(folds)} fold lines inside faces become mesh edges)" if folds else ""))
-    projector = CadProjector(model, progress)
-    adaptive = None
+    model, excursions = read_cad(cad, progress)
     if shape_tolerance is not None:  # sized and refined for a Nagata shape tolerance
         from cadbridge.tool.refine import refine_mesh
 
+        projector = CadProjector(model, progress)
         adaptive = refine_mesh(cad, shape_tolerance, element=element, max_size=size, min_size=min_size,
                                model=model, projector=projector, progress=progress, loop_cuts=excursions)
-        mesh = adaptive.mesh
+        mesh, notes = adaptive.mesh, healed_notes(excursions) + list(adaptive.mesh.notes)
     else:
-        from cadbridge.heal.mesh_source import mesh_source
-
-        with mesh_source(cad, model) as source:  # the file as cadbridge read it (faces re-read by the reader)
-            mesh = mesh_cad(source, element=element, size=size, structured=structured,
-                            radius_divisions=radius_divisions, length_divisions=length_divisions,
-                            curvature_elements=curvature_elements,
-                            embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
-                            mesher=mesher, loop_cuts=excursions)
+        adaptive = None
+        mesh, notes = mesh_for_tools(cad, model, excursions=excursions, element=element, size=size,
+                                     structured=structured, radius_divisions=radius_divisions,
+                                     length_divisions=length_divisions, curvature_elements=curvature_elements,
+                                     mesher=mesher, progress=progress)
+        projector = CadProjector(model, progress)
     mesh.name = Path(cad).stem
-    tools = tools_from_mesh(mesh, model, method, None, grid, tolerance, flip, False, projector, progress,
-                             orient=True, meshed_per_face=True)
+    tools = tools_from_mesh(mesh, model, method=method, grid=grid, tolerance=tolerance, flip=flip,
+                            projector=projector, progress=progress, orient=True, meshed_per_face=True)
     check_tools(tools, allow_worse)
-    result = RunResult(Path(output), tools, notes=[f"trim defect healed: {e}" for e in excursions] + list(mesh.notes))
+    result = RunResult(Path(output), tools, notes=notes)
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
         result.files.append(f"{mesh.name}_mesh.msh")

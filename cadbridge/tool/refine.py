@@ -717,8 +717,8 @@ def refine_mesh(
                 cn = cad_normals(mesh, model, orient=True, allow_far=True)
             bad_full = inadmissible_elements(mesh, model, cn, NagataMesh(
                 mesh.nodes, [np.asarray(b.data) for b in mesh.cells], cn.corner_normals))
-        tools = tools_from_mesh(mesh, model, "cad", None, grid, None, False, False, projector, progress,
-                                 orient=True, meshed_per_face=True)
+        tools = tools_from_mesh(mesh, model, method="cad", grid=grid, projector=projector, progress=progress,
+                                orient=True, meshed_per_face=True)
         surf = np.concatenate([_shape_error(t.grid) for t in tools])
         nerr = np.concatenate([t.grid["normal_error"] for t in tools])
         pm = _PassMarks(np.ones(len(model.faces)))
