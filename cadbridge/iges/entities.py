@@ -23,6 +23,7 @@ from cadbridge.iges.lexer import Record
 from cadbridge.iges.parameters import FastTokens, Params, prepare_params, read_params
 from cadbridge.cad.model import Diagnostic, Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.knots import from_homogeneous, remove_surplus_knots, to_homogeneous
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["Builder", "Unsupported", "SURFACE_TYPES", "ANALYTIC_TYPES", "FACE_TYPES", "INTERPRETED_TYPES"]
@@ -356,7 +357,7 @@ class Builder:
         t = e.entity_type
         p = self.params(de)
         if t == 126:
-            pieces = [self.bspline_curve(p)]
+            pieces = self.bspline_curve(p)
         elif t == 102:
             n = p.int(1, "N")
             if n < 0:
@@ -436,9 +437,12 @@ class Builder:
         except ValueError as exc:
             raise self._wrap(p, exc, "N") from None
 
-    def bspline_curve(self, p: Params, whole_if_empty: bool = False) -> NurbsCurve:
+    def bspline_curve(self, p: Params, whole_if_empty: bool = False) -> list[NurbsCurve]:
         """126: K, M, PROP1-4, knots T(-M..N+M), weights W(0..K), points (K+1)x3, V0, V1.
-        ``whole_if_empty``: an empty range V0 = V1 means the whole knot range (noted)."""
+        ``whole_if_empty``: an empty range V0 = V1 means the whole knot range (noted).
+
+        One curve, or several pieces joined end to start where an interior knot of
+        multiplicity above M marks a jump (`_surplus_knots`)."""
         k = p.int(1, "K")
         m = p.int(2, "M")
         if m < 1:
@@ -467,20 +471,63 @@ class Builder:
                       p.line(v0))
             a, b = float(lo), float(hi)
         a, b = self._clamp_range(p, a, b, lo, hi, v0, "V0", "V1")
+        inner = knots[m + 1 : k + 1]
         if lo <= a < b <= hi:
             # knots non-decreasing (checked above), values finite (`Params.reals` rejects
             # overflow), weights positive, lo <= a < b <= hi: NurbsCurve's checks reduce to
             # the interior knot multiplicity; when it passes, the same curve without
             # re-validation (anything else: the constructor, and its error, below)
-            inner = knots[m + 1 : k + 1]
             if inner.size <= m or not (inner[m:] == inner[:-m]).any():
                 knots.setflags(write=False)
                 wr = w.min() < w.max()
-                return NurbsCurve._trusted(m, knots, cp, w, (float(a), float(b)), bool(wr))
+                return [NurbsCurve._trusted(m, knots, cp, w, (float(a), float(b)), bool(wr))]
+        nets = [(knots, cp, w)]
+        if self._has_surplus(knots, m):
+            nets = [(kn, *from_homogeneous(q))
+                    for kn, q in self._surplus_knots(p, m, knots, to_homogeneous(cp, w), t0, "T", "curve")]
+        pieces = []
         try:
-            return NurbsCurve(m, knots, cp, w, (a, b))
+            for kn, pts, ws in nets:
+                lo_i, hi_i = max(a, kn[m]), min(b, kn[-m - 1])
+                if lo_i < hi_i:
+                    pieces.append(NurbsCurve(m, kn, pts, ws, (lo_i, hi_i)))
         except ValueError as exc:
             raise p.error(str(exc), t0, "T") from None
+        return pieces
+
+    def _surplus_knots(self, p: Params, deg: int, knots: np.ndarray, qw: np.ndarray, k: int, name: str,
+                       what: str, axis: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Interior knots of multiplicity above the degree ``deg`` (IGES 5.3 4.23 and 4.24
+        allow at most the degree): lowered exactly where the curve or surface is continuous
+        (`remove_surplus_knots`); a curve is split where it jumps, a surface refused there.
+        knots (m+1,); qw homogeneous (n, 4) or (nu, nv, 4), ``axis`` along the knots; ``k``,
+        ``name``: the knot field. Returns (knots, qw) of the pieces; every change is noted."""
+        counts = dict(zip(*np.unique(knots[deg + 1 : len(knots) - deg - 1], return_counts=True)))
+        kn, qw, removed, breaks = remove_surplus_knots(knots, deg, qw, axis)
+        for u, gap in breaks:
+            how = "its weights disagree" if gap == float("inf") else f"it jumps by {gap:.3g}"
+            if what == "surface":
+                raise p.error(f"knot {u!r} has multiplicity {counts[u]} > degree {deg} and the surface is not "
+                              f"continuous there ({how}): no exact reading as one surface", k, name)
+            self.note(f"knot {name} = {u!r} of multiplicity {counts[u]} > degree {deg}: the {what} is not "
+                      f"continuous there ({how}): split into two pieces", p.de, p.line(k))
+        for u, r in removed:
+            where = "" if any(u == v for v, _ in breaks) else f", where the {what} is continuous"
+            self.note(f"knot {name} = {u!r} of multiplicity {counts[u]} > degree {deg}{where}: {r} occurrence(s) "
+                      f"removed (exact)", p.de, p.line(k))
+        nets = []
+        for u, _ in breaks:  # curves only
+            a = int(np.searchsorted(kn, u))  # first occurrence: the run kn[a .. a+deg] of deg + 1
+            nets.append((kn[: a + deg + 1], qw[:a]))
+            kn, qw = kn[a:], qw[a:]
+        nets.append((kn, qw))
+        return nets
+
+    @staticmethod
+    def _has_surplus(knots: np.ndarray, deg: int) -> bool:
+        """True if an interior knot (knots[deg+1 .. n-1]) has multiplicity above ``deg``."""
+        inner = knots[deg + 1 : len(knots) - deg - 1]
+        return inner.size > deg and bool((inner[deg:] == inner[:-deg]).any())
 
     def _check_knots(self, p: Params, knots: np.ndarray, start: int, m: int, name: str) -> None:
         if (knots[1:] >= knots[:-1]).all():
@@ -542,6 +589,13 @@ class Builder:
         v_a, v_b = self._clamp_range(p, p.real(r0 + 2, "V0"), p.real(r0 + 3, "V1"), tv[m2], tv[k2 + 1], r0 + 2,
                                      "V0", "V1")
         self._own_end[p.de] = r0 + 4
+        if self._has_surplus(su, m1) or self._has_surplus(tv, m2):
+            qw = to_homogeneous(cp, w)
+            if self._has_surplus(su, m1):
+                [(su, qw)] = self._surplus_knots(p, m1, su, qw, s0, "S", "surface", axis=0)
+            if self._has_surplus(tv, m2):
+                [(tv, qw)] = self._surplus_knots(p, m2, tv, qw, t0, "T", "surface", axis=1)
+            cp, w = from_homogeneous(qw)
         try:
             return NurbsSurface(m1, m2, su, tv, cp, w, (u_a, u_b, v_a, v_b))
         except ValueError as exc:
@@ -1355,7 +1409,7 @@ class Builder:
             # the curve stays unusable
             self._failed_at = None
             pieces = self._cached(("curve-whole", c), lambda: [apply_curve(
-                self.bspline_curve(self.params(c), whole_if_empty=True), self.transform(c))])
+                q, self.transform(c)) for q in self.bspline_curve(self.params(c), whole_if_empty=True)])
             a = pieces[0].evaluate([pieces[0].domain[0]])[0]
             b = pieces[-1].evaluate([pieces[-1].domain[1]])[0]
             fwd = max(np.linalg.norm(a - ends[0]), np.linalg.norm(b - ends[1]))
