@@ -538,6 +538,17 @@ class Builder:
             j = int(bad[0]) + 1
             raise p.error(f"knots decrease: {knots[j - 1]!r} then {knots[j]!r}", start + j, f"{name}({j - m})")
 
+    def _ordered(self, p: Params, k: int, na: str, nb: str) -> tuple[float, float]:
+        """Fields k, k+1 of a 128 (U0, U1 or V0, V1; IGES 5.3 4.24 has U0 < U1, V0 < V1) in
+        increasing order: a reversed range names the same rectangle of the surface, so it is
+        read in order (noted)."""
+        a, b = p.real(k, na), p.real(k + 1, nb)
+        if a > b:
+            self.note(f"{na} = {a!r} > {nb} = {b!r}: parameter range reversed, read as [{b!r}, {a!r}]", p.de,
+                      p.line(k))
+            a, b = b, a
+        return a, b
+
     def _clamp_range(self, p: Params, a: float, b: float, lo: float, hi: float, k: int, na: str, nb: str):
         tol = DOMAIN_REL_TOL * max(1.0, hi - lo)
         if not a < b:
@@ -585,8 +596,8 @@ class Builder:
         # IGES order: first index (u) fastest -> reshape (v, u), then transpose to [i along u, j along v]
         cp = xyz.reshape(k2 + 1, k1 + 1, 3).transpose(1, 0, 2)
         w = w.reshape(k2 + 1, k1 + 1).T
-        u_a, u_b = self._clamp_range(p, p.real(r0, "U0"), p.real(r0 + 1, "U1"), su[m1], su[k1 + 1], r0, "U0", "U1")
-        v_a, v_b = self._clamp_range(p, p.real(r0 + 2, "V0"), p.real(r0 + 3, "V1"), tv[m2], tv[k2 + 1], r0 + 2,
+        u_a, u_b = self._clamp_range(p, *self._ordered(p, r0, "U0", "U1"), su[m1], su[k1 + 1], r0, "U0", "U1")
+        v_a, v_b = self._clamp_range(p, *self._ordered(p, r0 + 2, "V0", "V1"), tv[m2], tv[k2 + 1], r0 + 2,
                                      "V0", "V1")
         self._own_end[p.de] = r0 + 4
         if self._has_surplus(su, m1) or self._has_surplus(tv, m2):
