@@ -29,6 +29,10 @@ from cadbridge.nurbs.surface import NurbsSurface
 __all__ = ["Builder", "Unsupported", "SURFACE_TYPES", "ANALYTIC_TYPES", "FACE_TYPES", "INTERPRETED_TYPES"]
 
 SURFACE_TYPES = (128, 108, 118, 120, 122)
+SURFACE_NAMES = {108: "plane", 114: "parametric spline surface", 118: "ruled surface", 120: "surface of revolution",
+                 122: "tabulated cylinder", 128: "B-spline surface", 140: "offset surface", 190: "plane surface",
+                 192: "right circular cylindrical surface", 194: "right circular conical surface",
+                 196: "spherical surface", 198: "toroidal surface"}
 AGREE_REL = 1e-6  # PREF = model space: the 2D curves are used if delta <= AGREE_REL x size
 DISAGREE_REL = 1e-3  # beyond DISAGREE_REL x size the 2D and 3D trims are called inconsistent
 ANALYTIC_TYPES = (190, 192, 194, 196, 198)  # IGES 5.3 unbounded analytic surfaces (faces only under 510/144/143)
@@ -674,6 +678,11 @@ class Builder:
                 s = _construct().tabulated_cylinder(dirx, end - start)
             except ValueError as exc:
                 raise self._wrap(p, exc, "LX") from None
+        elif t == 140:  # offset surface (IGES 5.3 4.25): NX, NY, NZ, D, DE of the base surface
+            bde = p.pointer(5, "DE", allow_zero=False)
+            base = self.entry(bde, p, 5, "DE").entity_type
+            what = SURFACE_NAMES.get(base, "surface")
+            raise Unsupported(f"offset surface (140) over a {what} ({base}, DE {bde}) is not supported", de, t, e.line)
         else:
             raise Unsupported(f"surface entity {t} is not supported", de, t, e.line)
         return apply_surface(s, self.transform(de)), trim
