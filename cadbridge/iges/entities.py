@@ -647,26 +647,29 @@ class Builder:
             except ValueError as exc:
                 raise self._wrap(p, exc, "DE1") from None
         elif t == 120:
-            lde = p.pointer(1, "L", allow_zero=False)
-            cde = p.pointer(2, "C", allow_zero=False)
-            self.entry(lde, p, 1, "L", types=(110,))
-            self.entry(cde, p, 2, "C")
-            sa, ta = p.real(3, "SA"), p.real(4, "TA")
-            self._own_end[de] = 5
-            lp = self.params(lde)
-            with self.visiting(lde):
-                ends = lp.reals(1, 6, "X1..Z2")
-                xf = self.transform(lde)
-            a, b = ends[:3], ends[3:]
-            if not _is_identity(xf):
-                a, b = xf[0] @ a + xf[1], xf[0] @ b + xf[1]
-            if not np.any(b - a):
-                raise lp.error("axis line of a surface of revolution has zero length", 1, "X1")
-            gen = self.curve(cde)
+            a, b, sa, ta = self._revolution_axis(de)
+            gen = self.curve(p.pointer(2, "C", allow_zero=False))
             try:
                 s = _construct().revolved_surface(gen, a, b - a, sa, ta)
             except ValueError as exc:
                 raise self._wrap(p, exc, "SA") from None
+        elif t == 140:  # offset surface (IGES 5.3 4.25): NX, NY, NZ, D, DE of the base surface
+            bde = p.pointer(5, "DE", allow_zero=False)
+            base = self.entry(bde, p, 5, "DE").entity_type
+            self._own_end[de] = 6
+            gen = self._offset_generatrix(bde, p.real(4, "D")) if base == 120 else None
+            if gen is None:
+                what = SURFACE_NAMES.get(base, "surface")
+                if base == 120:
+                    what += " whose generatrix is not a line in a plane through the axis"
+                raise Unsupported(f"offset surface (140) over a {what} ({base}, DE {bde}) is not supported", de, t,
+                                  e.line)
+            a, b, sa, ta = self._revolution_axis(bde)
+            try:
+                s = _construct().revolved_surface(gen, a, b - a, sa, ta)
+            except ValueError as exc:
+                raise self._wrap(p, exc, "D") from None
+            s = apply_surface(s, self.transform(bde))
         elif t == 122:
             dd = p.pointer(1, "DE", allow_zero=False)
             self.entry(dd, p, 1, "DE")
@@ -678,14 +681,54 @@ class Builder:
                 s = _construct().tabulated_cylinder(dirx, end - start)
             except ValueError as exc:
                 raise self._wrap(p, exc, "LX") from None
-        elif t == 140:  # offset surface (IGES 5.3 4.25): NX, NY, NZ, D, DE of the base surface
-            bde = p.pointer(5, "DE", allow_zero=False)
-            base = self.entry(bde, p, 5, "DE").entity_type
-            what = SURFACE_NAMES.get(base, "surface")
-            raise Unsupported(f"offset surface (140) over a {what} ({base}, DE {bde}) is not supported", de, t, e.line)
         else:
             raise Unsupported(f"surface entity {t} is not supported", de, t, e.line)
         return apply_surface(s, self.transform(de)), trim
+
+    def _revolution_axis(self, de: int) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """120 at ``de``: axis line ends a, b (3,) (the 110's own transformation applied) and
+        the angles SA, TA (fields 1-4)."""
+        p = self.params(de)
+        lde = p.pointer(1, "L", allow_zero=False)
+        cde = p.pointer(2, "C", allow_zero=False)
+        self.entry(lde, p, 1, "L", types=(110,))
+        self.entry(cde, p, 2, "C")
+        sa, ta = p.real(3, "SA"), p.real(4, "TA")
+        self._own_end[de] = 5
+        lp = self.params(lde)
+        with self.visiting(lde):
+            ends = lp.reals(1, 6, "X1..Z2")
+            xf = self.transform(lde)
+        a, b = ends[:3], ends[3:]
+        if not _is_identity(xf):
+            a, b = xf[0] @ a + xf[1], xf[0] @ b + xf[1]
+        if not np.any(b - a):
+            raise lp.error("axis line of a surface of revolution has zero length", 1, "X1")
+        return a, b, sa, ta
+
+    def _offset_generatrix(self, de: int, d: float) -> NurbsCurve | None:
+        """Generatrix of the 120 at ``de`` offset by ``d`` along the surface's unit normal
+        S_u x S_v (IGES 5.3 4.25), when that is exact: a line (110) in a plane through the
+        axis (a cone or cylinder: the normal is one vector along the line, and the offset is
+        the surface of revolution of the shifted line). None otherwise. In the 120's space."""
+        p = self.params(de)
+        cde = p.pointer(2, "C", allow_zero=False)
+        if self.entry(cde, p, 2, "C").entity_type != 110:
+            return None
+        a, b, _, _ = self._revolution_axis(de)
+        gen = self.curve(cde)
+        p0, p1 = gen.evaluate(np.array(gen.domain))
+        ax = (b - a) / np.linalg.norm(b - a)
+        line = p1 - p0
+        size = max(float(np.linalg.norm(line)), float(np.linalg.norm(p0 - a)), float(np.linalg.norm(p1 - a)))
+        if abs(float(ax @ np.cross(line, p0 - a))) > 1e-12 * size * size:  # skew line: a hyperboloid
+            return None
+        far = p0 if np.linalg.norm(np.cross(ax, p0 - a)) >= np.linalg.norm(np.cross(ax, p1 - a)) else p1
+        n = np.cross(line, np.cross(ax, far - a))  # S_u x S_v at angle 0 (S_v: right-hand turn about the axis)
+        if not np.linalg.norm(n) > 1e-12 * size * size:
+            return None
+        n /= np.linalg.norm(n)
+        return NurbsCurve(gen.degree, gen.knots, gen.control_points + d * n, gen.weights, gen.domain)
 
     def plane(self, p: Params) -> tuple[NurbsSurface, Trim]:
         """108 form 1: the plane A x + B y + C z = D over the extent of its boundary curve,
@@ -1111,11 +1154,19 @@ class Builder:
                 self._own_end[de] = 6 if p.has(5) else 5
                 return torus_map(frame(o, a, ref), big, small)
         surface, _ = self.surface(de)
+        if t == 140:  # read only over a 120 (`_surface`): that 120's map, with the offset generatrix
+            bde = p.pointer(5, "DE", allow_zero=False)
+            xf = compose(xf, self.transform(bde))
+            p = self.params(bde)
+            gde = p.pointer(2, "C", allow_zero=False)
+            gen = self._offset_generatrix(bde, self.params(de).real(4, "D"))
+            t = 120
+        elif t == 120:
+            gde = p.pointer(2, "C", allow_zero=False)
+            gen = self.curve(gde)
         if t == 120:
             sa, ta = p.real(3, "SA"), p.real(4, "TA")
-            gde = p.pointer(2, "C", allow_zero=False)
             ge = self.entries[gde]
-            gen = self.curve(gde)
             gen_arc, gen_aff = None, (1.0, 0.0)
             if ge.entity_type == 100:
                 # IGES 100 is parametrised by the angle (T from the start angle to the end angle);
