@@ -217,10 +217,17 @@ class Model:
     source: str | None = None  # name of the file read (``filename`` is the one its header states)
 
     def empty_reason(self) -> str:
-        """One line saying that the file holds no surface and what it holds instead."""
+        """One line saying that the file holds no surface and what it holds instead, or, when
+        its faces were all skipped (unsupported), why."""
+        src = self.source or self.filename or "model"
+        skipped = [d for d in self.diagnostics if d.message.startswith("face skipped: ")]
+        if skipped:
+            why = list(dict.fromkeys(f"DE {d.de}: {d.message[len('face skipped: '):]}" for d in skipped))
+            return (f"{src}: none of its {len(skipped)} faces can be read ({'; '.join(why[:2])}"
+                    f"{' ...' if len(why) > 2 else ''})")
         held = ", ".join(f"{n} x {t}" for t, n in sorted(self.entity_counts.items())[:8]) or "no entities"
         more = " ..." if len(self.entity_counts) > 8 else ""
-        return f"{self.source or self.filename or 'model'}: no surfaces in this file, nothing to convert (entity types: {held}{more})"
+        return f"{src}: no surfaces in this file, nothing to convert (entity types: {held}{more})"
 
     def bbox(self) -> np.ndarray:
         """Axis-aligned box of all faces, (2, 3): [min, max] (from the control nets)."""

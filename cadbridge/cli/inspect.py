@@ -64,8 +64,11 @@ def format_inspect(model) -> str:
                          f"on face {w} (DE {model.faces[w].de}); {len(have)} of {len(deltas)} faces have 2D and 3D trims")
         from cadbridge.heal.loop_excursions import find_excursions
 
-        for e in find_excursions(model):  # trim loops that run back beside themselves (convert cuts them out)
-            lines.append(f"{'trim defect':<14}{e} by convert")
+        crossings: list[str] = []
+        for e in find_excursions(model, crossings=crossings):  # trim loops that run back beside themselves
+            lines.append(f"{'trim defect':<14}{e} by convert")  # or cross themselves in a tiny lobe: cut out
+        for c in crossings:  # trim loops that really cross themselves
+            lines.append(f"{'trim defect':<14}{c}: convert refuses this face")
         lines.append(f"  {'#':>4} {'DE':>6} {'type':>5} {'surf':>5} {'degree':>7} {'ctrl':>9} {'trim':>5} {'delta':>9}  name")
         for i, f in enumerate(model.faces):
             s = f.surface

@@ -36,10 +36,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cadbridge.cad.model import Face, Model, TrimLoop
+from cadbridge.iges.errors import IgesError
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.cad.trims import segment_distance
 
-__all__ = ["Excursion", "find_excursions", "heal_excursions", "RATIO", "COS_SAME_WAY", "MIN_LENGTH", "SAMPLES_PER_SPAN"]
+__all__ = ["Excursion", "find_excursions", "heal_excursions", "loop_crossing", "crossing_error", "MAX_CROSSINGS", "GAP_REL", "JUMP_REL", "RATIO", "COS_SAME_WAY", "MIN_LENGTH", "SAMPLES_PER_SPAN"]
 
 RATIO = 20.0
 """An excursion's loop length between X and Y exceeds RATIO x its chord |XY|."""
@@ -73,6 +74,7 @@ class Excursion:
     stretch_uv: np.ndarray = field(repr=False, default=None)  # (K, 2) exact loop samples X -> Y
     stretch_xyz: np.ndarray = field(repr=False, default=None)  # (K, 3) S(stretch_uv)
     rest_xyz: np.ndarray = field(repr=False, default=None)  # (R, 3) the rest of the loop, Y -> X
+    kind: str = "excursion"  # or "crossing": the lobe a loop encloses where it crosses itself (X = Y)
 
     def in_stretch(self, xyz: np.ndarray) -> np.ndarray:
         """Whether points (N, 3) on the loop's edge (mesh nodes) lie on the cut stretch, strictly
@@ -82,6 +84,11 @@ class Excursion:
 
     def __str__(self) -> str:
         x = self.start
+        if self.kind == "crossing":
+            return (f"{self.face_name or 'face'} (DE {self.face_de}) loop {self.loop}: trim loop crosses itself at "
+                    f"({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g}), enclosing a lobe of {self.length:.3g} loop length (a "
+                    f"tolerance artefact); lobe cut off at the crossing (curve {self.cut[0][0] + 1} to curve "
+                    f"{self.cut[1][0] + 1}, 1-based)")
         return (f"{self.face_name or 'face'} (DE {self.face_de}) loop {self.loop}: trim loop runs back beside "
                 f"itself for {self.length:.3g} within {self.chord:.3g} at ({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g}); "
                 f"cut out (curve {self.cut[0][0] + 1} to curve {self.cut[1][0] + 1}, 1-based)")
@@ -152,21 +159,39 @@ def default_width(face: Face, size: float) -> float:
     return max(4.0 * (delta or 0.0), 1e-3 * size)
 
 
-def find_excursions(model: Model, width: float | None = None, faces: list[int] | None = None) -> list[Excursion]:
+def find_excursions(model: Model, width: float | None = None, faces: list[int] | None = None,
+                    crossings: list[str] | None = None) -> list[Excursion]:
     """The excursions of the trim loops of ``model`` (one per loop at most; `heal_excursions`
-    cuts repeatedly), for the face indices ``faces`` (default all). ``width`` in model units
-    (default `default_width` per face). Plain data; the model is not changed."""
+    cuts repeatedly), for the face indices ``faces`` (default all): a lobe where the loop
+    crosses itself (`loop_crossing`) or a stretch running back beside itself. ``width`` in
+    model units (default `default_width` per face). Loops that really cross themselves
+    (which `heal_excursions` refuses) are described in ``crossings`` if given. Plain data;
+    the model is not changed."""
     out = []
     size = model.size()
     for fi in range(len(model.faces)) if faces is None else faces:
         f = model.faces[fi]
+        w = default_width(f, size) if width is None else width
         for li, lp in enumerate(_loops(f)):
             if lp is None or not lp.curves:
                 continue
-            e = _loop_excursion(f, li, lp, default_width(f, size) if width is None else width, MIN_LENGTH * size)
+            e = loop_crossing(f, li, lp, w, MIN_LENGTH * size)
+            if isinstance(e, str):
+                if crossings is not None:
+                    crossings.append(e)
+                continue
+            if e is None:
+                e = _loop_excursion(f, li, lp, w, MIN_LENGTH * size)
             if e is not None:
                 out.append(e)
     return out
+
+
+def crossing_error(model: Model, f: Face, li: int, message: str) -> IgesError:
+    """The refusal of a face whose loop ``li`` really crosses itself (`loop_crossing`'s message):
+    an IgesError naming the file, the face's DE and (for a 144) the loop's pointer field."""
+    fld = ("PTO" if li == 0 else f"PTI({li})") if f.entity_type == 144 else None
+    return IgesError(message, filename=model.source, de=f.de, entity_type=f.entity_type, field=fld)
 
 
 def _polygon(f: Face, lp: TrimLoop) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
@@ -285,10 +310,119 @@ def cut_loop(lp: TrimLoop, e: Excursion) -> TrimLoop:
     return TrimLoop(out, None)
 
 
+def _proper_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Pairs (i, j), i < j, of the closed polygon's edges a[k] -> b[k] ((M, 2) each) that meet
+    (each edge's ends on both sides of the other, or on it; collinear pairs left out),
+    neighbours excluded, (K, 2)."""
+    m = len(a)
+    mid = 0.5 * (a + b)
+    half = 0.5 * np.linalg.norm(b - a, axis=1)
+    pairs = cKDTree(mid).query_pairs(2.0 * float(half.max()) if m else 0.0, output_type="ndarray")
+    if len(pairs) == 0:
+        return pairs.reshape(0, 2)
+    i, j = pairs[:, 0], pairs[:, 1]
+    keep = (j - i > 1) & ~((i == 0) & (j == m - 1)) & (np.linalg.norm(mid[i] - mid[j], axis=1) <= half[i] + half[j])
+    i, j = i[keep], j[keep]
+
+    def side(p, q, r):  # orientation of r against the line p -> q
+        return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
+
+    s1, s2, s3, s4 = side(a[i], b[i], a[j]), side(a[i], b[i], b[j]), side(a[j], b[j], a[i]), side(a[j], b[j], b[i])
+    hit = (s1 * s2 <= 0) & (s3 * s4 <= 0) & ~((s1 == 0) & (s2 == 0))
+    return np.column_stack([i[hit], j[hit]])
+
+
+GAP_REL = 1e-2
+"""`loop_crossing` looks at loops whose curves join end to start within GAP_REL x their (u, v) span."""
+JUMP_REL = 0.1
+"""A sample edge longer than JUMP_REL x the loop's (u, v) span (samples are 64 per knot span) is
+a jump along a pole or across a seam: its crossings are not the loop's."""
+MAX_CROSSINGS = 64
+"""Crossings of one loop looked at (the first ones along the loop)."""
+
+
+def loop_crossing(f: Face, li: int, lp: TrimLoop, width: float, min_length: float) -> Excursion | str | None:
+    """Where loop ``li`` of face ``f`` crosses (or touches) itself in (u, v), on the exact curve
+    samples (64 per knot span), if that matters. Each crossing splits the loop into two lobes;
+    of the smaller one, L is its model-space loop length and 2 A / L its mean width (A: its
+    model-space vector area). A lobe with L < ``min_length`` is below any mesh and left alone.
+    A mean width above ``width`` is a real crossing (a figure eight): a message saying where
+    comes back. Where the loop crosses itself at one place only and that lobe has L <=
+    ``width``, the lobe is a tolerance artefact: an `Excursion` (kind "crossing", X and Y the
+    crossing point on the two strands) that `cut_loop` cuts off. Thin lobes otherwise (a
+    strand retraced beside itself, crossing it again and again) are left as they are. None
+    when nothing is to be done."""
+    bd = lp.boundary
+    gap = bd.curve < 0
+    if np.any(np.linalg.norm(bd.b[gap] - bd.a[gap], axis=1) > GAP_REL * bd.size):
+        return None  # curves that do not join end to start (another order, a seam jump): no path along the loop
+    ci, ts, uv, xyz = _samples(f, lp)
+    keep = np.linalg.norm(uv - np.roll(uv, 1, axis=0), axis=1) > 0  # repeated samples: no edge between
+    ci, ts, uv, xyz = ci[keep], ts[keep], uv[keep], xyz[keep]
+    n = len(uv)
+    if n < 4:
+        return None
+    nxt = np.roll(np.arange(n), -1)
+    seg = np.linalg.norm(xyz[nxt] - xyz, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    hits = _proper_crossings(uv, uv[nxt])
+    jump = np.linalg.norm(uv[nxt] - uv, axis=1) > JUMP_REL * bd.size  # a pole or seam jump, not a strand
+    hits = hits[~(jump[hits[:, 0]] | jump[hits[:, 1]])]
+    found = []  # (length, i, j, s, r, crossing point uv, xyz, lobe sample indices)
+    for i, j in hits[:MAX_CROSSINGS]:
+        i, j = int(i), int(j)
+        # crossing point: uv[i] + s (uv[i+1] - uv[i]) = uv[j] + r (uv[j+1] - uv[j])
+        di, dj = uv[nxt[i]] - uv[i], uv[nxt[j]] - uv[j]
+        try:
+            s_, r_ = np.linalg.solve(np.column_stack([di, -dj]), uv[j] - uv[i])
+        except np.linalg.LinAlgError:
+            continue
+        inner = float(cum[j] - cum[i + 1] + (1 - s_) * seg[i] + r_ * seg[j])  # lobe i -> j
+        outer = float(cum[n] - inner)  # lobe j -> i (the rest)
+        length = min(inner, outer)
+        if length < min_length or not length > 0:
+            continue
+        if inner > outer:  # the smaller lobe runs j -> i: X on edge j, Y on edge i
+            i, j, s_, r_ = j, i, r_, s_
+            lobe = np.concatenate([np.arange(i + 1, n), np.arange(0, j + 1)])
+        else:
+            lobe = np.arange(i + 1, j + 1)
+        p_uv = uv[i] + s_ * (uv[nxt[i]] - uv[i])
+        p_xyz = f.surface.evaluate(p_uv[:1], p_uv[1:])[0]
+        ring = np.vstack([p_xyz, xyz[lobe]]) - p_xyz
+        mean_width = float(np.linalg.norm(np.cross(ring, np.roll(ring, -1, axis=0)).sum(axis=0))) / length
+        if mean_width > width:
+            which = "outer" if li == 0 else f"inner {li}"
+            return (f"{f.name or 'face'} (DE {f.de}): its {which} trim loop crosses itself at (u, v) = "
+                    f"({p_uv[0]:.6g}, {p_uv[1]:.6g}), ({p_xyz[0]:.6g}, {p_xyz[1]:.6g}, {p_xyz[2]:.6g}) in model "
+                    f"space; the smaller lobe it encloses is {length:.3g} long and {mean_width:.3g} wide on "
+                    f"average, wider than the trim tolerance {width:.3g} (IGES 5.3 4.34: trim loops are simple "
+                    f"closed curves)")
+        found.append((length, i, j, s_, r_, p_uv, p_xyz, lobe))
+    if not found or max(np.linalg.norm(q[6] - found[0][6]) for q in found) > min_length:
+        return None  # no crossing, or several apart: strands retraced beside each other, left as they are
+    length, i, j, s_, r_, p_uv, p_xyz, lobe = min(found, key=lambda q: q[0])
+    if length > width:
+        return None
+
+    def at(k: int, frac: float) -> tuple[int, float]:  # (curve, parameter) a fraction along sample edge k
+        t1 = ts[nxt[k]] if ci[nxt[k]] == ci[k] else lp.curves[int(ci[k])].domain[1]
+        return int(ci[k]), float(ts[k] + frac * (t1 - ts[k]))
+
+    rest = np.setdiff1d(np.arange(n), lobe)
+    p = np.vstack([p_uv, uv[lobe]])
+    uv_area = 0.5 * float(np.sum(p[:, 0] * np.roll(p[:, 1], -1) - np.roll(p[:, 0], -1) * p[:, 1]))
+    return Excursion(f.de, f.name, li, (at(i, s_), at(j, r_)), p_xyz, p_xyz.copy(), 0.0, length, uv_area,
+                     stretch_uv=np.vstack([p_uv, uv[lobe], p_uv]), stretch_xyz=np.vstack([p_xyz, xyz[lobe], p_xyz]),
+                     rest_xyz=np.vstack([p_xyz, xyz[rest], p_xyz]), kind="crossing")
+
+
 def heal_excursions(model: Model, width: float | None = None, max_cuts: int = 4) -> list[Excursion]:
     """Cut every excursion (`find_excursions`) out of its loop, in place: each loop is cut
     until it has none (at most ``max_cuts`` times). Each face's trim tolerance is read before
-    (it is measured on the file's curves). Returns the excursions cut, in order."""
+    (it is measured on the file's curves). Returns the excursions cut, in order. Raises
+    IgesError (`crossing_error`) for a loop that really crosses itself (both lobes longer
+    than the width): no sound reading of that face exists."""
     done = []
     size = model.size()
     for f in model.faces:
@@ -300,7 +434,11 @@ def heal_excursions(model: Model, width: float | None = None, max_cuts: int = 4)
                 lp = f.trims.outer if li == 0 else f.trims.inner[li - 1]
                 if lp is None or not lp.curves:
                     break
-                e = _loop_excursion(f, li, lp, w, MIN_LENGTH * size)
+                e = loop_crossing(f, li, lp, w, MIN_LENGTH * size)
+                if isinstance(e, str):
+                    raise crossing_error(model, f, li, e)
+                if e is None:
+                    e = _loop_excursion(f, li, lp, w, MIN_LENGTH * size)
                 if e is None:
                     break
                 new = cut_loop(lp, e)

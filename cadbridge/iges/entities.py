@@ -23,11 +23,16 @@ from cadbridge.iges.lexer import Record
 from cadbridge.iges.parameters import FastTokens, Params, prepare_params, read_params
 from cadbridge.cad.model import Diagnostic, Face, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.knots import from_homogeneous, remove_surplus_knots, to_homogeneous
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["Builder", "Unsupported", "SURFACE_TYPES", "ANALYTIC_TYPES", "FACE_TYPES", "INTERPRETED_TYPES"]
 
 SURFACE_TYPES = (128, 108, 118, 120, 122)
+SURFACE_NAMES = {108: "plane", 114: "parametric spline surface", 118: "ruled surface", 120: "surface of revolution",
+                 122: "tabulated cylinder", 128: "B-spline surface", 140: "offset surface", 190: "plane surface",
+                 192: "right circular cylindrical surface", 194: "right circular conical surface",
+                 196: "spherical surface", 198: "toroidal surface"}
 AGREE_REL = 1e-6  # PREF = model space: the 2D curves are used if delta <= AGREE_REL x size
 DISAGREE_REL = 1e-3  # beyond DISAGREE_REL x size the 2D and 3D trims are called inconsistent
 ANALYTIC_TYPES = (190, 192, 194, 196, 198)  # IGES 5.3 unbounded analytic surfaces (faces only under 510/144/143)
@@ -356,7 +361,7 @@ class Builder:
         t = e.entity_type
         p = self.params(de)
         if t == 126:
-            pieces = [self.bspline_curve(p)]
+            pieces = self.bspline_curve(p)
         elif t == 102:
             n = p.int(1, "N")
             if n < 0:
@@ -436,9 +441,12 @@ class Builder:
         except ValueError as exc:
             raise self._wrap(p, exc, "N") from None
 
-    def bspline_curve(self, p: Params, whole_if_empty: bool = False) -> NurbsCurve:
+    def bspline_curve(self, p: Params, whole_if_empty: bool = False) -> list[NurbsCurve]:
         """126: K, M, PROP1-4, knots T(-M..N+M), weights W(0..K), points (K+1)x3, V0, V1.
-        ``whole_if_empty``: an empty range V0 = V1 means the whole knot range (noted)."""
+        ``whole_if_empty``: an empty range V0 = V1 means the whole knot range (noted).
+
+        One curve, or several pieces joined end to start where an interior knot of
+        multiplicity above M marks a jump (`_surplus_knots`)."""
         k = p.int(1, "K")
         m = p.int(2, "M")
         if m < 1:
@@ -467,20 +475,63 @@ class Builder:
                       p.line(v0))
             a, b = float(lo), float(hi)
         a, b = self._clamp_range(p, a, b, lo, hi, v0, "V0", "V1")
+        inner = knots[m + 1 : k + 1]
         if lo <= a < b <= hi:
             # knots non-decreasing (checked above), values finite (`Params.reals` rejects
             # overflow), weights positive, lo <= a < b <= hi: NurbsCurve's checks reduce to
             # the interior knot multiplicity; when it passes, the same curve without
             # re-validation (anything else: the constructor, and its error, below)
-            inner = knots[m + 1 : k + 1]
             if inner.size <= m or not (inner[m:] == inner[:-m]).any():
                 knots.setflags(write=False)
                 wr = w.min() < w.max()
-                return NurbsCurve._trusted(m, knots, cp, w, (float(a), float(b)), bool(wr))
+                return [NurbsCurve._trusted(m, knots, cp, w, (float(a), float(b)), bool(wr))]
+        nets = [(knots, cp, w)]
+        if self._has_surplus(knots, m):
+            nets = [(kn, *from_homogeneous(q))
+                    for kn, q in self._surplus_knots(p, m, knots, to_homogeneous(cp, w), t0, "T", "curve")]
+        pieces = []
         try:
-            return NurbsCurve(m, knots, cp, w, (a, b))
+            for kn, pts, ws in nets:
+                lo_i, hi_i = max(a, kn[m]), min(b, kn[-m - 1])
+                if lo_i < hi_i:
+                    pieces.append(NurbsCurve(m, kn, pts, ws, (lo_i, hi_i)))
         except ValueError as exc:
             raise p.error(str(exc), t0, "T") from None
+        return pieces
+
+    def _surplus_knots(self, p: Params, deg: int, knots: np.ndarray, qw: np.ndarray, k: int, name: str,
+                       what: str, axis: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Interior knots of multiplicity above the degree ``deg`` (IGES 5.3 4.23 and 4.24
+        allow at most the degree): lowered exactly where the curve or surface is continuous
+        (`remove_surplus_knots`); a curve is split where it jumps, a surface refused there.
+        knots (m+1,); qw homogeneous (n, 4) or (nu, nv, 4), ``axis`` along the knots; ``k``,
+        ``name``: the knot field. Returns (knots, qw) of the pieces; every change is noted."""
+        counts = dict(zip(*np.unique(knots[deg + 1 : len(knots) - deg - 1], return_counts=True)))
+        kn, qw, removed, breaks = remove_surplus_knots(knots, deg, qw, axis)
+        for u, gap in breaks:
+            how = "its weights disagree" if gap == float("inf") else f"it jumps by {gap:.3g}"
+            if what == "surface":
+                raise p.error(f"knot {u!r} has multiplicity {counts[u]} > degree {deg} and the surface is not "
+                              f"continuous there ({how}): no exact reading as one surface", k, name)
+            self.note(f"knot {name} = {u!r} of multiplicity {counts[u]} > degree {deg}: the {what} is not "
+                      f"continuous there ({how}): split into two pieces", p.de, p.line(k))
+        for u, r in removed:
+            where = "" if any(u == v for v, _ in breaks) else f", where the {what} is continuous"
+            self.note(f"knot {name} = {u!r} of multiplicity {counts[u]} > degree {deg}{where}: {r} occurrence(s) "
+                      f"removed (exact)", p.de, p.line(k))
+        nets = []
+        for u, _ in breaks:  # curves only
+            a = int(np.searchsorted(kn, u))  # first occurrence: the run kn[a .. a+deg] of deg + 1
+            nets.append((kn[: a + deg + 1], qw[:a]))
+            kn, qw = kn[a:], qw[a:]
+        nets.append((kn, qw))
+        return nets
+
+    @staticmethod
+    def _has_surplus(knots: np.ndarray, deg: int) -> bool:
+        """True if an interior knot (knots[deg+1 .. n-1]) has multiplicity above ``deg``."""
+        inner = knots[deg + 1 : len(knots) - deg - 1]
+        return inner.size > deg and bool((inner[deg:] == inner[:-deg]).any())
 
     def _check_knots(self, p: Params, knots: np.ndarray, start: int, m: int, name: str) -> None:
         if (knots[1:] >= knots[:-1]).all():
@@ -490,6 +541,17 @@ class Builder:
         if bad.size:
             j = int(bad[0]) + 1
             raise p.error(f"knots decrease: {knots[j - 1]!r} then {knots[j]!r}", start + j, f"{name}({j - m})")
+
+    def _ordered(self, p: Params, k: int, na: str, nb: str) -> tuple[float, float]:
+        """Fields k, k+1 of a 128 (U0, U1 or V0, V1; IGES 5.3 4.24 has U0 < U1, V0 < V1) in
+        increasing order: a reversed range names the same rectangle of the surface, so it is
+        read in order (noted)."""
+        a, b = p.real(k, na), p.real(k + 1, nb)
+        if a > b:
+            self.note(f"{na} = {a!r} > {nb} = {b!r}: parameter range reversed, read as [{b!r}, {a!r}]", p.de,
+                      p.line(k))
+            a, b = b, a
+        return a, b
 
     def _clamp_range(self, p: Params, a: float, b: float, lo: float, hi: float, k: int, na: str, nb: str):
         tol = DOMAIN_REL_TOL * max(1.0, hi - lo)
@@ -538,10 +600,17 @@ class Builder:
         # IGES order: first index (u) fastest -> reshape (v, u), then transpose to [i along u, j along v]
         cp = xyz.reshape(k2 + 1, k1 + 1, 3).transpose(1, 0, 2)
         w = w.reshape(k2 + 1, k1 + 1).T
-        u_a, u_b = self._clamp_range(p, p.real(r0, "U0"), p.real(r0 + 1, "U1"), su[m1], su[k1 + 1], r0, "U0", "U1")
-        v_a, v_b = self._clamp_range(p, p.real(r0 + 2, "V0"), p.real(r0 + 3, "V1"), tv[m2], tv[k2 + 1], r0 + 2,
+        u_a, u_b = self._clamp_range(p, *self._ordered(p, r0, "U0", "U1"), su[m1], su[k1 + 1], r0, "U0", "U1")
+        v_a, v_b = self._clamp_range(p, *self._ordered(p, r0 + 2, "V0", "V1"), tv[m2], tv[k2 + 1], r0 + 2,
                                      "V0", "V1")
         self._own_end[p.de] = r0 + 4
+        if self._has_surplus(su, m1) or self._has_surplus(tv, m2):
+            qw = to_homogeneous(cp, w)
+            if self._has_surplus(su, m1):
+                [(su, qw)] = self._surplus_knots(p, m1, su, qw, s0, "S", "surface", axis=0)
+            if self._has_surplus(tv, m2):
+                [(tv, qw)] = self._surplus_knots(p, m2, tv, qw, t0, "T", "surface", axis=1)
+            cp, w = from_homogeneous(qw)
         try:
             return NurbsSurface(m1, m2, su, tv, cp, w, (u_a, u_b, v_a, v_b))
         except ValueError as exc:
@@ -578,26 +647,29 @@ class Builder:
             except ValueError as exc:
                 raise self._wrap(p, exc, "DE1") from None
         elif t == 120:
-            lde = p.pointer(1, "L", allow_zero=False)
-            cde = p.pointer(2, "C", allow_zero=False)
-            self.entry(lde, p, 1, "L", types=(110,))
-            self.entry(cde, p, 2, "C")
-            sa, ta = p.real(3, "SA"), p.real(4, "TA")
-            self._own_end[de] = 5
-            lp = self.params(lde)
-            with self.visiting(lde):
-                ends = lp.reals(1, 6, "X1..Z2")
-                xf = self.transform(lde)
-            a, b = ends[:3], ends[3:]
-            if not _is_identity(xf):
-                a, b = xf[0] @ a + xf[1], xf[0] @ b + xf[1]
-            if not np.any(b - a):
-                raise lp.error("axis line of a surface of revolution has zero length", 1, "X1")
-            gen = self.curve(cde)
+            a, b, sa, ta = self._revolution_axis(de)
+            gen = self.curve(p.pointer(2, "C", allow_zero=False))
             try:
                 s = _construct().revolved_surface(gen, a, b - a, sa, ta)
             except ValueError as exc:
                 raise self._wrap(p, exc, "SA") from None
+        elif t == 140:  # offset surface (IGES 5.3 4.25): NX, NY, NZ, D, DE of the base surface
+            bde = p.pointer(5, "DE", allow_zero=False)
+            base = self.entry(bde, p, 5, "DE").entity_type
+            self._own_end[de] = 6
+            gen = self._offset_generatrix(bde, p.real(4, "D")) if base == 120 else None
+            if gen is None:
+                what = SURFACE_NAMES.get(base, "surface")
+                if base == 120:
+                    what += " whose generatrix is not a line in a plane through the axis"
+                raise Unsupported(f"offset surface (140) over a {what} ({base}, DE {bde}) is not supported", de, t,
+                                  e.line)
+            a, b, sa, ta = self._revolution_axis(bde)
+            try:
+                s = _construct().revolved_surface(gen, a, b - a, sa, ta)
+            except ValueError as exc:
+                raise self._wrap(p, exc, "D") from None
+            s = apply_surface(s, self.transform(bde))
         elif t == 122:
             dd = p.pointer(1, "DE", allow_zero=False)
             self.entry(dd, p, 1, "DE")
@@ -612,6 +684,51 @@ class Builder:
         else:
             raise Unsupported(f"surface entity {t} is not supported", de, t, e.line)
         return apply_surface(s, self.transform(de)), trim
+
+    def _revolution_axis(self, de: int) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """120 at ``de``: axis line ends a, b (3,) (the 110's own transformation applied) and
+        the angles SA, TA (fields 1-4)."""
+        p = self.params(de)
+        lde = p.pointer(1, "L", allow_zero=False)
+        cde = p.pointer(2, "C", allow_zero=False)
+        self.entry(lde, p, 1, "L", types=(110,))
+        self.entry(cde, p, 2, "C")
+        sa, ta = p.real(3, "SA"), p.real(4, "TA")
+        self._own_end[de] = 5
+        lp = self.params(lde)
+        with self.visiting(lde):
+            ends = lp.reals(1, 6, "X1..Z2")
+            xf = self.transform(lde)
+        a, b = ends[:3], ends[3:]
+        if not _is_identity(xf):
+            a, b = xf[0] @ a + xf[1], xf[0] @ b + xf[1]
+        if not np.any(b - a):
+            raise lp.error("axis line of a surface of revolution has zero length", 1, "X1")
+        return a, b, sa, ta
+
+    def _offset_generatrix(self, de: int, d: float) -> NurbsCurve | None:
+        """Generatrix of the 120 at ``de`` offset by ``d`` along the surface's unit normal
+        S_u x S_v (IGES 5.3 4.25), when that is exact: a line (110) in a plane through the
+        axis (a cone or cylinder: the normal is one vector along the line, and the offset is
+        the surface of revolution of the shifted line). None otherwise. In the 120's space."""
+        p = self.params(de)
+        cde = p.pointer(2, "C", allow_zero=False)
+        if self.entry(cde, p, 2, "C").entity_type != 110:
+            return None
+        a, b, _, _ = self._revolution_axis(de)
+        gen = self.curve(cde)
+        p0, p1 = gen.evaluate(np.array(gen.domain))
+        ax = (b - a) / np.linalg.norm(b - a)
+        line = p1 - p0
+        size = max(float(np.linalg.norm(line)), float(np.linalg.norm(p0 - a)), float(np.linalg.norm(p1 - a)))
+        if abs(float(ax @ np.cross(line, p0 - a))) > 1e-12 * size * size:  # skew line: a hyperboloid
+            return None
+        far = p0 if np.linalg.norm(np.cross(ax, p0 - a)) >= np.linalg.norm(np.cross(ax, p1 - a)) else p1
+        n = np.cross(line, np.cross(ax, far - a))  # S_u x S_v at angle 0 (S_v: right-hand turn about the axis)
+        if not np.linalg.norm(n) > 1e-12 * size * size:
+            return None
+        n /= np.linalg.norm(n)
+        return NurbsCurve(gen.degree, gen.knots, gen.control_points + d * n, gen.weights, gen.domain)
 
     def plane(self, p: Params) -> tuple[NurbsSurface, Trim]:
         """108 form 1: the plane A x + B y + C z = D over the extent of its boundary curve,
@@ -1037,11 +1154,19 @@ class Builder:
                 self._own_end[de] = 6 if p.has(5) else 5
                 return torus_map(frame(o, a, ref), big, small)
         surface, _ = self.surface(de)
+        if t == 140:  # read only over a 120 (`_surface`): that 120's map, with the offset generatrix
+            bde = p.pointer(5, "DE", allow_zero=False)
+            xf = compose(xf, self.transform(bde))
+            p = self.params(bde)
+            gde = p.pointer(2, "C", allow_zero=False)
+            gen = self._offset_generatrix(bde, self.params(de).real(4, "D"))
+            t = 120
+        elif t == 120:
+            gde = p.pointer(2, "C", allow_zero=False)
+            gen = self.curve(gde)
         if t == 120:
             sa, ta = p.real(3, "SA"), p.real(4, "TA")
-            gde = p.pointer(2, "C", allow_zero=False)
             ge = self.entries[gde]
-            gen = self.curve(gde)
             gen_arc, gen_aff = None, (1.0, 0.0)
             if ge.entity_type == 100:
                 # IGES 100 is parametrised by the angle (T from the start angle to the end angle);
@@ -1355,7 +1480,7 @@ class Builder:
             # the curve stays unusable
             self._failed_at = None
             pieces = self._cached(("curve-whole", c), lambda: [apply_curve(
-                self.bspline_curve(self.params(c), whole_if_empty=True), self.transform(c))])
+                q, self.transform(c)) for q in self.bspline_curve(self.params(c), whole_if_empty=True)])
             a = pieces[0].evaluate([pieces[0].domain[0]])[0]
             b = pieces[-1].evaluate([pieces[-1].domain[1]])[0]
             fwd = max(np.linalg.norm(a - ends[0]), np.linalg.norm(b - ends[1]))

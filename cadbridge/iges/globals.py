@@ -9,7 +9,7 @@ from cadbridge.iges.lexer import Record, Token, tokenize
 from cadbridge.iges.values import parse_int, parse_real
 from cadbridge.cad.model import Units
 
-__all__ = ["GlobalSection", "parse_global", "units_from_flag", "UNIT_TABLE"]
+__all__ = ["GlobalSection", "parse_global", "units_from_flag", "resolve_units", "UNIT_TABLE"]
 
 # IGES units flag -> (name, millimetres per unit)   (5.3 Table 3)
 UNIT_TABLE: dict[int, tuple[str, float]] = {
@@ -68,6 +68,38 @@ def units_from_flag(flag: int, name: str | None) -> Units:
     return Units(flag, (name or nm).strip() or nm, mm)
 
 
+def _unit_name(name: str | None) -> int | None:
+    """The units flag a G15 units name stands for (IGES 5.3 2.2.4.3.15), None if none."""
+    return _NAME_TO_FLAG.get((name or "").strip().upper().replace("'", ""))
+
+
+def resolve_units(flag: int | None, name: str | None) -> tuple[Units, str | None]:
+    """The length unit of units flag G14 (None: field omitted) and units name G15, with a
+    note when it is not simply the flag's (IGES 5.3 2.2.4.3.14-15: flag 1..11, 3 = the unit
+    named by G15; omitted flag = 1, inches). Raises ValueError ``(message, field)`` when
+    the unit is undefined: flag 3 without a known name, or a flag outside 1..11 without one."""
+    named = _unit_name(name)
+    if flag == 3 or (flag is not None and flag not in UNIT_TABLE):
+        if named is None:
+            what = f"units name (G15) {name.strip()!r} is no IGES 5.3 unit name" if (name or "").strip() else \
+                "units name (G15) is empty"
+            if flag == 3:
+                raise ValueError(f"units flag (G14) = 3 names the unit by G15, but {what}: the length unit is "
+                                 f"undefined", "units name (G15)")
+            raise ValueError(f"units flag (G14) = {flag} is not an IGES 5.3 value (1..11) and {what}: the length "
+                             f"unit is undefined", "units flag (G14)")
+        units = Units(3 if flag == 3 else named, name.strip(), UNIT_TABLE[named][1])
+        note = None if flag == 3 else f"units flag (G14) = {flag} is not an IGES 5.3 value (1..11): the unit named " \
+            f"by G15, {name.strip()!r}, used"
+        return units, note
+    if flag is None:
+        if named is not None:
+            return Units(named, name.strip(), UNIT_TABLE[named][1]), f"units flag (G14) omitted: the unit named by " \
+                f"G15, {name.strip()!r}, used"
+        return units_from_flag(1, None), "units flag (G14) and name (G15) omitted: IGES 5.3 default 1 (inches) used"
+    return units_from_flag(flag, name), None
+
+
 def parse_global(records: list[Record], filename: str) -> GlobalSection:
     """Parse the Global section records (columns 1-72). Raises IgesError on bad fields."""
     g = GlobalSection()
@@ -92,7 +124,8 @@ def parse_global(records: list[Record], filename: str) -> GlobalSection:
         sep = ","
         i += 1
     elif text[i : i + 1] == ";":  # an empty Global section
-        g.notes.append((first, "empty Global section: defaults used"))
+        g.units, note = resolve_units(None, None)
+        g.notes.append((first, f"empty Global section: defaults used ({note})"))
         return g
     else:
         raise IgesError(f"Global field 1 (parameter delimiter) must be empty or 1Hx, got {text[i:i+8]!r}",
@@ -112,6 +145,8 @@ def parse_global(records: list[Record], filename: str) -> GlobalSection:
     if rest_text[:1] == rdelim:
         g.values = [pdelim, rdelim]
         g.lines = [first, first]
+        g.units, note = resolve_units(None, None)
+        g.notes.append((first, note))
         return g
     if rest_text[:1] not in (pdelim, sep):
         raise IgesError(f"Global field 2: expected a delimiter, got {rest_text[:8]!r}", filename=filename,
@@ -137,15 +172,18 @@ def parse_global(records: list[Record], filename: str) -> GlobalSection:
     name_tok = tok(F_UNITS_NAME)
     name = name_tok.text if (name_tok is not None and name_tok.is_string) else None
     try:
-        flag = parse_int(flag_tok, 2) if flag_tok is not None else 2
+        flag = parse_int(flag_tok) if flag_tok is not None and flag_tok.text else None
     except ValueError as e:
         raise IgesError(str(e), filename=filename, line=flag_tok.line, field="units flag (G14)") from None
     try:
-        g.units = units_from_flag(flag, name)
+        g.units, note = resolve_units(flag, name)
     except ValueError as e:
-        line = flag_tok.line if flag_tok is not None else first
-        raise IgesError(str(e), filename=filename, line=line, field="units flag (G14)") from None
-    if flag != 3 and name and name.strip().upper() in _NAME_TO_FLAG and _NAME_TO_FLAG[name.strip().upper()] != flag:
+        msg, fld = e.args
+        tok_ = name_tok if fld.startswith("units name") and name_tok is not None else flag_tok
+        raise IgesError(msg, filename=filename, line=tok_.line if tok_ is not None else first, field=fld) from None
+    if note:
+        g.notes.append((flag_tok.line if flag_tok is not None else first, note))
+    if flag in UNIT_TABLE and name and name.strip().upper() in _NAME_TO_FLAG and _NAME_TO_FLAG[name.strip().upper()] != flag:
         g.notes.append((flag_tok.line if flag_tok is not None else first,
                         f"units flag {flag} ({g.units.name}) disagrees with units name {name!r}: flag used"))
         g.units = units_from_flag(flag, None)

@@ -33,6 +33,7 @@ __all__ = [
     "reparametrize",
     "merge_knots",
     "missing_knots",
+    "remove_surplus_knots",
 ]
 
 _SNAP = 1e-12  # relative tolerance for snapping a cut parameter onto an existing knot
@@ -204,6 +205,61 @@ def decompose(knots, p: int, ctrl_w, axis: int = 0) -> tuple[np.ndarray, np.ndar
         segs.append(Q[k - p : k + 1])
     segments = np.moveaxis(np.stack(segs), 1, axis + 1)
     return breaks, segments
+
+
+# ---------------------------------------------------------------------------- surplus knots
+def remove_surplus_knots(knots, p: int, ctrl_w, axis: int = 0, rel_tol: float = 1e-12
+                         ) -> tuple[np.ndarray, np.ndarray, list[tuple[float, int]], list[tuple[float, float]]]:
+    """Lower every interior knot of multiplicity s > p to p where that is exact (P&T A5.8).
+
+    knots (m+1,); ctrl_w (..., n, ..., d+1) homogeneous, n = m - p along ``axis``. Only
+    knots strictly inside the domain (knots[p], knots[n]) are touched. A run of s > p + 1
+    equal knots carries s - p - 1 basis functions that vanish everywhere: their knots and
+    control points are dropped (exact). At a run of p + 1 the curve falls into two
+    independent pieces; one more occurrence is removed (A5.8 with s = p + 1) when they meet:
+    the left piece's last point and the right piece's first point coincide within
+    ``rel_tol`` x the control net's box diagonal along every row and their weights have one
+    ratio, by which the right piece's weights are scaled (that leaves it unchanged).
+
+    Returns (knots, ctrl_w, removed, breaks): ``removed`` lists (knot value, occurrences
+    removed); ``breaks`` lists (knot value, gap) for the knots left at p + 1 (gap: largest
+    distance between the two pieces' end points, inf when only the weights disagree).
+    """
+    U = np.asarray(knots, dtype=float)
+    Q = np.moveaxis(np.array(ctrl_w, dtype=float), axis, 0)
+    n = Q.shape[0]
+    pts = Q[..., :-1] / Q[..., -1:]
+    flat = pts.reshape(-1, pts.shape[-1])
+    tol = rel_tol * float(np.linalg.norm(np.ptp(flat, axis=0))) if flat.size else 0.0
+    keep_k = np.ones(len(U), dtype=bool)
+    keep_q = np.ones(n, dtype=bool)
+    removed: list[tuple[float, int]] = []
+    breaks: list[tuple[float, float]] = []
+    i = p + 1
+    while i < n:
+        j = i
+        while j + 1 < n and U[j + 1] == U[i]:
+            j += 1
+        s = j - i + 1
+        if s > p and U[p] < U[i] < U[n]:
+            drop = s - p - 1  # N_i .. N_{i+drop-1} have all their knots equal: zero everywhere
+            keep_k[i : i + drop] = False
+            keep_q[i : i + drop] = False
+            left, right = i - 1, j - p  # last point of the left piece, first of the right one
+            gap = float(np.max(np.linalg.norm(pts[left] - pts[right], axis=-1)))
+            ratio = Q[left, ..., -1] / Q[right, ..., -1]
+            r = float(np.ravel(ratio)[0])
+            if gap <= tol and np.all(np.abs(ratio - r) <= rel_tol * r):
+                Q[right:] *= r
+                keep_k[i + drop] = False
+                keep_q[right] = False
+                drop += 1
+            else:
+                breaks.append((float(U[i]), gap if gap > tol else float("inf")))
+            if drop:
+                removed.append((float(U[i]), drop))
+        i = j + 1
+    return U[keep_k], np.moveaxis(Q[keep_q], 0, axis), removed, breaks
 
 
 # ---------------------------------------------------------------------------- degree elevation
