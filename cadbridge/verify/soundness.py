@@ -9,13 +9,13 @@ to mm), and measures three things, all independent of cadbridge's own error esti
 (a) nodes on the CAD: the distance of up to ``max_samples`` mesh nodes (evenly spread over
     the node list) to OCC's trimmed faces, relative to the model size (the diagonal of
     OCC's bounding box of the faces). Distance to one face: `GeomAPI_ProjectPointOnSurf`
-    onto the face's surface within the face's (u, v) bounds; the nearest extremum whose
-    foot `BRepClass_FaceClassifier` puts inside the face (IN or ON) gives the distance,
-    and when no foot is inside, `BRepExtrema_DistShapeShape` between the point and the
-    face (the nearest point is then on the trim boundary), which also checks a projection
-    farther than the tolerance (the smaller distance counts). Faces are visited in the order
-    of their bounding-box distance and the search stops when a box is farther than the
-    best distance found.
+    onto the face's surface within the face's (u, v) bounds, with both of OCC's searches
+    (gradient and tree: each misses feet the other finds); the nearest foot that
+    `BRepTopAdaptor_FClass2d` puts inside the face (IN or ON) gives the distance. Faces are
+    visited in the order of their bounding-box distance until a box is farther than the
+    best distance. When the best is beyond the tolerance, `BRepExtrema_DistShapeShape`
+    between the point and every face whose box is near enough is measured too (the nearest
+    point may be on a trim boundary), and the smaller distance counts.
 (b) node normals: the angle between a node's normal (NORMALS) and OCC's surface normal
     (`GeomLProp_SLProps`, Su x Sv) at the node's foot, sign-insensitive (OCC faces may be
     reversed; the tool's side comes from the mesh winding), for interior nodes only: the
@@ -24,7 +24,9 @@ to mm), and measures three things, all independent of cadbridge's own error esti
 (c) patches bend toward the CAD: the Nagata surface at each sampled element's centre
     ((eta, zeta) = (2/3, 1/3) on a triangle, (1/2, 1/2) on a quad, from the written
     COEFFICIENTS) is no farther from OCC's faces than the flat element's centre (the mean
-    of its corners), compared as the maxima over the sample.
+    of its corners), compared as the maxima over the sample (up to ``max_samples``
+    elements; distances as in (a), `BRepExtrema_DistShapeShape` only on faces whose nearest
+    surface foot lies outside them).
 
 A check fails when (a) exceeds ``DIST_REL`` x size (at least the largest OCC edge
 tolerance), (b) exceeds ``ANGLE_DEG``, or (c)'s Nagata maximum exceeds the flat maximum
@@ -45,9 +47,9 @@ from pathlib import Path
 import numpy as np
 from OCP.BRep import BRep_Tool
 from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-from OCP.BRepClass import BRepClass_FaceClassifier
-from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-from OCP.Extrema import Extrema_ExtAlgo_Tree
+from OCP.BRepExtrema import BRepExtrema_DistShapeShape, BRepExtrema_IsInFace
+from OCP.BRepTopAdaptor import BRepTopAdaptor_FClass2d
+from OCP.Extrema import Extrema_ExtAlgo_Grad, Extrema_ExtAlgo_Tree
 from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
 from OCP.gp import gp_Pnt, gp_Pnt2d
 from OCP.TopAbs import TopAbs_EDGE, TopAbs_IN, TopAbs_ON
@@ -60,7 +62,7 @@ __all__ = ["ANGLE_DEG", "DIST_REL", "SoundnessReport", "tool_soundness"]
 
 DIST_REL = 1e-6  # node / centre distance tolerance, x model size
 ANGLE_DEG = 1e-4  # node normal tolerance at interior nodes, degrees
-_UV_TOL = 1e-9  # BRepClass_FaceClassifier tolerance (parameter space)
+_UV_TOL = 1e-9  # BRepTopAdaptor_FClass2d tolerance (parameter space)
 
 
 @dataclass
@@ -95,48 +97,80 @@ class _Faces:
         self.faces = faces
         self.lo = np.array([f.bbox[0] for f in faces])
         self.hi = np.array([f.bbox[1] for f in faces])
-        self._proj: dict[int, GeomAPI_ProjectPointOnSurf] = {}
+        self._proj: dict[int, tuple[GeomAPI_ProjectPointOnSurf, ...]] = {}
+        self._class: dict[int, BRepTopAdaptor_FClass2d] = {}
 
-    def _projector(self, i: int) -> GeomAPI_ProjectPointOnSurf:
+    def _projectors(self, i: int) -> tuple[GeomAPI_ProjectPointOnSurf, ...]:
+        """Both of OCC's point-surface searches on face i: each misses feet the other finds (the
+        gradient search a foot on a quintic, the tree search one sheet of a surface that runs
+        back over itself within 0.004 mm)."""
         if i not in self._proj:
-            p = GeomAPI_ProjectPointOnSurf()  # the default gradient search misses feet on quintics
-            p.Init(self.faces[i].surface, *self.faces[i].bounds, Extrema_ExtAlgo_Tree)
-            self._proj[i] = p
+            out = []
+            for algo in (Extrema_ExtAlgo_Grad, Extrema_ExtAlgo_Tree):
+                p = GeomAPI_ProjectPointOnSurf()
+                p.Init(self.faces[i].surface, *self.faces[i].bounds, algo)
+                out.append(p)
+            self._proj[i] = tuple(out)
         return self._proj[i]
 
     def _state(self, i: int, u: float, v: float):
-        return BRepClass_FaceClassifier(self.faces[i].face, gp_Pnt2d(u, v), _UV_TOL).State()
+        if i not in self._class:
+            self._class[i] = BRepTopAdaptor_FClass2d(self.faces[i].face, _UV_TOL)
+        return self._class[i].Perform(gp_Pnt2d(u, v))
 
-    def _to_face(self, i: int, x: np.ndarray, tol: float) -> tuple[float, float, float, bool]:
-        """Distance from x to face i, the foot's (u, v) and whether the foot is strictly inside.
-        A projection farther than ``tol`` (mm) is checked against `BRepExtrema_DistShapeShape`."""
-        proj = self._projector(i)
-        proj.Perform(gp_Pnt(*map(float, x)))
-        best = (float("inf"), float("nan"), float("nan"), False)
-        if proj.IsDone():
-            for k in sorted(range(1, proj.NbPoints() + 1), key=proj.Distance):
-                u, v = proj.Parameters(k)
-                state = self._state(i, u, v)
-                if state in (TopAbs_IN, TopAbs_ON):
-                    best = (proj.Distance(k), u, v, state == TopAbs_IN)
-                    break
-        if best[0] > tol:
-            vertex = BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex()
-            dss = BRepExtrema_DistShapeShape(vertex, self.faces[i].face)
-            if dss.IsDone() and dss.NbSolution() > 0 and dss.Value() < best[0]:
-                best = (dss.Value(), float("nan"), float("nan"), False)
-        return best
+    def _project(self, i: int, x: np.ndarray) -> tuple[float, float, float, bool, bool]:
+        """Distance from x to its nearest foot on face i's surface that lies inside the face
+        (inf if none), the foot's (u, v), whether it is strictly inside, and whether it is the
+        nearest foot on the surface at all (else the trim boundary may be nearer)."""
+        feet = []
+        for proj in self._projectors(i):
+            proj.Perform(gp_Pnt(*map(float, x)))
+            if proj.IsDone():
+                feet += [(proj.Distance(k), *proj.Parameters(k)) for k in range(1, proj.NbPoints() + 1)]
+        for rank, (d, u, v) in enumerate(sorted(feet)):
+            state = self._state(i, u, v)
+            if state in (TopAbs_IN, TopAbs_ON):
+                return d, u, v, state == TopAbs_IN, rank == 0
+        return float("inf"), float("nan"), float("nan"), False, False
 
-    def nearest(self, x: np.ndarray, tol: float) -> tuple[float, int, float, float, bool]:
-        """(distance, face, u, v, strictly inside) of the nearest point of the faces to x."""
+    def _exact(self, i: int, x: np.ndarray) -> tuple[float, float, float, bool]:
+        """Distance from x to the trimmed face i by `BRepExtrema_DistShapeShape` (inf on
+        failure), the (u, v) of its foot and whether that is strictly inside the face (NaN,
+        False when the foot is on an edge or vertex)."""
+        vertex = BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex()
+        dss = BRepExtrema_DistShapeShape(vertex, self.faces[i].face)
+        if not dss.IsDone() or dss.NbSolution() == 0:
+            return float("inf"), float("nan"), float("nan"), False
+        if dss.SupportTypeShape2(1) == BRepExtrema_IsInFace:
+            u, v = dss.ParOnFaceS2(1)
+            return dss.Value(), u, v, self._state(i, u, v) == TopAbs_IN
+        return dss.Value(), float("nan"), float("nan"), False
+
+    def nearest(self, x: np.ndarray, tol: float, exact: bool) -> tuple[float, int, float, float, bool]:
+        """(distance, face, u, v, foot strictly inside) of the nearest point of the faces to x:
+        projections first; if none is within ``tol`` (mm), `BRepExtrema_DistShapeShape` too, on
+        every face whose box is near enough (``exact``) or only on those whose nearest surface
+        foot lies outside the face (the nearest point may be on their trim boundary). The
+        smaller distance counts."""
         box = np.linalg.norm(np.maximum(0.0, np.maximum(self.lo - x, x - self.hi)), axis=1)
+        order = np.argsort(box, kind="stable")
         best = (float("inf"), -1, float("nan"), float("nan"), False)
-        for i in np.argsort(box, kind="stable"):
+        unsure = []  # faces whose trim boundary may be nearer than their surface foot
+        for i in order:
             if box[i] > best[0]:
                 break
-            d, u, v, inside = self._to_face(int(i), x, tol)
+            d, u, v, inside, first = self._project(int(i), x)
             if d < best[0]:
                 best = (d, int(i), u, v, inside)
+            if not first:
+                unsure.append(i)
+        if best[0] > tol:
+            for i in order[box[order] <= best[0]] if exact else unsure:  # by box distance
+                if box[i] > best[0]:
+                    break
+                d, u, v, inside = self._exact(int(i), x)
+                if d < best[0]:
+                    best = (d, int(i), u, v, inside)
         return best
 
 
@@ -213,7 +247,7 @@ def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], 
     dist = np.empty(len(pick))
     angles = []
     for k, j in enumerate(pick):
-        d, i, u, v, inside = occ.nearest(nodes[j], tol * size)
+        d, i, u, v, inside = occ.nearest(nodes[j], tol * size, exact=True)
         dist[k] = d
         if inside and candidate[j]:
             n = occ_normal(faces[i].surface, u, v)[0]
@@ -228,8 +262,8 @@ def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], 
     pick = _spread(len(nag), max_samples)
     rep.n_centres = len(pick)
     if len(pick):
-        rep.nagata_centre = max(occ.nearest(nag[j], tol * size)[0] for j in pick) / size
-        rep.flat_centre = max(occ.nearest(flat[j], tol * size)[0] for j in pick) / size
+        rep.nagata_centre = max(occ.nearest(nag[j], tol * size, exact=False)[0] for j in pick) / size
+        rep.flat_centre = max(occ.nearest(flat[j], tol * size, exact=False)[0] for j in pick) / size
 
     if not len(nodes):
         rep.failures.append("no nodes in the tool files")
