@@ -18,7 +18,8 @@ to mm), and measures three things, all independent of cadbridge's own error esti
     point may be on a trim boundary), and the smaller distance counts.
 (b) node normals: the angle between a node's normal (NORMALS) and OCC's surface normal
     (`GeomLProp_SLProps`, Su x Sv) at the node's foot, sign-insensitive (OCC faces may be
-    reversed; the tool's side comes from the mesh winding), for interior nodes only: the
+    reversed; the tool's side comes from the mesh winding); on a C0 knot line the nearer of
+    the two one-sided normals counts (`_angle_deg`). For interior nodes only: the
     foot is strictly IN its face (not ON a trim edge), the node lies on no free mesh edge
     and no element corner overrides its normal (CORNER_NORMALS: a crease).
 (c) patches bend toward the CAD: the Nagata surface at each sampled element's centre
@@ -185,6 +186,22 @@ def _edge_tolerance(faces: list[OccFace]) -> float:
     return tol
 
 
+def _angle_deg(face: OccFace, u: float, v: float, normal: np.ndarray) -> float:
+    """Sign-insensitive angle (degrees) between ``normal`` and OCC's normal of ``face`` at
+    (u, v). On a knot line where the surface is only C0 the normal has two values, one from
+    each side: OCC's normal is also taken 1e-9 x the face's parameter range to either side in
+    u and in v, and the nearest of the five counts (over 1e-9 of the range a smooth normal
+    turns by far less than the tolerance)."""
+    u0, u1, v0, v1 = face.bounds
+    hu, hv = 1e-9 * (u1 - u0), 1e-9 * (v1 - v0)
+    us = np.array([u, u - hu, u + hu, u, u])
+    vs = np.array([v, v, v, v - hv, v + hv])
+    n = occ_normal(face.surface, us, vs)
+    c = np.abs(n @ np.asarray(normal, dtype=float))
+    c = c[np.isfinite(c)]
+    return float(np.degrees(np.arccos(min(1.0, c.max())))) if len(c) else float("nan")
+
+
 def _spread(n: int, k: int) -> np.ndarray:
     """Up to k indices evenly spread over range(n)."""
     return np.arange(n) if n <= k else np.unique(np.linspace(0, n - 1, k).round().astype(np.int64))
@@ -250,10 +267,9 @@ def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], 
         d, i, u, v, inside = occ.nearest(nodes[j], tol * size, exact=True)
         dist[k] = d
         if inside and candidate[j]:
-            n = occ_normal(faces[i].surface, u, v)[0]
-            if np.all(np.isfinite(n)):
-                c = abs(float(np.dot(n, normals[j])))
-                angles.append(np.degrees(np.arccos(min(1.0, c))))
+            a = _angle_deg(faces[i], u, v, normals[j])
+            if np.isfinite(a):
+                angles.append(a)
     rep.n_nodes = len(pick)
     rep.node_distance = float(dist.max()) / size if len(pick) else float("nan")
     rep.n_interior = len(angles)
