@@ -20,8 +20,12 @@ to mm), and measures three things, all independent of cadbridge's own error esti
     (`GeomLProp_SLProps`, Su x Sv) at the node's foot, sign-insensitive (OCC faces may be
     reversed; the tool's side comes from the mesh winding); on a C0 knot line the nearer of
     the two one-sided normals counts (`_angle_deg`). For interior nodes only: the
-    foot is strictly IN its face (not ON a trim edge), the node lies on no free mesh edge
-    and no element corner overrides its normal (CORNER_NORMALS: a crease).
+    foot is strictly IN its face (not ON a trim edge), the node lies on no free mesh edge,
+    no element corner overrides its normal (CORNER_NORMALS: a crease), and (checked where
+    the angle exceeds the tolerance) the node is farther than ``EDGE_MARGIN_REL`` x size
+    (at least 10 x the largest OCC edge tolerance) from its face's edges: a node on the
+    seam of two faces that meet at a slight kink below the crease threshold has one normal
+    for both, which need not be either face's own.
 (c) patches bend toward the CAD: the Nagata surface at each sampled element's centre
     ((eta, zeta) = (2/3, 1/3) on a triangle, (1/2, 1/2) on a quad, from the written
     COEFFICIENTS) is no farther from OCC's faces than the flat element's centre (the mean
@@ -63,6 +67,7 @@ __all__ = ["ANGLE_DEG", "DIST_REL", "SoundnessReport", "tool_soundness"]
 
 DIST_REL = 1e-6  # node / centre distance tolerance, x model size
 ANGLE_DEG = 1e-4  # node normal tolerance at interior nodes, degrees
+EDGE_MARGIN_REL = 1e-4  # (b): nodes nearer than this x size to their face's edges are not interior
 _UV_TOL = 1e-9  # BRepTopAdaptor_FClass2d tolerance (parameter space)
 
 
@@ -146,6 +151,18 @@ class _Faces:
             u, v = dss.ParOnFaceS2(1)
             return dss.Value(), u, v, self._state(i, u, v) == TopAbs_IN
         return dss.Value(), float("nan"), float("nan"), False
+
+    def edge_distance(self, i: int, x: np.ndarray) -> float:
+        """Distance from x to the edges of face i (`BRepExtrema_DistShapeShape` per edge)."""
+        vertex = BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex()
+        best = float("inf")
+        exp = TopExp_Explorer(self.faces[i].face, TopAbs_EDGE)
+        while exp.More():
+            dss = BRepExtrema_DistShapeShape(vertex, exp.Current())
+            if dss.IsDone() and dss.NbSolution() > 0:
+                best = min(best, dss.Value())
+            exp.Next()
+        return best
 
     def nearest(self, x: np.ndarray, tol: float, exact: bool) -> tuple[float, int, float, float, bool]:
         """(distance, face, u, v, foot strictly inside) of the nearest point of the faces to x:
@@ -258,6 +275,7 @@ def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], 
     tol = max(DIST_REL, _edge_tolerance(faces) / size)
     rep = SoundnessReport(size, to_mm, tol)
     occ = _Faces(faces)
+    margin = max(EDGE_MARGIN_REL * size, 10 * _edge_tolerance(faces))
     nodes, normals, candidate, nag, flat = _tool_arrays([read_toolfile(p) for p in tool_files], to_mm)
 
     pick = _spread(len(nodes), max_samples)
@@ -268,6 +286,8 @@ def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], 
         dist[k] = d
         if inside and candidate[j]:
             a = _angle_deg(faces[i], u, v, normals[j])
+            if a > ANGLE_DEG and occ.edge_distance(i, nodes[j]) < margin:
+                continue  # on a trim edge after all (a face seam the mesh runs along)
             if np.isfinite(a):
                 angles.append(a)
     rep.n_nodes = len(pick)
