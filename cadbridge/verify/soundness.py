@@ -206,13 +206,13 @@ def _edge_tolerance(faces: list[OccFace]) -> float:
 def _angle_deg(face: OccFace, u: float, v: float, normal: np.ndarray) -> float:
     """Sign-insensitive angle (degrees) between ``normal`` and OCC's normal of ``face`` at
     (u, v). On a knot line where the surface is only C0 the normal has two values, one from
-    each side: OCC's normal is also taken 1e-9 x the face's parameter range to either side in
-    u and in v, and the nearest of the five counts (over 1e-9 of the range a smooth normal
-    turns by far less than the tolerance)."""
+    each side (four where two knot lines cross): OCC's normal is also taken 1e-9 x the face's
+    parameter range to either side in u, in v and diagonally, and the nearest of the nine
+    counts (over 1e-9 of the range a smooth normal turns by far less than the tolerance)."""
     u0, u1, v0, v1 = face.bounds
     hu, hv = 1e-9 * (u1 - u0), 1e-9 * (v1 - v0)
-    us = np.array([u, u - hu, u + hu, u, u])
-    vs = np.array([v, v, v, v - hv, v + hv])
+    du, dv = np.meshgrid([0.0, -hu, hu], [0.0, -hv, hv])
+    us, vs = u + du.ravel(), v + dv.ravel()
     n = occ_normal(face.surface, us, vs)
     c = np.abs(n @ np.asarray(normal, dtype=float))
     c = c[np.isfinite(c)]
