@@ -253,8 +253,8 @@ def markdown(runs: list[Run], systems: dict[Path, tuple[str, int | None]], expec
              timeout: float, check_timeout: float) -> str:
     """The result page: how it was made, the totals per mode, one row per file and mode."""
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,
-                           text=True).stdout.strip()
+    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
+                            f":(exclude){RESULT.relative_to(ROOT)}"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     lines = [
         "# Corpus: every real CAD file through `cadbridge convert`",
