@@ -30,6 +30,7 @@ import pytest
 
 pytest.importorskip("OCP")
 
+from tests.helpers import occ as OCC  # noqa: E402
 from tests.nurbs.test_project import occ_reference  # noqa: E402  (OCC interior + boundary reference)
 
 from cadbridge.iges import read_iges  # noqa: E402
@@ -143,17 +144,14 @@ def test_single_face_against_occ(sample):
 
 def _occ_nearest(shape, pts: np.ndarray, size: float):
     """Nearest points on OCC's shape: (distance (N,), foot (N, 3), unique (N,) bool)."""
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
     from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-    from OCP.gp import gp_Pnt
 
     n = len(pts)
     dist = np.full(n, np.nan)
     foot = np.full((n, 3), np.nan)
     unique = np.zeros(n, dtype=bool)
     for i, p in enumerate(pts):
-        vtx = BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex()
-        ext = BRepExtrema_DistShapeShape(vtx, shape)
+        ext = BRepExtrema_DistShapeShape(OCC.vertex(p), shape)
         if not ext.IsDone() or ext.NbSolution() == 0:
             continue
         dist[i] = ext.Value()

@@ -43,6 +43,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.helpers import occ as OCC
+
 REAL = Path(__file__).parents[2].parent / "shared" / "iges_real"
 FILES = sorted(REAL.glob("*.ig*")) if REAL.is_dir() else []
 # the production dies (git-ignored, `iges_samples/make_samples.py --production`; slow: ~45 s
@@ -66,34 +68,6 @@ pytestmark = pytest.mark.skipif(not CASES, reason=f"{REAL} not present and no pr
 N_POINTS = 200  # per file (half pushed off interior nodes, half off boundary nodes)
 REL = 1e-9  # distance tolerance away from trim edges, x model size
 ANGLE = 1e-9  # normal tolerance away from trim edges, rad
-
-
-def _faces_edges(shape):
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    faces, edges = [], []
-    exp = TopExp_Explorer(shape, TopAbs_FACE)
-    while exp.More():
-        faces.append(TopoDS.Face_s(exp.Current()))
-        exp.Next()
-    exp = TopExp_Explorer(shape, TopAbs_EDGE)
-    while exp.More():
-        edges.append(TopoDS.Edge_s(exp.Current()))
-        exp.Next()
-    return faces, edges
-
-
-def _occ_normal(face, u: float, v: float) -> np.ndarray:
-    from OCP.BRepAdaptor import BRepAdaptor_Surface
-    from OCP.gp import gp_Pnt, gp_Vec
-
-    p, du, dv = gp_Pnt(), gp_Vec(), gp_Vec()
-    BRepAdaptor_Surface(face).D1(u, v, p, du, dv)
-    n = np.cross(du.Coord(), dv.Coord())
-    ln = np.linalg.norm(n)
-    return n / ln if ln > 0 else np.full(3, np.nan)
 
 
 def _points(shape, faces, size: float, rng) -> np.ndarray:
@@ -126,7 +100,7 @@ def _points(shape, faces, size: float, rng) -> np.ndarray:
                 continue
             for j in rng.choice(pool, min(per, len(pool)), replace=False):
                 k = bnode[j] if is_b else j
-                n = _occ_normal(face, *uv[k])
+                n = OCC.face_normal(face, *uv[k])
                 if not np.all(np.isfinite(n)):
                     continue  # a pole or collapsed edge: no normal to push along
                 x = nodes[k] + rng.uniform(-0.01, 0.01) * size * n
@@ -160,32 +134,6 @@ def _face_delta(face, occ_face, size: float) -> float:
     return max(float(d), REL * size)
 
 
-def _vertex(x):
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-    from OCP.gp import gp_Pnt
-
-    return BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex()
-
-
-def _compound(shapes):
-    from OCP.BRep import BRep_Builder
-    from OCP.TopoDS import TopoDS_Compound
-
-    c, b = TopoDS_Compound(), BRep_Builder()
-    b.MakeCompound(c)
-    for s in shapes:
-        b.Add(c, s)
-    return c
-
-
-def _dss(a, b):
-    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-
-    d = BRepExtrema_DistShapeShape(a, b)
-    assert d.IsDone()
-    return d
-
-
 @pytest.mark.parametrize("path", CASES)
 def test_project_points_exact_vs_occ(path: Path):
     pytest.importorskip("OCP")
@@ -212,9 +160,9 @@ def test_project_points_exact_vs_occ(path: Path):
     else:
         with mesh_source(path, model) as src:
             shape = occ_read_shape(src)
-    faces, edges = _faces_edges(shape)
-    face_set = _compound(faces)  # not the solid: a point inside a solid is at distance 0 from it
-    edge_set = _compound(edges)
+    faces, edges = OCC.faces(shape), OCC.edges(shape)
+    face_set = OCC.compound(faces)  # not the solid: a point inside a solid is at distance 0 from it
+    edge_set = OCC.compound(edges)
     assert len(faces) == len(model.faces)  # paired by order (tests/iges/test_real_files.py)
     face_delta = np.array([_face_delta(model.faces[k], faces[k], size) for k in range(len(faces))])
     # faces the reader leaves untrimmed (B-rep loops without parameter-space curves, with a
@@ -236,7 +184,7 @@ def test_project_points_exact_vs_occ(path: Path):
         if res.status[i] == FAILED:
             fails.append(f"{where}: FAILED (face {res.face[i]})")
             continue
-        d = _dss(_vertex(x), face_set)
+        d = OCC.dist_shape_shape(OCC.vertex(x), face_set)
         d_occ = d.Value()
         # delta of the faces involved: ours and the one OCC's nearest point lies on
         support = d.SupportOnShape2(1)
@@ -244,7 +192,7 @@ def test_project_points_exact_vs_occ(path: Path):
             d.SupportTypeShape2(1) == BRepExtrema_IsInFace) else None
         delta = max(face_delta[res.face[i]], face_delta[k_occ] if k_occ is not None else face_delta.max())
         # our foot is on the trimmed shape (within delta): never on trimmed-away surface
-        off = _dss(_vertex(res.foot[i]), face_set).Value()
+        off = OCC.dist_shape_shape(OCC.vertex(res.foot[i]), face_set).Value()
         if off > delta:
             fails.append(f"{where}: our foot (face {res.face[i]}, DE {model.faces[res.face[i]].de}) is {off:.3g} "
                          f"off OCC's shape (delta {delta:.3g})")
@@ -257,12 +205,12 @@ def test_project_points_exact_vs_occ(path: Path):
         if d.NbSolution() != 1 or d.SupportTypeShape2(1) != BRepExtrema_IsInFace:
             continue
         foot = np.array(d.PointOnShape2(1).Coord())
-        if _dss(_vertex(foot), edge_set).Value() <= delta:
+        if OCC.dist_shape_shape(OCC.vertex(foot), edge_set).Value() <= delta:
             continue
         # ours must be interior too: a foot on (or within delta of) a trim edge of ours is a
         # near-edge case, e.g. where two faces of the file leave a gap of about delta between
         # their edges (Inventor faces 0 and 5) and the nearest point lies on the strip
-        if res.status[i] == ON_BOUNDARY or _dss(_vertex(res.foot[i]), edge_set).Value() <= delta:
+        if res.status[i] == ON_BOUNDARY or OCC.dist_shape_shape(OCC.vertex(res.foot[i]), edge_set).Value() <= delta:
             continue
         n_interior += 1
         if abs(err) > REL * size:
@@ -270,7 +218,7 @@ def test_project_points_exact_vs_occ(path: Path):
                          f"{REL * size:.3g}); our face {res.face[i]}")
             continue
         occ_face = TopoDS.Face_s(d.SupportOnShape2(1))
-        n_occ = _occ_normal(occ_face, *d.ParOnFaceS2(1))
+        n_occ = OCC.face_normal(occ_face, *d.ParOnFaceS2(1))
         ang = float(np.arcsin(min(1.0, np.linalg.norm(np.cross(n_occ, res.normal[i])))))
         if ang > ANGLE:
             fails.append(f"{where}: normal {ang:.3g} rad from OCC's (face {res.face[i]}, DE "

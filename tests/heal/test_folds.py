@@ -22,6 +22,7 @@ from cadbridge.iges import read_iges
 from cadbridge.iges.writer import write_iges
 from cadbridge.cad.model import Face, Model
 from cadbridge.nurbs.surface import NurbsSurface
+from tests.helpers import occ as OCC
 
 SAMPLES = Path(__file__).parents[2] / "iges_samples"
 REAL = Path(__file__).parents[3] / "shared" / "iges_real"
@@ -148,24 +149,6 @@ def test_guard_stops_a_mesh_that_straddles_a_fold(tmp_path, folded, capsys):
 needs_ansa = pytest.mark.skipif(not ANSA.is_file(), reason="corpus file absent")
 
 
-def _occ_surface():
-    from OCP.BRep import BRep_Tool
-    from OCP.IGESControl import IGESControl_Reader
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    r = IGESControl_Reader()
-    r.ReadFile(str(ANSA))
-    r.TransferRoots()
-    ex = TopExp_Explorer(r.OneShape(), TopAbs_FACE)
-    faces = []
-    while ex.More():
-        faces.append(BRep_Tool.Surface_s(TopoDS.Face_s(ex.Current())))
-        ex.Next()
-    return faces
-
-
 @needs_ansa
 def test_ansa_fold_lines_against_occ():
     """FACE(274) folds twice in v. On OpenCASCADE's surface: at our fold points the v-speed is
@@ -179,7 +162,7 @@ def test_ansa_fold_lines_against_occ():
     s = model.faces[0].surface
     size = model.size()
     p = s.evaluate(np.array([0.5]), np.array([0.8]))[0]
-    occ = [g for g in _occ_surface() if g.Value(0.5, 0.8).Distance(gp_Pnt(*p)) < 1e-6 * size]
+    occ = [g for g in OCC.read_surfaces(ANSA) if g.Value(0.5, 0.8).Distance(gp_Pnt(*p)) < 1e-6 * size]
     assert len(occ) == 1
     g = occ[0]
     for line in f.lines:

@@ -16,6 +16,7 @@ from cadbridge.heal.loop_excursions import find_excursions, heal_excursions
 from cadbridge.cad.model import Face, Model, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
+from tests.helpers import occ as OCC
 
 ANSA = Path(__file__).resolve().parents[3] / "shared" / "iges_real" / "occt_OCC131-2_ANSA9.igs"
 needs_ansa = pytest.mark.skipif(not ANSA.is_file(), reason="corpus file occt_OCC131-2_ANSA9.igs absent")
@@ -60,15 +61,6 @@ def _occ_face(poly: np.ndarray):
     return BRepBuilderAPI_MakeFace(mk.Wire(), True).Face()
 
 
-def _occ_area(face) -> float:
-    from OCP.BRepGProp import BRepGProp
-    from OCP.GProp import GProp_GProps
-
-    props = GProp_GProps()
-    BRepGProp.SurfaceProperties_s(face, props)
-    return props.Mass()
-
-
 def _loop_vertices(lp: TrimLoop) -> np.ndarray:
     """The healed loop's vertices (all its curves are straight): each curve's start."""
     return np.array([c.evaluate(np.array([c.domain[0]]))[0, :2] for c in lp.curves])
@@ -90,8 +82,8 @@ def test_z_excursion_found_and_cut_against_occ_area():
     new = _loop_vertices(model.faces[0].trims.outer)
     # reference: OCC's areas of the original face and of the healed one differ by the cut's
     # signed (u, v) area (the plane's Jacobian is 1)
-    a0 = _occ_area(_occ_face(np.array(poly)))
-    a1 = _occ_area(_occ_face(new))
+    a0 = OCC.area(_occ_face(np.array(poly)))
+    a1 = OCC.area(_occ_face(new))
     assert abs(a0 - a1 - e.uv_area) < 1e-12
     assert abs(a0 - a1) < 2e-4 * e.length  # a sliver: no wider than its strands
 
@@ -105,8 +97,8 @@ def test_cut_across_the_loop_start_against_occ_area():
     model = _model(poly)
     (e,) = heal_excursions(model)
     assert find_excursions(model) == []
-    a0 = _occ_area(_occ_face(np.array(poly)))
-    a1 = _occ_area(_occ_face(_loop_vertices(model.faces[0].trims.outer)))
+    a0 = OCC.area(_occ_face(np.array(poly)))
+    a1 = OCC.area(_occ_face(_loop_vertices(model.faces[0].trims.outer)))
     assert abs(a0 - a1 - e.uv_area) < 1e-12
     assert abs(a0 - a1) < 2e-4 * e.length
 
@@ -142,36 +134,11 @@ def test_slit_and_straight_loops_are_not_excursions():
     assert find_excursions(_model(_square_with([(0.0, 1.0), (0.0, 0.0)]))) == []
 
 
-def _occ_faces():
-    from OCP.IGESControl import IGESControl_Reader
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    r = IGESControl_Reader()
-    r.ReadFile(str(ANSA))
-    r.TransferRoots()
-    faces = []
-    exp = TopExp_Explorer(r.OneShape(), TopAbs_FACE)
-    while exp.More():
-        faces.append(TopoDS.Face_s(exp.Current()))
-        exp.Next()
-    return faces
-
-
-def _occ_distance(shape, p) -> float:
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-    from OCP.gp import gp_Pnt
-
-    return BRepExtrema_DistShapeShape(shape, BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex()).Value()
-
-
 def _wire_distances(e) -> list[float]:
     """Per OCC face of ANSA9, the largest distance of the excursion's stretch to its outer wire."""
     from OCP.BRepTools import BRepTools
 
-    return [max(_occ_distance(BRepTools.OuterWire_s(f), p) for p in e.stretch_xyz[::4]) for f in _occ_faces()]
+    return [max(OCC.distance(p, BRepTools.OuterWire_s(f)) for p in e.stretch_xyz[::4]) for f in OCC.read_faces(ANSA)]
 
 
 @needs_ansa
@@ -208,7 +175,7 @@ def test_ansa_quad_mesh_leaves_the_excursion_out(tmp_path):
     (e,) = find_excursions(model)
     d274 = model.faces[0].trim_delta
     dist = _wire_distances(e)
-    f274 = _occ_faces()[int(np.argsort(dist)[1])]  # the folded neighbour (see the test above)
+    f274 = OCC.read_faces(ANSA)[int(np.argsort(dist)[1])]  # the folded neighbour (see the test above)
     checked = 0
     for t in res.tools:
         x = t.mesh.nodes
@@ -217,7 +184,7 @@ def test_ansa_quad_mesh_leaves_the_excursion_out(tmp_path):
         for el in [*t.mesh.triangles.tolist(), *t.mesh.quads.tolist()]:
             if on[el].any():
                 checked += 1
-                assert max(_occ_distance(f274, x[n]) for n in el) <= d274
+                assert max(OCC.distance(x[n], f274) for n in el) <= d274
     assert checked > 0
 
 

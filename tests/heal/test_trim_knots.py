@@ -17,6 +17,7 @@ from cadbridge.nurbs import edits
 from cadbridge.nurbs.construct import composite_curve, line, plane_surface
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.heal.trim_knots import has_c0_knots, smooth_short_knots, smoothed_curve
+from tests.helpers import occ as OCC
 
 SAMPLES = Path(__file__).parents[2] / "iges_samples"
 S = 10.0  # model scale: the graph over x in [0, S]
@@ -108,49 +109,24 @@ def _region_file(tmp_path):
 
 def _occ_faces(path) -> list[tuple[int, float]]:
     """(wires, area) of every face OpenCASCADE reads from ``path``, in its order."""
-    from OCP.BRepGProp import BRepGProp
-    from OCP.GProp import GProp_GProps
-    from OCP.IGESControl import IGESControl_Reader
-    from OCP.TopAbs import TopAbs_FACE, TopAbs_WIRE
+    from OCP.TopAbs import TopAbs_WIRE
     from OCP.TopExp import TopExp_Explorer
 
-    r = IGESControl_Reader()
-    assert r.ReadFile(str(path)) == 1
-    r.TransferRoots()
     out = []
-    faces = TopExp_Explorer(r.OneShape(), TopAbs_FACE)
-    while faces.More():
-        wires = TopExp_Explorer(faces.Current(), TopAbs_WIRE)
+    for face in OCC.read_faces(path):
+        wires = TopExp_Explorer(face, TopAbs_WIRE)
         n = 0
         while wires.More():
             n += 1
             wires.Next()
-        props = GProp_GProps()
-        BRepGProp.SurfaceProperties_s(faces.Current(), props)
-        out.append((n, props.Mass()))
-        faces.Next()
+        out.append((n, OCC.area(face)))
     return out
 
 
 def _occ_face(path):
-    from OCP.BRepGProp import BRepGProp
-    from OCP.GProp import GProp_GProps
-    from OCP.IGESControl import IGESControl_Reader
-    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-
-    r = IGESControl_Reader()
-    assert r.ReadFile(str(path)) == 1
-    r.TransferRoots()
-    face = TopExp_Explorer(r.OneShape(), TopAbs_FACE).Current()
-    edges = TopExp_Explorer(face, TopAbs_EDGE)
-    n = 0
-    while edges.More():
-        n += 1
-        edges.Next()
-    props = GProp_GProps()
-    BRepGProp.SurfaceProperties_s(face, props)
-    return n, props.Mass()
+    """(edges, area) of the first face OpenCASCADE reads from ``path``."""
+    face = OCC.read_faces(path)[0]
+    return len(OCC.edges(face)), OCC.area(face)
 
 
 def test_occ_reads_fewer_edges_and_the_same_face(tmp_path):

@@ -16,21 +16,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.helpers import occ as OCC
+
 DIE = Path(__file__).parents[2] / "iges_samples" / "production_die_analytic.igs"
 NAMES = ["BED01060", "BED01068", "BED01079", "BED01087"]
 
 
 def _occ_area(root: int) -> float:
-    from OCP.BRepGProp import BRepGProp
-    from OCP.GProp import GProp_GProps
     from OCP.IGESControl import IGESControl_Reader
 
     r = IGESControl_Reader()
     r.ReadFile(str(DIE))
     assert r.TransferOneRoot(root)
-    p = GProp_GProps()
-    BRepGProp.SurfaceProperties_s(r.OneShape(), p)
-    return p.Mass()
+    return OCC.area(r.OneShape())
 
 
 def _cadbridge_area(face, n: int = 400) -> float:

@@ -21,6 +21,7 @@ from cadbridge.cad.model import Trim, TrimLoop
 from cadbridge.nurbs import construct
 from cadbridge.nurbs.project import closed_directions
 from cadbridge.cad.trims import trim_contains
+from tests.helpers import occ as OCC
 
 REAL = Path(__file__).parents[2].parent / "shared" / "iges_real"
 
@@ -128,12 +129,6 @@ def test_brep_faces_without_pcurves_trimmed_as_occ(name):
     if not path.is_file():
         pytest.skip(f"{path} not present")
     from OCP.BRep import BRep_Tool
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-    from OCP.TopAbs import TopAbs_EDGE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-    from OCP.gp import gp_Pnt
 
     from cadbridge.iges import read_iges
     from cadbridge.verify.reference import occ_inside, occ_read
@@ -149,14 +144,8 @@ def test_brep_faces_without_pcurves_trimmed_as_occ(name):
     for k, (f, o) in enumerate(zip(model.faces, occ)):
         assert f.trims is not None, k
         assert f.trim_delta is not None and np.isfinite(f.trim_delta)
-        tol = 0.0
-        edges = []
-        exp = TopExp_Explorer(o.face, TopAbs_EDGE)
-        while exp.More():
-            e = TopoDS.Edge_s(exp.Current())
-            tol = max(tol, BRep_Tool.Tolerance_s(e))
-            edges.append(e)
-            exp.Next()
+        edges = OCC.edges(o.face)
+        tol = max([0.0] + [BRep_Tool.Tolerance_s(e) for e in edges])
         margin = 2 * (f.trim_delta + tol)
         u0, u1, v0, v1 = f.surface.domain
         uu, vv = np.meshgrid(np.linspace(u0, u1, 9)[1:-1], np.linspace(v0, v1, 9)[1:-1])
@@ -165,8 +154,7 @@ def test_brep_faces_without_pcurves_trimmed_as_occ(name):
         theirs = occ_inside(o, uu, vv)
         pts = f.surface.evaluate(uu, vv)
         for i in np.flatnonzero(ours != theirs):
-            d = min(BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, pts[i]))).Vertex(),
-                                               e).Value() for e in edges)
+            d = min(OCC.distance(pts[i], e) for e in edges)
             assert d <= margin, (name, k, f.de, (uu[i], vv[i]), bool(ours[i]), d, margin)
         checked += len(uu)
     assert checked > 0

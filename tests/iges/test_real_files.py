@@ -10,39 +10,12 @@ import numpy as np
 import pytest
 
 from cadbridge.iges import read_iges
+from tests.helpers import occ as OCC
 
 REAL = Path(__file__).parents[2].parent / "shared" / "iges_real"
 FILES = sorted(REAL.glob("*.ig*")) if REAL.is_dir() else []
 
 pytestmark = pytest.mark.skipif(not FILES, reason=f"{REAL} not present")
-
-
-def _occ(path: Path):
-    """OCC faces' surfaces (location applied) of the transferred shape."""
-    occ = pytest.importorskip("OCP.IGESControl")
-    from OCP.BRep import BRep_Tool
-    from OCP.IFSelect import IFSelect_RetDone
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    r = occ.IGESControl_Reader()
-    assert r.ReadFile(str(path)) == IFSelect_RetDone
-    r.TransferRoots()
-    exp = TopExp_Explorer(r.OneShape(), TopAbs_FACE)
-    out = []
-    while exp.More():
-        out.append(BRep_Tool.Surface_s(TopoDS.Face_s(exp.Current())))
-        exp.Next()
-    return out
-
-
-def _distance(surf, x: np.ndarray) -> float:
-    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
-    from OCP.gp import gp_Pnt
-
-    proj = GeomAPI_ProjectPointOnSurf(gp_Pnt(*map(float, x)), surf)
-    return proj.LowerDistance() if proj.NbPoints() > 0 else np.inf
 
 
 @pytest.mark.parametrize("path", FILES, ids=[p.name for p in FILES])
@@ -57,7 +30,8 @@ def test_real_file(path: Path):
     m = read_iges(path)
     assert len(m.faces) > 0
     assert m.units.to_mm == 1.0
-    occ = _occ(path)
+    pytest.importorskip("OCP")
+    occ = OCC.read_surfaces(path)  # location applied
     skipped = sum("face skipped" in d.message for d in m.diagnostics)
     assert len(m.faces) + skipped == len(occ)
     size = m.size()
@@ -72,7 +46,7 @@ def test_real_file(path: Path):
                 p = occ[k].Value(float(uu), float(vv))
                 d = float(np.linalg.norm([p.X() - x[0], p.Y() - x[1], p.Z() - x[2]]))
             if d > 1e-9 * size:  # OCC ordered differently: nearest OCC surface
-                d = min(_distance(s, x) for s in occ)
+                d = min(OCC.surface_distance(s, x) for s in occ)
             assert d <= 1e-9 * size, (face.de, face.entity_type, d, size)
 
 

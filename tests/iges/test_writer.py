@@ -15,6 +15,7 @@ from cadbridge.iges.writer import format_real, iges_text
 from cadbridge.cad.model import Face, Model, Trim, TrimLoop, Units
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
+from tests.helpers import occ as OCC
 
 
 def _knots(rng: np.random.Generator, p: int, n: int) -> np.ndarray:
@@ -137,25 +138,6 @@ def test_records_are_80_columns():
 
 
 # ------------------------------------------------------------------ OpenCASCADE reads our files
-def _occ_faces(path):
-    occ = pytest.importorskip("OCP.IGESControl")
-    from OCP.BRep import BRep_Tool
-    from OCP.IFSelect import IFSelect_RetDone
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    r = occ.IGESControl_Reader()
-    assert r.ReadFile(str(path)) == IFSelect_RetDone
-    r.TransferRoots()
-    shape = r.OneShape()
-    exp = TopExp_Explorer(shape, TopAbs_FACE)
-    out = []
-    while exp.More():
-        face = TopoDS.Face_s(exp.Current())
-        out.append((face, BRep_Tool.Surface_s(face)))  # surface with the face location applied
-        exp.Next()
-    return out
 
 
 def test_occ_reads_what_we_write(tmp_path):
@@ -166,10 +148,11 @@ def test_occ_reads_what_we_write(tmp_path):
     model.faces += [Face(random_surface(s), de=0) for s in range(20, 26)]
     path = tmp_path / "occ.igs"
     write_iges(model, path)
-    faces = _occ_faces(path)
+    pytest.importorskip("OCP")
+    faces = OCC.read_surfaces(path)  # surface with the face location applied
     assert len(faces) == len(model.faces)
     rng = np.random.default_rng(7)
-    for ours, (_, surf) in zip(model.faces, faces):
+    for ours, surf in zip(model.faces, faces):
         s = ours.surface
         u0, u1, v0, v1 = s.domain
         u, v = u0 + (u1 - u0) * rng.random(10), v0 + (v1 - v0) * rng.random(10)
@@ -184,14 +167,10 @@ def test_occ_trimmed_area(tmp_path):
     """OCC's area of our trimmed bilinear face equals the hand-computed trimmed area: a
     unit-square plane face minus a 0.2 x 0.2 square hole = 1 - 0.04 (z-tilt taken as
     the plane z = 0 here)."""
-    from_occ = pytest.importorskip("OCP.BRepGProp")
-    from OCP.GProp import GProp_GProps
-
+    pytest.importorskip("OCP")
     s = NurbsSurface(1, 1, [0, 0, 1, 1], [0, 0, 1, 1], [[[0, 0, 0], [0, 1, 0]], [[1, 0, 0], [1, 1, 0]]])
     face = Face(s, de=0, trims=Trim(TrimLoop(_square(0, 1, 0, 1)), [TrimLoop(_square(0.2, 0.4, 0.2, 0.4))]))
     path = tmp_path / "area.igs"
     write_iges([face], path)
-    (occ_face, _), = _occ_faces(path)
-    g = GProp_GProps()
-    from_occ.BRepGProp.SurfaceProperties_s(occ_face, g)
-    assert g.Mass() == pytest.approx(0.96, rel=1e-9)
+    (occ_face,) = OCC.read_faces(path)
+    assert OCC.area(occ_face) == pytest.approx(0.96, rel=1e-9)

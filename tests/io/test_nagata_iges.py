@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 
 from cadbridge.io.nagata_iges import nagata_control_points, nagata_to_surfaces, write_nagata_iges
 from cadbridge.nurbs.surface import NurbsSurface
+from tests.helpers import occ as OCC
 
 
 def nagata_eval(c: np.ndarray, eta: np.ndarray, zeta: np.ndarray) -> np.ndarray:
@@ -209,23 +210,6 @@ def test_iges_names_units_and_atomicity(tmp_path):
 
 
 # ------------------------------------------------------------------------- OpenCASCADE
-def occ_faces(path) -> list:
-    from OCP.BRep import BRep_Tool
-    from OCP.IFSelect import IFSelect_RetDone
-    from OCP.IGESControl import IGESControl_Reader
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    reader = IGESControl_Reader()
-    assert reader.ReadFile(str(path)) == IFSelect_RetDone
-    reader.TransferRoots()
-    exp = TopExp_Explorer(reader.OneShape(), TopAbs_FACE)
-    surfaces = []
-    while exp.More():
-        surfaces.append(BRep_Tool.Surface_s(TopoDS.Face_s(exp.Current())))
-        exp.Next()
-    return surfaces
 
 
 def test_opencascade_reads_and_agrees(tmp_path):
@@ -233,7 +217,7 @@ def test_opencascade_reads_and_agrees(tmp_path):
     tri, quad = random_patches(9, 6, 5)
     path = tmp_path / "occ.igs"
     write_nagata_iges(tri, quad, path)
-    occ = occ_faces(path)
+    occ = OCC.read_surfaces(path)
     assert len(occ) == len(tri) + len(quad)
     rng = np.random.default_rng(1)
     u, v = rng.random(30), rng.random(30)
@@ -255,7 +239,7 @@ def test_opencascade_collapsed_edge(tmp_path):
     tri, _ = random_patches(12, 2, 0)
     path = tmp_path / "tri.igs"
     write_nagata_iges(tri, None, path)
-    occ = occ_faces(path)
+    occ = OCC.read_surfaces(path)
     assert len(occ) == 2
     for s, c in zip(occ, tri):
         poles = [s.Pole(1, j) for j in (1, 2, 3)]  # OCC poles are 1-based

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.helpers import occ as OCC
 from tests.helpers import toolfile_reference as R
 from cadbridge.nagata import NagataMesh
 
@@ -136,28 +137,12 @@ def _free_edge_samples(tf, t: np.ndarray) -> np.ndarray:
 
 def _occ_boundary_distance(igs: Path, pts: np.ndarray) -> np.ndarray:
     """OpenCASCADE: distance of each point to the nearest boundary edge of the file's faces."""
-    from OCP.BRep import BRep_Builder
-    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-    from OCP.gp import gp_Pnt
-    from OCP.TopAbs import TopAbs_EDGE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS_Compound
-
     from cadbridge.verify.reference import occ_read_shape
 
-    shape = occ_read_shape(igs)
-    comp = TopoDS_Compound()
-    bld = BRep_Builder()
-    bld.MakeCompound(comp)
-    ex = TopExp_Explorer(shape, TopAbs_EDGE)
-    while ex.More():
-        bld.Add(comp, ex.Current())
-        ex.Next()
+    comp = OCC.compound(OCC.edges(occ_read_shape(igs)))
     out = np.empty(len(pts))
     for i, p in enumerate(pts):
-        ext = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, p))).Vertex(), comp)
-        out[i] = ext.Value()
+        out[i] = OCC.distance(p, comp)
     return out
 
 

@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.cad.test_search_vs_occ_real import ANGLE, FILES, _compound, _dss, _face_delta, _faces_edges, _occ_normal, _vertex
+from tests.cad.test_search_vs_occ_real import ANGLE, FILES, _face_delta
+from tests.helpers import occ as OCC
 
 pytestmark = pytest.mark.skipif(not FILES, reason="../shared/iges_real not present")
 
@@ -58,8 +59,8 @@ def test_convert_node_normals_match_occ(path: Path):
         assert np.all(np.isfinite(cn))
         np.testing.assert_allclose(np.linalg.norm(cn, axis=2), 1.0, atol=1e-12)
 
-    faces, edges = _faces_edges(shape)
-    face_set, edge_set = _compound(faces), _compound(edges)
+    faces, edges = OCC.faces(shape), OCC.edges(shape)
+    face_set, edge_set = OCC.compound(faces), OCC.compound(edges)
     face_delta = np.array([_face_delta(model.faces[k], faces[k], size) for k in range(len(faces))])
     cand = np.flatnonzero((res.status == CONVERGED) & ~res.crease & (res.distance <= 1e-6 * size))
     rng = np.random.default_rng(0)
@@ -68,17 +69,17 @@ def test_convert_node_normals_match_occ(path: Path):
     checked, fails = 0, []
     for i in cand:
         x = res.mesh.nodes[i]
-        d = _dss(_vertex(x), face_set)
+        d = OCC.dist_shape_shape(OCC.vertex(x), face_set)
         if d.NbSolution() != 1 or d.SupportTypeShape2(1) != BRepExtrema_IsInFace:
             continue
         foot = np.array(d.PointOnShape2(1).Coord())
         support = d.SupportOnShape2(1)
         k_occ = next(k for k, f in enumerate(faces) if f.IsSame(support))
-        delta = max(face_delta[res.face[i]], face_delta[k_occ])  # per face, as in test_search_exact
-        if _dss(_vertex(foot), edge_set).Value() <= delta:
+        delta = max(face_delta[res.face[i]], face_delta[k_occ])  # per face, as in test_search_vs_occ_real
+        if OCC.dist_shape_shape(OCC.vertex(foot), edge_set).Value() <= delta:
             continue
         checked += 1
-        n_occ = _occ_normal(TopoDS.Face_s(d.SupportOnShape2(1)), *d.ParOnFaceS2(1))
+        n_occ = OCC.face_normal(TopoDS.Face_s(d.SupportOnShape2(1)), *d.ParOnFaceS2(1))
         ang = float(np.arcsin(min(1.0, np.linalg.norm(np.cross(n_occ, n[i])))))
         if ang > ANGLE:
             fails.append(f"node {i} at {x.tolist()}: normal {ang:.3g} rad from OCC's (our face {res.face[i]})")

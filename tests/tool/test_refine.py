@@ -14,6 +14,7 @@ import pytest
 
 from cadbridge.cli import PROGRESS_LINE, main
 from cadbridge.tool.refine import refine_mesh
+from tests.helpers import occ as OCC
 
 SAMPLES = Path(__file__).parents[2] / "iges_samples"
 
@@ -25,34 +26,25 @@ class OccDistance:
     BRepExtrema_DistShapeShape against the compound of the faces."""
 
     def __init__(self, path: Path) -> None:
-        from OCP.BRep import BRep_Builder, BRep_Tool
+        from OCP.BRep import BRep_Tool
         from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
-        from OCP.TopAbs import TopAbs_FACE
-        from OCP.TopExp import TopExp_Explorer
         from OCP.TopLoc import TopLoc_Location
-        from OCP.TopoDS import TopoDS, TopoDS_Compound
 
         from cadbridge.verify.reference import _finite_bounds, occ_read_shape
 
-        shape = occ_read_shape(path)
-        b, self.faces = BRep_Builder(), TopoDS_Compound()
-        b.MakeCompound(self.faces)
+        faces = OCC.faces(occ_read_shape(path))
+        self.faces = OCC.compound(faces)
         self.proj = []
-        exp = TopExp_Explorer(shape, TopAbs_FACE)
-        while exp.More():
-            b.Add(self.faces, exp.Current())
+        for face in faces:
             loc = TopLoc_Location()
-            surf = BRep_Tool.Surface_s(TopoDS.Face_s(exp.Current()), loc)
+            surf = BRep_Tool.Surface_s(face, loc)
             if not loc.IsIdentity():
                 surf = surf.Transformed(loc.Transformation())
             p = GeomAPI_ProjectPointOnSurf()
             p.Init(surf, *_finite_bounds(surf))
             self.proj.append(p)
-            exp.Next()
 
     def __call__(self, pts: np.ndarray) -> np.ndarray:
-        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
         from OCP.gp import gp_Pnt
 
         out = np.full(len(pts), np.inf)
@@ -63,7 +55,7 @@ class OccDistance:
                 if p.IsDone() and p.NbPoints() > 0:
                     out[i] = min(out[i], p.LowerDistance())
             if not np.isfinite(out[i]):
-                out[i] = BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(g).Vertex(), self.faces).Value()
+                out[i] = OCC.distance(x, self.faces)
         return out
 
 
@@ -75,31 +67,13 @@ class OccTrimmedDistance:
     hole)."""
 
     def __init__(self, path: Path) -> None:
-        from OCP.BRep import BRep_Builder
-        from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE
-        from OCP.TopExp import TopExp_Explorer
-        from OCP.TopoDS import TopoDS_Compound
-
         from cadbridge.verify.reference import occ_read_shape
 
         shape = occ_read_shape(path)
-        b = BRep_Builder()
-        self.faces, self.edges = TopoDS_Compound(), TopoDS_Compound()
-        b.MakeCompound(self.faces)
-        b.MakeCompound(self.edges)
-        for kind, comp in ((TopAbs_FACE, self.faces), (TopAbs_EDGE, self.edges)):
-            exp = TopExp_Explorer(shape, kind)
-            while exp.More():
-                b.Add(comp, exp.Current())
-                exp.Next()
+        self.faces, self.edges = OCC.compound(OCC.faces(shape)), OCC.compound(OCC.edges(shape))
 
     def _dist(self, pts: np.ndarray, target) -> np.ndarray:
-        from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
-        from OCP.BRepExtrema import BRepExtrema_DistShapeShape
-        from OCP.gp import gp_Pnt
-
-        return np.array([BRepExtrema_DistShapeShape(BRepBuilderAPI_MakeVertex(gp_Pnt(*map(float, x))).Vertex(),
-                                                    target).Value() for x in pts])  # OCC point by point
+        return np.array([OCC.distance(x, target) for x in pts])  # OCC point by point
 
     def to_faces(self, pts: np.ndarray) -> np.ndarray:
         return self._dist(pts, self.faces)

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from cadbridge.mesh.gmsh.empty_faces import _segments_cross, _zip_cusps
+from tests.helpers import occ as OCC
 
 REAL = Path(__file__).parents[3].parent / "shared" / "iges_real"
 SPRING = REAL / "occt_bug22869_Inventor2011_Spring.igs"
@@ -137,42 +138,14 @@ def test_a_cleared_cylinder_face_is_filled_on_the_surface_and_conformal(element)
 
 # --- the Inventor spring (corpus) -------------------------------------------------------------
 
-def _occ_faces(path):
-    from OCP.TopAbs import TopAbs_FACE
-    from OCP.TopExp import TopExp_Explorer
-    from OCP.TopoDS import TopoDS
-
-    from cadbridge.verify.reference import occ_read_shape
-
-    shape = occ_read_shape(path)
-    out, exp = [], TopExp_Explorer(shape, TopAbs_FACE)
-    while exp.More():
-        out.append(TopoDS.Face_s(exp.Current()))
-        exp.Next()
-    return out
-
-
-def _occ_area(face) -> float:
-    from OCP.BRepGProp import BRepGProp
-    from OCP.GProp import GProp_GProps
-
-    p = GProp_GProps()
-    BRepGProp.SurfaceProperties_s(face, p)
-    return p.Mass()
 
 
 def _surface_distance(face, pts: np.ndarray) -> np.ndarray:
     """Distance from pts (N, 3) to the untrimmed surface of an OCC face (location applied)."""
     from OCP.BRep import BRep_Tool
-    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
-    from OCP.gp import gp_Pnt
 
     surf = BRep_Tool.Surface_s(face)
-    out = []
-    for x in pts:  # a Python loop over OCC (a few hundred points)
-        pr = GeomAPI_ProjectPointOnSurf(gp_Pnt(*map(float, x)), surf)
-        out.append(pr.LowerDistance() if pr.NbPoints() else np.inf)
-    return np.asarray(out)
+    return np.asarray([OCC.surface_distance(surf, x) for x in pts])  # a Python loop over OCC (a few hundred points)
 
 
 @pytest.mark.parametrize("element", ["tri", "quad"])
@@ -238,6 +211,7 @@ def test_the_spring_meshes_every_face_on_occ_geometry(element):
     pytest.importorskip("OCP")
     pytest.importorskip("gmsh")
     from cadbridge.mesh.generate import mesh_cad
+    from cadbridge.verify.reference import occ_read_shape
 
     mesh = mesh_cad(SPRING, element=element, curvature_elements=12)  # convert's default sizing
     filled = [n for n in mesh.notes if "without elements" in n]
@@ -246,7 +220,7 @@ def test_the_spring_meshes_every_face_on_occ_geometry(element):
         assert [b.type for b in mesh.cells] == ["quad"]
     ent = mesh.cell_data["element_entity"]
     assert sorted(np.unique(ent).tolist()) == [1, 2, 3, 4, 5, 6]
-    faces = _occ_faces(SPRING)
+    faces = OCC.faces(occ_read_shape(SPRING))
     rng = np.random.default_rng(1)
     elem_off = np.cumsum([0] + [len(b.data) for b in mesh.cells])
     for s in (1, 4, 6):  # the faces gmsh left empty
@@ -262,5 +236,5 @@ def test_the_spring_meshes_every_face_on_occ_geometry(element):
         # reference area: OCC's; a faceted mesh of a convex tube lies below it, by at most the
         # chord ratio of 12 elements per turn, sin(15 deg) / (15 deg) = 0.9886 (and the cusp
         # strips cut off are narrower than 1/8 of an element)
-        ref = _occ_area(faces[k])
+        ref = OCC.area(faces[k])
         assert 0.985 * ref <= area <= 1.001 * ref, (s, area, ref)

@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.helpers import occ as OCC
+
 DIE = Path(__file__).parents[3] / "iges_samples" / "production_die_analytic.igs"
 BINDER = 962  # 0-based root (face) index of BND00963 in the die file
 NEIGHBOURS = list(range(1022, 1058))  # the draw beads and their land radii (36 faces): with them gmsh fails
@@ -81,9 +83,7 @@ def _occ_area_and_free_length(faces):
     area = 0.0
     sew = BRepBuilderAPI_Sewing(1e-4)
     for f in faces.values():
-        p = GProp_GProps()
-        BRepGProp.SurfaceProperties_s(f, p)
-        area += p.Mass()
+        area += OCC.area(f)
         sew.Add(f)
     sew.Perform()
     free = 0.0
@@ -120,8 +120,6 @@ def test_surface_gmsh_fails_on_is_meshed_conformally_on_its_surface(repro):
     assert 0.99 * free_ref < blen <= free_ref * (1 + 1e-9)
     # the binder's own nodes lie on OCC's surface of it
     from OCP.BRep import BRep_Tool
-    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
-    from OCP.gp import gp_Pnt
 
     ent = mesh.cell_data["element_entity"]
     binder_tag = int(np.bincount(ent).argmax())  # the binder has most of the elements
@@ -134,7 +132,7 @@ def test_surface_gmsh_fails_on_is_meshed_conformally_on_its_surface(repro):
 
     def dist(ids):
         pick = ids[:: max(1, len(ids) // 300)]
-        return max(GeomAPI_ProjectPointOnSurf(gp_Pnt(*map(float, x[i])), surf).LowerDistance() for i in pick)
+        return max(OCC.surface_distance(surf, x[i]) for i in pick)
 
     assert dist(inner) < 1e-8  # S(u, v): on the surface
     # gmsh's 1D nodes on the trim curves: within the file's trim tolerance (BND00963's delta,
