@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 import pytest
-from tests.nurbs.test_project import circle_arc, cylinder, random_surface, sphere
+from tests.helpers.surfaces import circle_arc, cylinder, random_surface, sphere
 
 from cadbridge.cad.model import Face, Model, Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve

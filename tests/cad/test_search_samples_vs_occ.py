@@ -30,8 +30,7 @@ import pytest
 
 pytest.importorskip("OCP")
 
-from tests.helpers import occ as OCC  # noqa: E402
-from tests.nurbs.test_project import occ_reference  # noqa: E402  (OCC interior + boundary reference)
+from tests.helpers import occ as OCC  # noqa: E402  (OCC.surface_nearest: interior + boundary reference)
 
 from cadbridge.iges import read_iges  # noqa: E402
 from cadbridge.nurbs.project import CONVERGED, FAILED, ON_BOUNDARY, project_to_surface  # noqa: E402
@@ -109,7 +108,7 @@ def test_single_face_against_occ(sample):
 
             gs = Geom_RectangularTrimmedSurface(o.surface, *map(float, s.domain))
             for i, p in enumerate(pts):
-                cands, _ = occ_reference(gs, s, p)
+                cands, _ = OCC.surface_nearest(gs, s, p)
                 d_ref, f_ref, _ = cands[0]
                 assert res.distance[i] <= d_ref + tol, f"{name} face {k} point {i}: {res.distance[i]} > OCC {d_ref}"
                 if len(cands) > 1 and cands[1][0] - d_ref < 1e-6 * size and np.linalg.norm(cands[1][1] - f_ref) > 1e-6 * size:

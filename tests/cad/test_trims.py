@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tests.nurbs.test_project import circle_arc
+from tests.helpers.surfaces import circle_arc
 
 from cadbridge.cad.model import Face, Trim, TrimLoop, distance_to_polygon, points_in_polygon
 from cadbridge.nurbs.curve import NurbsCurve

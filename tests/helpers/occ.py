@@ -130,3 +130,38 @@ def surface_distance(surface, x) -> float:
 
     proj = GeomAPI_ProjectPointOnSurf(gp_Pnt(*map(float, x)), surface)
     return proj.LowerDistance() if proj.NbPoints() > 0 else np.inf
+
+
+def surface_nearest(gs, s, p):
+    """Nearest point by OCC: interior extrema (GeomAPI_ProjectPointOnSurf) and boundary minima
+    (GeomAPI_ProjectPointOnCurve on the 4 iso-curves, plus the corners). Returns a list of
+    (distance, foot (3,), (u, v) or None) sorted by distance, and whether OCC's interior
+    search converged."""
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt
+
+    P = gp_Pnt(*map(float, p))
+    cands = []
+    u0, u1, v0, v1 = s.domain
+    proj = GeomAPI_ProjectPointOnSurf(P, gs)
+    interior_done = proj.IsDone() and proj.NbPoints() > 0
+    if interior_done:
+        for k in range(1, proj.NbPoints() + 1):
+            q = proj.Point(k)
+            uu, vv = proj.Parameters(k)
+            # extrema OCC reports on the domain edge are only approximate there (~1e-8);
+            # the edge minima are taken from the iso-curve projections below instead
+            if min(abs(uu - u0), abs(uu - u1)) < 1e-9 or min(abs(vv - v0), abs(vv - v1)) < 1e-9:
+                continue
+            cands.append((proj.Distance(k), np.array([q.X(), q.Y(), q.Z()]), (uu, vv)))
+    for iso in (gs.UIso(u0), gs.UIso(u1), gs.VIso(v0), gs.VIso(v1)):
+        pc = GeomAPI_ProjectPointOnCurve(P, iso)
+        for k in range(1, pc.NbPoints() + 1):
+            q = pc.Point(k)
+            cands.append((pc.Distance(k), np.array([q.X(), q.Y(), q.Z()]), None))
+    for uu, vv in ((u0, v0), (u0, v1), (u1, v0), (u1, v1)):
+        q = gs.Value(uu, vv)
+        c = np.array([q.X(), q.Y(), q.Z()])
+        cands.append((float(np.linalg.norm(c - p)), c, (uu, vv)))
+    cands.sort(key=lambda t: t[0])
+    return cands, interior_done

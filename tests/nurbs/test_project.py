@@ -1,7 +1,7 @@
 """Point projection onto one NURBS surface (cadbridge.nurbs.project).
 
 References used here:
-- analytic: exact rational cylinders, spheres and tori (built below from the standard rational
+- analytic: exact rational cylinders, spheres and tori (tests/helpers/surfaces.py, from the standard rational
   quadratic circle); the closest point and the outward normal are known in closed form.
 - OpenCASCADE: a Geom_BSplineSurface from the same poles/weights/knots;
   GeomAPI_ProjectPointOnSurf for interior extrema, GeomAPI_ProjectPointOnCurve on the four
@@ -26,71 +26,8 @@ from cadbridge.nurbs.project import (
     surface_samples,
 )
 from cadbridge.nurbs.surface import NurbsSurface
-
-
-# ============================================================================ geometry helpers
-def circle_arc(a0: float, a1: float, nseg: int | None = None):
-    """Rational quadratic unit-circle arc from angle a0 to a1: (ctrl (n, 2), weights (n,), knots)."""
-    if nseg is None:
-        nseg = max(1, math.ceil(abs(a1 - a0) / (math.pi / 2) - 1e-12))
-    d = (a1 - a0) / nseg
-    ctrl, w = [], []
-    for k in range(nseg):
-        s, m = a0 + k * d, a0 + (k + 0.5) * d
-        if k == 0:
-            ctrl.append((math.cos(s), math.sin(s)))
-            w.append(1.0)
-        ctrl.append((math.cos(m) / math.cos(d / 2), math.sin(m) / math.cos(d / 2)))
-        w.append(math.cos(d / 2))
-        e = s + d
-        ctrl.append((math.cos(e), math.sin(e)))
-        w.append(1.0)
-    knots = [0.0] * 3
-    for k in range(1, nseg):
-        knots += [k / nseg] * 2
-    knots += [1.0] * 3
-    return np.array(ctrl), np.array(w), np.array(knots)
-
-
-def revolved(profile_xz, profile_w, profile_knots, profile_degree, a0=0.0, a1=2 * math.pi) -> NurbsSurface:
-    """Surface of revolution about z of a profile in the xz-plane; u = angle direction, v = profile."""
-    cc, cw, ck = circle_arc(a0, a1)
-    prof = np.asarray(profile_xz, float)
-    cp = np.empty((len(cc), len(prof), 3))
-    cp[..., 0] = cc[:, None, 0] * prof[None, :, 0]
-    cp[..., 1] = cc[:, None, 1] * prof[None, :, 0]
-    cp[..., 2] = prof[None, :, 1]
-    w = cw[:, None] * np.asarray(profile_w, float)[None, :]
-    return NurbsSurface(2, profile_degree, ck, profile_knots, cp, w)
-
-
-def cylinder(r=2.0, z0=-1.0, z1=3.0, a0=0.0, a1=2 * math.pi) -> NurbsSurface:
-    return revolved([(r, z0), (r, z1)], [1, 1], [0, 0, 1, 1], 1, a0, a1)
-
-
-def sphere(r=1.5, a0=0.0, a1=2 * math.pi, p0=-math.pi / 2, p1=math.pi / 2) -> NurbsSurface:
-    pc, pw, pk = circle_arc(p0, p1)
-    return revolved(r * pc, pw, pk, 2, a0, a1)
-
-
-def torus(rmaj=3.0, rmin=1.0, a0=0.0, a1=2 * math.pi, p0=-math.pi, p1=math.pi) -> NurbsSurface:
-    pc, pw, pk = circle_arc(p0, p1)
-    prof = np.column_stack([rmaj + rmin * pc[:, 0], rmin * pc[:, 1]])
-    return revolved(prof, pw, pk, 2, a0, a1)
-
-
-def random_surface(rng, rational: bool, p=3, q=2, nu=7, nv=6, size=10.0, amp=0.25) -> NurbsSurface:
-    """A wavy random B-spline/NURBS patch over [0, size]^2 with random interior knots."""
-
-    def knots(n, d):
-        inner = np.sort(rng.uniform(0.1, 0.9, n - d - 1))
-        return np.concatenate([np.zeros(d + 1), inner, np.ones(d + 1)])
-
-    gx, gy = np.meshgrid(np.linspace(0, size, nu), np.linspace(0, size, nv), indexing="ij")
-    cp = np.stack([gx + rng.uniform(-0.3, 0.3, gx.shape), gy + rng.uniform(-0.3, 0.3, gy.shape),
-                   rng.uniform(-amp * size, amp * size, gx.shape)], axis=-1)
-    w = rng.uniform(0.5, 2.0, (nu, nv)) if rational else None
-    return NurbsSurface(p, q, knots(nu, p), knots(nv, q), cp, w)
+from tests.helpers.occ import surface_nearest
+from tests.helpers.surfaces import cylinder, random_surface, sphere, torus
 
 
 # ============================================================================ analytic tests
@@ -212,41 +149,6 @@ occ = pytest.importorskip("OCP")
 from cadbridge.verify.reference import occ_bspline_surface as to_occ  # noqa: E402
 
 
-def occ_reference(gs, s: NurbsSurface, p):
-    """Nearest point by OCC: interior extrema (GeomAPI_ProjectPointOnSurf) and boundary minima
-    (GeomAPI_ProjectPointOnCurve on the 4 iso-curves, plus the corners). Returns a list of
-    (distance, foot (3,), (u, v) or None) sorted by distance, and whether OCC's interior
-    search converged."""
-    from OCP.GeomAPI import GeomAPI_ProjectPointOnCurve, GeomAPI_ProjectPointOnSurf
-    from OCP.gp import gp_Pnt
-
-    P = gp_Pnt(*map(float, p))
-    cands = []
-    u0, u1, v0, v1 = s.domain
-    proj = GeomAPI_ProjectPointOnSurf(P, gs)
-    interior_done = proj.IsDone() and proj.NbPoints() > 0
-    if interior_done:
-        for k in range(1, proj.NbPoints() + 1):
-            q = proj.Point(k)
-            uu, vv = proj.Parameters(k)
-            # extrema OCC reports on the domain edge are only approximate there (~1e-8);
-            # the edge minima are taken from the iso-curve projections below instead
-            if min(abs(uu - u0), abs(uu - u1)) < 1e-9 or min(abs(vv - v0), abs(vv - v1)) < 1e-9:
-                continue
-            cands.append((proj.Distance(k), np.array([q.X(), q.Y(), q.Z()]), (uu, vv)))
-    for iso in (gs.UIso(u0), gs.UIso(u1), gs.VIso(v0), gs.VIso(v1)):
-        pc = GeomAPI_ProjectPointOnCurve(P, iso)
-        for k in range(1, pc.NbPoints() + 1):
-            q = pc.Point(k)
-            cands.append((pc.Distance(k), np.array([q.X(), q.Y(), q.Z()]), None))
-    for uu, vv in ((u0, v0), (u0, v1), (u1, v0), (u1, v1)):
-        q = gs.Value(uu, vv)
-        c = np.array([q.X(), q.Y(), q.Z()])
-        cands.append((float(np.linalg.norm(c - p)), c, (uu, vv)))
-    cands.sort(key=lambda t: t[0])
-    return cands, interior_done
-
-
 def occ_normal(gs, u, v):
     from OCP.GeomLProp import GeomLProp_SLProps
 
@@ -299,7 +201,7 @@ def test_against_opencascade(name, make):
     tol = 1e-9 * size
     compared = 0
     for i, p in enumerate(pts):
-        cands, _ = occ_reference(gs, s, p)
+        cands, _ = surface_nearest(gs, s, p)
         d_ref, f_ref, _ = cands[0]
         # never farther than OCC's best
         assert res.distance[i] <= d_ref + tol, f"{name} point {i}: {res.distance[i]} > occ {d_ref}"

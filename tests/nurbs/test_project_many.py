@@ -10,7 +10,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from tests.nurbs.test_project import cylinder, occ_reference, random_surface, sphere, to_occ
+from cadbridge.verify.reference import occ_bspline_surface as to_occ
+from tests.helpers.occ import surface_nearest
+from tests.helpers.surfaces import cylinder, random_surface, sphere
 
 from cadbridge.nurbs.project import CONVERGED, FAILED, ON_BOUNDARY
 from cadbridge.nurbs.project_many import SurfacePack, project_to_surfaces
@@ -84,7 +86,7 @@ def test_random_rational_surfaces_against_opencascade():
     for k, s in enumerate(surfs):
         gs = to_occ(s)
         for i in np.flatnonzero(which == k):
-            cands, _ = occ_reference(gs, s, pts[i])
+            cands, _ = surface_nearest(gs, s, pts[i])
             d_occ = cands[0][0]  # OCC's nearest over interior extrema, edge curves and corners
             assert res.status[i] != FAILED
             assert abs(res.distance[i] - d_occ) <= 1e-9 * 10.0, (i, res.distance[i], d_occ)
