@@ -26,8 +26,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))  # cadbridge, and die_scan (tests/helpers)
 
 from cadbridge.nurbs.fit import fit_surface, uniform_knots  # noqa: E402
 from cadbridge.nurbs.project import project_to_surface  # noqa: E402
@@ -110,7 +109,7 @@ def grid_bench(n: int, occ_tol: float) -> None:
 
 
 def scattered_bench(n: int) -> None:
-    from test_fit_points import die_scan
+    from tests.helpers.scans import die_scan
 
     from cadbridge.fitting.surface_fit import fit_points
 
@@ -164,7 +163,7 @@ def timed_scale_fit(model, x):
 def scale_bench(n: int, repeat: int = 1) -> None:
     import os
 
-    from test_fit_points import die_scan
+    from tests.helpers.scans import die_scan
 
     from cadbridge.fitting.surface_fit import fit_points
 

@@ -4,7 +4,7 @@ measured in the same session, runs interleaved (A B A B ...) so that both see th
 Each run is a fresh subprocess: the revision's `cadbridge` (exported with `git archive` into a
 temporary directory, its own numba cache) or this tree's; it builds the same synthetic U-shape
 die scan (sigma 0.01 mm, 2 % outliers up to 1 mm, a 20 mm hole, seed 0) with this tree's
-`tests/test_fit_points.die_scan`, warms up on 120 000 points (kernels compiled or loaded from the
+`tests/helpers/scans.die_scan`, warms up on 120 000 points (kernels compiled or loaded from the
 cache, the large-input path included), then times `fit_points(..., base=die, tolerance=0.01,
 trim=True)` and reports wall and CPU seconds, the peak RSS over the RSS before the fit, and the
 fit's distance to the die CAD.
@@ -28,11 +28,11 @@ CHILD = r"""
 import json, sys
 from pathlib import Path
 sys.path.insert(0, sys.argv[1])                    # the cadbridge under test
-sys.path.insert(1, str(Path(sys.argv[2]) / "tests"))  # die_scan of this tree
-sys.path.insert(2, str(Path(sys.argv[2]) / "benchmarks"))
+sys.path.insert(1, str(Path(sys.argv[2]) / "benchmarks"))
 import cadbridge
 assert Path(cadbridge.__file__).resolve().is_relative_to(Path(sys.argv[1]).resolve()), cadbridge.__file__
-from test_fit_points import die_scan
+sys.path.insert(0, sys.argv[2])                    # die_scan of this tree (cadbridge is imported already)
+from tests.helpers.scans import die_scan
 from bench_fit import cad_error, timed_scale_fit
 from cadbridge.fitting.surface_fit import fit_points
 n = int(sys.argv[3])

@@ -14,8 +14,8 @@ import numpy as np
 
 from cadbridge.nagata import NagataMesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # shared test geometry
-from nagata_shapes import sphere_triangles_fine  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # shared test geometry (tests/helpers)
+from tests.helpers.nagata_shapes import sphere_triangles_fine  # noqa: E402
 
 
 def best_of(fn, repeat: int = 3) -> float:

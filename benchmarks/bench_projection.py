@@ -25,8 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from test_project import cylinder, random_surface, sphere, to_occ, torus  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from tests.helpers.surfaces import cylinder, random_surface, sphere, torus  # noqa: E402
+
+from cadbridge.verify.reference import occ_bspline_surface as to_occ  # noqa: E402
 
 from cadbridge.cad.model import Face, Model  # noqa: E402
 from cadbridge.nurbs.project import FAILED, ON_BOUNDARY, project_to_surface, surface_samples  # noqa: E402

@@ -30,13 +30,12 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # shared test geometry (qit_examples, nagata_shapes)
+sys.path.insert(0, str(ROOT))  # cadbridge, and the shared test geometry (tests/helpers)
 
 from cadbridge.iges import read_iges, write_iges  # noqa: E402
 from cadbridge.mesh.mesh import CellBlock, Mesh  # noqa: E402
 from cadbridge.mesh.qit.mesher import QitOptions, qit_mesh  # noqa: E402
-from qit_examples import example_71, example_72  # noqa: E402
+from tests.helpers.qit_examples import example_71, example_72  # noqa: E402
 from cadbridge.mesh.quality import mesh_quality  # noqa: E402
 from cadbridge.cad.model import Face  # noqa: E402
 

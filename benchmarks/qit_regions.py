@@ -18,11 +18,10 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # shared test geometry (qit_examples, nagata_shapes)
+sys.path.insert(0, str(ROOT))  # cadbridge, and the shared test geometry (tests/helpers)
 
 from cadbridge.mesh.qit.mesher import QitOptions, qit_mesh  # noqa: E402
-from qit_examples import example_71, example_72  # noqa: E402
+from tests.helpers.qit_examples import example_71, example_72  # noqa: E402
 from cadbridge.mesh.quality import ANGLE_BIN, SIZE_BIN, mesh_quality  # noqa: E402
 from cadbridge.cad.model import Face, Model  # noqa: E402
 

@@ -7,7 +7,7 @@ For every file of iges_samples/*.igs and ../shared/iges_real/*, in tri and in qu
    its flat mesh (exit 1), the row says so and, with ``--retry-allow-worse`` (default on),
    the file is converted again with ``--allow-worse`` to measure it anyway (such a row never
    passes);
-2. read every written tool file with the independent reader ``tests/toolfile_reference.py``
+2. read every written tool file with the independent reader ``tests/helpers/toolfile_reference.py``
    (written from docs/toolfile.md alone), sample every patch on an ``--div``-division grid
    (default 4: 15 points per triangle, 25 per quad), evaluate the Nagata point from the
    file's COEFFICIENTS and the flat element point (triangle x00 + (x10-x00) eta +
@@ -62,8 +62,8 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))
-import toolfile_reference as R  # noqa: E402
+sys.path.insert(0, str(ROOT))
+from tests.helpers import toolfile_reference as R  # noqa: E402
 
 SAMPLES = ROOT / "iges_samples"
 REAL = ROOT.parent / "shared" / "iges_real"
@@ -610,7 +610,7 @@ def table(rows: list[Row], div: int, max_samples: int, args_cpu: bool = False) -
     out.append(
         f"{n_pass} of {len(rows)} pass on the distance ({n_pass_n} on the normal part): Nagata <= 0.25 x flat, or "
         "both <= 1e-9 x size, and the written COEFFICIENTS equal the rebuilt ones within 1e-9 x size (rebuild dev: "
-        "max deviation / node-box diagonal, independent reader tests/toolfile_reference.py). Corner-node gap: max "
+        "max deviation / node-box diagonal, independent reader tests/helpers/toolfile_reference.py). Corner-node gap: max "
         "distance of an element's corner nodes (CAD points) to the OCC surface it is measured against, a floor of "
         "both errors (the file's own edge/surface gaps, or elements across faces). dist = distance (GeomAPI_ProjectPointOnSurf) to the untrimmed OCC surface of the "
         "face nearest the element's flat centroid (BRepExtrema_DistShapeShape), or, for a sample whose foot is on that "

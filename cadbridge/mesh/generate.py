@@ -1006,7 +1006,7 @@ def _embed_curves(g, curves: list, path: Path) -> None:
     # (within tolerance of a corner or an edge), OCC's fuse rebuilds that vertex and the host's
     # edges there, and a neighbour left out keeps the old ones, so the two no longer share
     # them (the production die: 28 doubled corners, 112 edges meshed twice and merged node by
-    # node afterwards, which in quad left 25 non-manifold edges; tests/test_crease_fragment_sewing.py)
+    # node afterwards, which in quad left 25 non-manifold edges; tests/mesh/test_crease_sewing.py)
     near = set(hosts)
     for s in hosts:
         for _, c in g.model.getBoundary([(2, s)], combined=False, oriented=False):

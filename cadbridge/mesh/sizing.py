@@ -80,7 +80,7 @@ def patch_curvature(k1: ArrayLike, k2: ArrayLike) -> NDArray:
     that of its diagonal (length sqrt(2) h, normal curvature (k1 + k2) / 2 at 45 degrees by
     Euler: 4 C h^4 |(k1 + k2) / 2|^3). A cylinder keeps k (its sides dominate); a sphere
     gets 4^(1/3) k: a Nagata quad on a sphere is 3.8x the single-edge law
-    (`tests/test_adaptive_law.py`), on a torus (r 4, R 10) the diagonal term is within
+    (`tests/tool/test_refine_law.py`), on a torus (r 4, R 10) the diagonal term is within
     0.9-1.1x of the measured error of near-square quads. Saddles are not covered by it (the
     sides' sum is, to 1.5x)."""
     a, b = np.asarray(k1, dtype=float), np.asarray(k2, dtype=float)

@@ -1,0 +1,195 @@
+"""Every IGES file of the OCCT corpus (../shared/cad_corpus/iges; skipped when absent) through
+`cadbridge convert`, in quad and tri mode (issue "Every real CAD file converts").
+
+Reference, per file and mode: ``cadbridge -q convert FILE -o OUT --element MODE`` run as a
+subprocess exits 0 and its tool files are sound against OpenCASCADE
+(`cadbridge.verify.soundness.tool_soundness`: sampled nodes on OCC's trimmed faces, node
+normals at interior nodes equal to OCC's face normals, Nagata patch centres no farther from
+OCC's faces than the flat element centres; its docstring says how each is measured). The
+files the corpus README marks "expected: clear refusal" must instead exit 2 with one line on
+stderr (the CLI's known-error line, not its "unanticipated error" form) and write nothing.
+`benchmarks/corpus.py` makes the same measurement into benchmarks/results/corpus.md.
+
+The default run converts a fast subset: two small files that convert today and one expected
+refusal. The whole corpus is slow-marked (``-m slow``), one case per file and mode. Many
+files fail today. They are not skipped: `KNOWN_FAILURES` lists each failing (file, mode) with
+its current failure line (from benchmarks/results/corpus.md), and those cases are marked
+``xfail(strict=True)`` with that line as the reason. A fix turns the case into XPASS, which
+strict makes a failure: then delete the row from the table.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+CORPUS = ROOT.parent / "shared" / "cad_corpus" / "iges"
+MODES = ("quad", "tri")
+TIMEOUT = 600  # s per convert: a limit against hangs, far above any file's time today
+
+pytestmark = pytest.mark.skipif(not CORPUS.is_dir(), reason="shared/cad_corpus not present")
+
+
+def _benchmark():
+    """benchmarks/corpus.py as a module (it parses the README's expected refusals)."""
+    spec = importlib.util.spec_from_file_location("bench_corpus", ROOT / "benchmarks" / "corpus.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # its dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+EXPECTED_REFUSALS = _benchmark().expected_refusals()
+
+FAST = ["occt_OCC131-1_ANSA9.igs", "occt_PRO20359-L15_CATIAV4.igs"]
+FAST_REFUSAL = "occt_Disc_HPME.igs"
+
+# (file, mode): the current failure line, as benchmarks/results/corpus.md gives it (2026-12-05).
+# occt_PRO20359-L2_CATIAV4.igs quad is not here: it times out at the benchmark's 60 s but
+# converts soundly in about 90 s, within this test's limit.
+KNOWN_FAILURES: dict[tuple[str, str], str] = {
+    ('occt_CTS17806-38038_CATIAV4.igs', 'quad'):
+        'refused: occt_CTS17806-38038_CATIAV4.igs line 41 (DE 5, entity 128, field S): knots_u: an interior knot has multiplicity 4 > degree 3',
+    ('occt_CTS17806-38038_CATIAV4.igs', 'tri'):
+        'refused: occt_CTS17806-38038_CATIAV4.igs line 41 (DE 5, entity 128, field S): knots_u: an interior knot has multiplicity 4 > degree 3',
+    ('occt_OCC17026-2_3Dipsos.igs', 'quad'):
+        "failed: exit 1: tr: mesh straddles a crease: elements 29, 30, 31, 35, 41, 44, 70, 71, 77, 99 (and 76 more) (1-based, 86 in all) have corners on both sides of a crease line or sharp edge, and no normal can make a patch fold inside an element; remesh with mesh edges on the creases (cadbridge convert does) | tr: Nagata surface error 367 exceeds the flat mesh's 122 on 72 elements; worst: element 71 (367 vs flat 49.1): straddles a crease; element 501 (367 vs flat 49.1): straddles a crease; element 931 (367 vs flat 49.1): straddles a crease; element 1361 (367 vs flat 49.1): straddles a crease; element 70 (359 vs flat 49.7): straddles a crease (nothing written; --allow-worse writes the tool anyway, for inspection)",
+    ('occt_OCC17026-2_3Dipsos.igs', 'tri'):
+        "failed: exit 1: tr: mesh straddles a crease: elements 1, 4, 5, 7, 8, 9, 10, 12, 13, 15 (and 126 more) (1-based, 136 in all) have corners on both sides of a crease line or sharp edge, and no normal can make a patch fold inside an element; remesh with mesh edges on the creases (cadbridge convert does) | tr: Nagata surface error 521 exceeds the flat mesh's 85.2 on 102 elements; worst: element 177 (521 vs flat 70.4): straddles a crease; element 1827 (521 vs flat 70.4): straddles a crease; element 1277 (521 vs flat 70.4): straddles a crease; element 727 (521 vs flat 70.4): straddles a crease; element 203 (504 vs flat 72.6): straddles a crease (nothing written; --allow-worse writes the tool anyway, for inspection)",
+    ('occt_PRO19800_CATIAV4.igs', 'quad'):
+        'failed: exit 1: 473 of 492 mesh nodes are further than 0.00267 from the CAD (or could not be projected): node 467 at (-1237.97, -231.15, -82.2164) projection failed, node 427 at (-1238.03, -231.198, -82.1623) projection failed, node 431 at (-1237.9, -231.102, -82.2717) projection failed, node 434 at (-1237.71, -231.071, -82.3917) projection failed, node 327 at (-1238.18, -231.353, -82.056) projection failed, node 163 at (-1237.8, -231.188, -82.3015) projection failed, node 325 at (-1238.13, -231.269, -82.0921) projection failed, node 461 at (-1237.35, -230.936, -82.6449) projection failed, node 462 at (-1237.43, -231.031, -82.5588) projection failed, node 456 at (-1237.73, -231.358, -82.3073) projection failed',
+    ('occt_PRO19800_CATIAV4.igs', 'tri'):
+        'failed: exit 1: 275 of 288 mesh nodes are further than 0.00267 from the CAD (or could not be projected): node 77 at (-1237.96, -231.219, -82.199) projection failed, node 79 at (-1237.61, -231.089, -82.4405) projection failed, node 72 at (-1237.83, -231.063, -82.3257) projection failed, node 83 at (-1237.54, -231.387, -82.4082) projection failed, node 258 at (-1238.07, -231.239, -82.1296) projection failed, node 259 at (-1238.19, -231.295, -82.0499) projection failed, node 144 at (-1233.6, -232.748, -84.5237) distance 5.08425, node 136 at (-1233.66, -231.063, -84.6979) distance 5.00779, node 210 at (-1233.27, -231.88, -84.7653) distance 4.92362, node 135 at (-1233.46, -230.273, -85.0545) distance 4.89163',
+    ('occt_PRO20358-W10_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W10_CATIAV4.igs: a crease curve (from [1030.86, 710.614, -15.6112]) lies on no gmsh surface',
+    ('occt_PRO20358-W10_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W10_CATIAV4.igs: a crease curve (from [1030.86, 710.614, -15.6112]) lies on no gmsh surface',
+    ('occt_PRO20358-W11_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W11_CATIAV4.igs: a crease curve (from [1799.77, 718.555, -15.5117]) lies on no gmsh surface',
+    ('occt_PRO20358-W11_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W11_CATIAV4.igs: a crease curve (from [1799.77, 718.555, -15.5117]) lies on no gmsh surface',
+    ('occt_PRO20358-W7_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W7_CATIAV4.igs: a crease curve (from [1579.36, 715.151, -9.95447]) lies on no gmsh surface',
+    ('occt_PRO20358-W7_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W7_CATIAV4.igs: a crease curve (from [1579.36, 715.151, -9.95447]) lies on no gmsh surface',
+    ('occt_PRO20358-W8_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W8_CATIAV4.igs: a crease curve (from [1579.36, 715.151, -9.95447]) lies on no gmsh surface',
+    ('occt_PRO20358-W8_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-W8_CATIAV4.igs: a crease curve (from [1579.36, 715.151, -9.95447]) lies on no gmsh surface',
+    ('occt_PRO20358-X28_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-X28_CATIAV4.igs: a crease curve (from [3360.52875, 44.0931, 279.396125]) lies on no gmsh surface',
+    ('occt_PRO20358-X28_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20358-X28_CATIAV4.igs: a crease curve (from [3360.52875, 44.0931, 279.396125]) lies on no gmsh surface',
+    ('occt_PRO20359-L10_CATIAV4.igs', 'quad'):
+        'failed: exit 1: fac408(1658): the CAD normal reverses inside elements 2 (1-based, 1 in all) on face 0 (FAC408(1658)): their corner normals differ by more than 120 degrees, so the surface folds back over itself there or the elements span more than that of its turn; no quadratic patch can follow it (check the face in CAD, or refine) (nothing written; --allow-worse writes the tool anyway, for inspection)',
+    ('occt_PRO20359-L13_CATIAV4.igs', 'quad'):
+        'refused: occt_PRO20359-L13_CATIAV4.igs line 271 (DE 29, entity 126, field T): knots: an interior knot has multiplicity 6 > degree 5',
+    ('occt_PRO20359-L13_CATIAV4.igs', 'tri'):
+        'refused: occt_PRO20359-L13_CATIAV4.igs line 271 (DE 29, entity 126, field T): knots: an interior knot has multiplicity 6 > degree 5',
+    ('occt_PRO20359-L5_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20359-L5_CATIAV4.igs: a crease curve (from [-609.872721215429, 485.97333236781736, 547.4676794910316]) lies on no gmsh surface',
+    ('occt_PRO20359-L5_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20359-L5_CATIAV4.igs: a crease curve (from [-609.872721215429, 485.97333236781736, 547.4676794910316]) lies on no gmsh surface',
+    ('occt_PRO20359-L6_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20359-L6_CATIAV4.igs: a crease curve (from [-891.6711210937499, 481.438, 281.8813876953125]) lies on no gmsh surface',
+    ('occt_PRO20359-L6_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20359-L6_CATIAV4.igs: a crease curve (from [-891.6711210937499, 481.438, 281.8813876953125]) lies on no gmsh surface',
+    ('occt_PRO20359-L7_CATIAV4.igs', 'quad'):
+        'refused: occt_PRO20359-L7_CATIAV4.igs line 575 (DE 27, entity 126, field T): knots: an interior knot has multiplicity 6 > degree 5',
+    ('occt_PRO20359-L7_CATIAV4.igs', 'tri'):
+        'refused: occt_PRO20359-L7_CATIAV4.igs line 575 (DE 27, entity 126, field T): knots: an interior knot has multiplicity 6 > degree 5',
+    ('occt_PRO20359-L9_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20359-L9_CATIAV4.igs: a crease curve (from [-848.7107841796875, 255.2826533203125, 413.02977734374997]) lies on no gmsh surface',
+    ('occt_PRO20359-L9_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20359-L9_CATIAV4.igs: a crease curve (from [-848.7107841796875, 255.2826533203125, 413.02977734374997]) lies on no gmsh surface',
+    ('occt_PRO20360-T2_CATIAV4.igs', 'quad'):
+        'failed: exit 1: 1 of 315 mesh nodes are further than 0.0146 from the CAD (or could not be projected): node 3 at (63.6089, 220.334, 671.149) distance 5.39377',
+    ('occt_PRO20360-T2_CATIAV4.igs', 'tri'):
+        'failed: exit 1: 1 of 149 mesh nodes are further than 0.0146 from the CAD (or could not be projected): node 3 at (63.6089, 220.334, 671.149) distance 5.39377',
+    ('occt_PRO20538-V15_CATIAV4.igs', 'quad'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20538-V15_CATIAV4.igs: a crease curve (from [2152.67, 861.2678749999999, 325.569875]) lies on no gmsh surface',
+    ('occt_PRO20538-V15_CATIAV4.igs', 'tri'):
+        'refused: /work/wt/shared/cad_corpus/iges/occt_PRO20538-V15_CATIAV4.igs: a crease curve (from [2152.67, 861.2678749999999, 325.569875]) lies on no gmsh surface',
+    ('occt_bug23171_tube_surf_OpenCASCADE.igs', 'quad'):
+        'refused: occt_bug23171_tube_surf_OpenCASCADE.igs: no surfaces in this file, nothing to convert (entity types: 4 x 102, 4 x 110, 2 x 120, 16 x 126, 2 x 140, 2 x 142, 2 x 144, 1 x 402)',
+    ('occt_bug23171_tube_surf_OpenCASCADE.igs', 'tri'):
+        'refused: occt_bug23171_tube_surf_OpenCASCADE.igs: no surfaces in this file, nothing to convert (entity types: 4 x 102, 4 x 110, 2 x 120, 16 x 126, 2 x 140, 2 x 142, 2 x 144, 1 x 402)',
+    ('occt_bug24012_face_OpenCASCADE.igs', 'quad'):
+        'failed: exit 2: ValueError: surface error could not be measured at 6 sample points, e.g. on element 913 (1-based) at [4.077354050616471, 3.000986641381088, 7.039119317618453] (at accuracy.py:304; CADBRIDGE_DEBUG=1 shows the traceback)',
+    ('occt_bug24012_face_OpenCASCADE.igs', 'tri'):
+        'failed: exit 2: ValueError: surface error could not be measured at 4 sample points, e.g. on element 86 (1-based) at [5.820918545072117, 3.000316844465117, 8.790724035908475] (at accuracy.py:304; CADBRIDGE_DEBUG=1 shows the traceback)',
+    ('occt_bug8363_f45_OpenCASCADE.igs', 'quad'):
+        'failed: exit 1: 11 of 142 mesh nodes are further than 0.00753 from the CAD (or could not be projected): node 3 at (31.721, 423.93, 209.7) distance 0.0766352, node 25 at (17.1901, 428.061, 213.961) distance 0.0564785, node 24 at (20.0982, 427.241, 213.109) distance 0.0541635, node 26 at (14.2777, 428.864, 214.814) distance 0.05069, node 23 at (23.0034, 426.411, 212.257) distance 0.0421081, node 27 at (11.4159, 429.633, 215.651) distance 0.0391653, node 15 at (54.6422, 417.189, 202.99) distance 0.0247884, node 16 at (52.3234, 417.853, 203.669) distance 0.0204451, node 14 at (56.9552, 416.503, 202.313) distance 0.0199362, node 21 at (28.8124, 424.746, 210.553) distance 0.0196065',
+    ('occt_bug8363_f45_OpenCASCADE.igs', 'tri'):
+        'failed: exit 1: 11 of 128 mesh nodes are further than 0.00753 from the CAD (or could not be projected): node 6 at (31.721, 423.93, 209.7) distance 0.0766352, node 27 at (18.4369, 427.711, 213.596) distance 0.0565773, node 28 at (15.1103, 428.637, 214.57) distance 0.0530636, node 26 at (21.7586, 426.768, 212.622) distance 0.048573, node 29 at (11.7991, 429.531, 215.539) distance 0.0409466, node 25 at (25.0777, 425.815, 211.649) distance 0.0265352, node 19 at (53.0969, 417.634, 203.443) distance 0.023106, node 18 at (56.185, 416.734, 202.538) distance 0.0223416, node 24 at (28.3972, 424.864, 210.675) distance 0.0131376, node 0 at (58.913, 414.25, 189.89) distance 0.0127409',
+}
+
+
+def _convert(path: Path, mode: str, out: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    cmd = [sys.executable, "-m", "cadbridge", "-q", "convert", str(path), "-o", str(out), "--element", mode]
+    try:
+        return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=TIMEOUT)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{path.name} {mode}: no result after {TIMEOUT} s")
+
+
+def check_file(path: Path, mode: str, tmp_path: Path) -> None:
+    """The reference of the module docstring for one file and mode."""
+    out = tmp_path / "out"
+    res = _convert(path, mode, out)
+    err = res.stderr.strip().splitlines()
+    if path.name in EXPECTED_REFUSALS:
+        assert res.returncode == 2, f"exit {res.returncode} (expected a refusal): {err[-1:] or res.stdout[-200:]}"
+        assert len(err) == 1, err
+        assert "CADBRIDGE_DEBUG" not in err[0], f"an unanticipated error, not a refusal: {err[0]}"
+        assert not out.exists(), f"a refusal wrote {sorted(p.name for p in out.iterdir())}"
+        return
+    assert res.returncode == 0, f"exit {res.returncode}: {err[-1] if err else ''}"
+    pytest.importorskip("OCP")
+    from cadbridge.verify.soundness import tool_soundness
+
+    tools = sorted(out.glob("*.nagata"))
+    assert tools, "no tool file written"
+    report = tool_soundness(path, tools)
+    assert report.sound, report.line()
+
+
+@pytest.mark.parametrize("name", FAST)
+def test_fast_subset_converts_soundly(name: str, tmp_path: Path):
+    check_file(CORPUS / name, "quad", tmp_path)
+
+
+def test_fast_subset_expected_refusal(tmp_path: Path):
+    assert FAST_REFUSAL in EXPECTED_REFUSALS
+    check_file(CORPUS / FAST_REFUSAL, "quad", tmp_path)
+
+
+def _cases() -> list:
+    files = sorted(CORPUS.glob("*.igs")) if CORPUS.is_dir() else []
+    cases = []
+    for p in files:
+        for mode in MODES:
+            reason = KNOWN_FAILURES.get((p.name, mode))
+            marks = [pytest.mark.xfail(strict=True, reason=reason)] if reason else []
+            cases.append(pytest.param(p, mode, id=f"{p.name}-{mode}", marks=marks))
+    return cases
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("path", "mode"), _cases())
+def test_corpus_file_converts_soundly(path: Path, mode: str, tmp_path: Path):
+    check_file(path, mode, tmp_path)
+
+
+def test_known_failures_name_corpus_files():
+    """The table lists only files and modes that exist (a renamed file must not leave a stale row)."""
+    names = {p.name for p in CORPUS.glob("*.igs")}
+    assert {f for f, _ in KNOWN_FAILURES} <= names
+    assert {m for _, m in KNOWN_FAILURES} <= set(MODES)
