@@ -9,7 +9,7 @@ every file of `../shared/iges_real/`, one process each, and writes one line per 
     diff /tmp/before.txt /tmp/after.txt && echo bit-identical
 
 `--ushape` also runs `cadbridge ushape` and digests its tool files and `summary.md` (the
-U-shape table, which holds no timings). A tool file records the path of its CAD file, so two
+U-shape table, its "Run time" line left out). A tool file records the path of its CAD file, so two
 trees are compared on the same input paths (`--samples`). The package imported is the one `python -m cadbridge`
 finds (set PYTHONPATH to digest another checkout).
 """
@@ -41,7 +41,10 @@ def digest_tree(out: Path, suffixes: tuple[str, ...]) -> list[tuple[str, str]]:
     rows = []
     for p in sorted(out.rglob("*")):
         if p.is_file() and p.name.endswith(suffixes):
-            rows.append((str(p.relative_to(out)), hashlib.sha256(p.read_bytes()).hexdigest()))
+            data = p.read_bytes()
+            if p.name == "summary.md":  # its "Run time" line is the one line that is a timing
+                data = b"\n".join(ln for ln in data.split(b"\n") if not ln.startswith(b"Run time "))
+            rows.append((str(p.relative_to(out)), hashlib.sha256(data).hexdigest()))
     return rows
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from cadbridge.mesh.mesh import Mesh
 from cadbridge.tool.build import CadProjector, check_tools, NoProgress, ToolQualityError, ToolResult, tools_from_mesh
 from cadbridge.tool import outputs
@@ -50,6 +52,15 @@ class RunResult:
         return "\n".join(lines)
 
 
+def meshed_face_by_face(mesh: Mesh) -> bool:
+    """Whether ``mesh`` carries the face each element was meshed on (``cell_data
+    ["element_entity"]`` >= 1 everywhere, written by `cadbridge.mesh.generate.mesh_cad`):
+    then no element spans two faces, and only crease lines inside faces need the straddle
+    check (`tools_from_mesh` ``meshed_per_face``)."""
+    ent = mesh.cell_data.get("element_entity")
+    return ent is not None and len(ent) == mesh.n_elements and bool(np.all(np.asarray(ent) >= 1))
+
+
 def nagata_from_mesh(
     mesh_path: str,
     *,
@@ -68,7 +79,9 @@ def nagata_from_mesh(
 ) -> RunResult:
     """`cadbridge nagata`: tool file(s) + report from a user mesh (and the CAD).
 
-    ``orient`` re-orients an inconsistently wound mesh instead of stopping with an error.
+    ``orient`` re-orients an inconsistently wound mesh instead of stopping with an error. A
+    mesh that says which CAD face each element was meshed on (`meshed_face_by_face`: the
+    meshes cadbridge writes) is checked as `convert` checks its own mesh.
     Raises `ToolQualityError` when a tool is worse than its flat mesh (`check_tools`),
     unless ``allow_worse``.
 
@@ -87,7 +100,8 @@ def nagata_from_mesh(
     mesh.name = Path(mesh_path).stem
     projector = CadProjector(model, progress) if model is not None else None
     tools = tools_from_mesh(mesh, model, method=method, name=name, grid=grid, tolerance=tolerance, flip=flip,
-                            allow_far=allow_far, projector=projector, progress=progress, orient=orient)
+                            allow_far=allow_far, projector=projector, progress=progress, orient=orient,
+                            meshed_per_face=meshed_face_by_face(mesh))
     check_tools(tools, allow_worse)
     units = model.units.name if model is not None else "MM"
     result = RunResult(Path(output), tools, notes=healed_notes(excursions))

@@ -42,21 +42,35 @@ def _tool_files(folder: Path) -> dict[str, Path]:
     return {str(p.relative_to(folder)): p for p in sorted(folder.rglob("*.nagata"))}
 
 
-def _convert_or_skip(cad: Path, out: Path, must_convert: bool) -> None:
-    code = main(["--quiet", "convert", str(cad), "-o", str(out)])
+def _in_process(args: list[str]) -> int:
+    return main(["--quiet", *args])
+
+
+def _own_process(args: list[str]) -> int:
+    """The command in a process of its own, as a user runs it: gmsh keeps state between
+    calls in one process, and on occt_occ22470_SolidEdge_SpatialXPlus.igs a mesh made after
+    many other files differs on one face from the mesh of a fresh process (same node count)."""
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-m", "cadbridge", "--quiet", *args], capture_output=True).returncode
+
+
+def _convert_or_skip(cad: Path, out: Path, must_convert: bool, run=_in_process) -> None:
+    code = run(["convert", str(cad), "-o", str(out)])
     if code != EXIT_OK:
         assert not must_convert, f"convert {cad.name} exits {code}"
         pytest.skip(f"convert itself exits {code} on {cad.name}")
 
 
-def _check_same_tools(cad: Path, tmp_path: Path, must_convert: bool = True) -> None:
+def _check_same_tools(cad: Path, tmp_path: Path, must_convert: bool = True, run=_in_process) -> None:
     """convert vs mesh + nagata on ``cad``: the same tool files (names, elements, values)."""
     ref = tmp_path / "convert"
-    _convert_or_skip(cad, ref, must_convert)
+    _convert_or_skip(cad, ref, must_convert, run)
     mesh = tmp_path / f"{cad.stem}.msh"  # the mesh's name is the CAD's, as in convert
-    assert main(["--quiet", "mesh", str(cad), "-o", str(mesh)]) == EXIT_OK
+    assert run(["mesh", str(cad), "-o", str(mesh)]) == EXIT_OK
     steps = tmp_path / "steps"
-    assert main(["--quiet", "nagata", str(mesh), "--cad", str(cad), "-o", str(steps)]) == EXIT_OK
+    assert run(["nagata", str(mesh), "--cad", str(cad), "-o", str(steps)]) == EXIT_OK
     want, got = _tool_files(ref), _tool_files(steps)
     assert want and sorted(got) == sorted(want)
     tol = REL_TOL * read_iges(str(cad)).size()
@@ -106,11 +120,11 @@ def test_normals_command_applies_the_fold_rule(tmp_path):
 @pytest.mark.skipif(not REAL.is_dir(), reason="../shared/iges_real not present")
 @pytest.mark.parametrize("name", _iges_names(REAL))
 def test_real_files_convert_is_mesh_then_nagata(name, tmp_path):
-    _check_same_tools(REAL / name, tmp_path, must_convert=False)
+    _check_same_tools(REAL / name, tmp_path, must_convert=False, run=_own_process)
 
 
 @pytest.mark.slow
 @pytest.mark.skipif(not CORPUS.is_dir(), reason="../shared/cad_corpus/iges not present")
 @pytest.mark.parametrize("name", _iges_names(CORPUS))
 def test_corpus_files_convert_is_mesh_then_nagata(name, tmp_path):
-    _check_same_tools(CORPUS / name, tmp_path, must_convert=False)
+    _check_same_tools(CORPUS / name, tmp_path, must_convert=False, run=_own_process)
