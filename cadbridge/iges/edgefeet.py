@@ -30,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from cadbridge.nurbs.newton import ders2_one, ders2_scratch
+from cadbridge.nurbs.newton import ders2_one, ders2_scratch, wrap_clamp
 from cadbridge.nurbs.project import FAILED, project_to_surface, surface_samples
 from cadbridge.nurbs.surface import NurbsSurface
 
@@ -39,13 +39,6 @@ __all__ = ["edge_feet", "FAR_REL"]
 FAR_REL = 1e-3  # samples farther from the surface than this x size get the global projection
 TOL = 1e-12  # Newton tolerance (eps1 = TOL x size, eps2 = TOL), as `project_to_surface`
 MAX_ITER = 30
-
-
-@numba.njit(cache=True, error_model="numpy")
-def _wrap_clamp(x, lo, hi, closed):  # pragma: no cover - compiled
-    if closed:
-        return lo + (x - lo) % (hi - lo)
-    return min(max(x, lo), hi)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -82,8 +75,8 @@ def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, 
                     s = (t[i] - t[i - 1]) / (t[i - 1] - t[i - 2])
                     uu += du * s
                     vv += dv * s
-                uu = _wrap_clamp(uu, u0, u1, cu)
-                vv = _wrap_clamp(vv, v0, v1, cv)
+                uu = wrap_clamp(uu, u0, u1, cu)
+                vv = wrap_clamp(vv, v0, v1, cv)
             px, py, pz = pts[i, 0], pts[i, 1], pts[i, 2]
             small = False
             conv = False
@@ -128,8 +121,8 @@ def _march(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2, pts, 
                     dv = (hb * f - ha * g) / det
                 if not (np.isfinite(du) and np.isfinite(dv)):
                     break
-                un = _wrap_clamp(uu + du, u0, u1, cu)
-                vn = _wrap_clamp(vv + dv, v0, v1, cv)
+                un = wrap_clamp(uu + du, u0, u1, cu)
+                vn = wrap_clamp(vv + dv, v0, v1, cv)
                 ddu = un - uu
                 ddv = vn - vv
                 if cu:
