@@ -1,0 +1,1 @@
+"""The CAD model and what needs a whole model: faces and trims, trim decisions, box tree, search index."""

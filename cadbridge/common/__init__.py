@@ -1,0 +1,1 @@
+"""What every layer shares: atomic writes, the two error kinds, progress, the compile notice."""

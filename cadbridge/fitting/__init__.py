@@ -1,0 +1,1 @@
+"""NURBS surfaces fitted to points (scans, FE nodes, Nagata samples), with their base surfaces."""

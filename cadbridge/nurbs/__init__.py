@@ -1,4 +1,5 @@
-"""NURBS engine: basis functions, surfaces, curves, projection, search."""
+"""Single-surface NURBS math: basis functions, curves, surfaces, knot work and edits, constructions,
+curvature, inflections, projection (Newton) and fitting."""
 
 from cadbridge.nurbs.basis import basis_funs, ders_basis_funs, find_span
 from cadbridge.nurbs.curve import NurbsCurve

@@ -1,0 +1,1 @@
+"""Building tools: the mesh stage, normals and Nagata patches from a mesh, outputs, convert, refinement."""

@@ -1,4 +1,5 @@
-"""gmsh for the faces QIT refuses, on QIT's own edge vertices (conformal shared edges).
+"""gmsh on loops given in a face's (u, v): the faces QIT refuses (on QIT's own edge vertices,
+conformal shared edges) and the faces the (u, v) fill of `mesh.gmsh.empty_faces` meshes.
 
 A face QIT cannot mesh (narrow faces the hexagonal front does not fill, folds on strongly
 curved faces, a zero Jacobian) is meshed by gmsh's Frontal-Delaunay in the face's (u, v)
