@@ -225,7 +225,9 @@ def _hairpins_both_ways(uv: np.ndarray, xyz: np.ndarray, width: float) -> bool:
     th = np.concatenate([[0.0], np.cumsum(np.tile(turn, 2))])
     k = np.arange(m)
     j = np.searchsorted(s, s[k] + 2.0 * width, side="right") - 1
-    j = np.maximum(j, k + 1)
+    # at least the next vertex, at most once round the loop (a window longer than the loop:
+    # a loop small against ``width``, e.g. a hole in a model that one far point makes large)
+    j = np.clip(j, k + 1, k + m - 1)
     w = th[j + 1] - th[k]  # turning at vertices k..j
     lim = np.radians(150.0)
     return bool(np.any(w > lim) and np.any(w < -lim))
