@@ -205,6 +205,25 @@ class Params:
             raise self.error("null pointer where an entity is required", k, name)
         return abs(p)
 
+    def check_values(self) -> None:
+        """Raise IgesError at the first field (1-based) that is no IGES value: an integer, a
+        real, a Hollerith string or empty (the default). Whether or not anything reads it."""
+        f = self._f
+        if f is not None and self._rec_ok:  # the scan converted every field
+            return
+        for k in range(1, self._n):
+            if f is not None and f.ok.item(self._t0 + k):
+                continue
+            text = self._texts[k]
+            if not text or (self._strings is not None and self._strings[k]):
+                continue
+            try:
+                parse_real_text(text)
+            except ValueError as e:
+                why = str(e) if "overflows" in str(e) else (f"{text[:20]!r} is no IGES value (an integer, a real, "
+                                                             "a Hollerith string or empty)")
+                raise self.error(why, k, f"parameter {k}") from None
+
     def __repr__(self) -> str:
         return f"Params(DE {self.de}, type {self.etype}, {len(self)} fields)"
 

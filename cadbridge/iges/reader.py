@@ -71,7 +71,26 @@ def _read(text: str, filename: str, holder: list) -> Model:
     model.source = filename
     model.faces = _faces(b)  # trim deltas deferred: `Face.trim_delta`
     _raw(b, model)
+    _check_values(b)
     return model
+
+
+def _check_values(b: Builder) -> None:
+    """Every field of every entity type the reader interprets holds an IGES value (integer,
+    real, Hollerith string or empty), also fields no face needs (a 504's unused vertex
+    pointer): a damaged number or garbage there makes the file malformed, refused with an
+    IgesError at that field. The mesher reads every entity of the file through its own IGES
+    reader (OpenCASCADE in gmsh), which is not as careful: gmsh 4.15 crashed (SIGSEGV) on a
+    "-" in a 504 edge list. Entities whose records cannot be read at all are reported where
+    they are used, as before."""
+    for e in b.entries.values():
+        if e.entity_type not in INTERPRETED_TYPES:
+            continue
+        try:
+            p = b.params(e.de)
+        except IgesError:
+            continue
+        p.check_values()
 
 
 def _members(b: Builder, de: int) -> list[int]:
