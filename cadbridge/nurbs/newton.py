@@ -19,7 +19,7 @@ import numpy as np
 
 from cadbridge.nurbs.basis import ders_basis_one, find_span_one
 
-__all__ = ["CHECK_K", "CHECK_SEEDS", "EDGE_SEEDS", "ders2_one", "ders2_scratch", "global_seeds", "newton_range",
+__all__ = ["CHECK_K", "CHECK_SEEDS", "EDGE_SEEDS", "FAILED_SEEDS", "ders2_one", "ders2_scratch", "global_seeds", "newton_range",
            "wrap_clamp"]
 
 
@@ -233,6 +233,7 @@ def newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2,
 CHECK_K = 16  # nearest samples examined by the global check
 CHECK_SEEDS = 4  # extra Newton starts per point at most
 EDGE_SEEDS = 6  # extra starts from nearby samples for feet clamped to an edge
+FAILED_SEEDS = 3  # extra starts from the next nearest samples for a point whose Newton FAILED
 
 
 @numba.njit(cache=True, error_model="numpy")

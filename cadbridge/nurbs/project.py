@@ -32,7 +32,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cadbridge.nurbs.newton import CHECK_K, CHECK_SEEDS, EDGE_SEEDS, global_seeds, newton_range
+from cadbridge.nurbs.newton import CHECK_K, CHECK_SEEDS, EDGE_SEEDS, FAILED_SEEDS, global_seeds, newton_range
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = [
@@ -257,6 +257,7 @@ def project_to_surface(
     if uv0 is None and global_check:
         _global_check(surface, samples, pts, res, tol, max_iter)
         _edge_check(surface, samples, pts, res, tol, max_iter)
+        _failed_check(surface, samples, pts, res, tol, max_iter)
     if max_distance is not None:
         far = (res.status != FAILED) & (res.distance > max_distance)
         res.status[far] = BEYOND_TOLERANCE
@@ -477,6 +478,34 @@ def _edge_check(
     idx = np.nonzero(better)[0]
     order = np.argsort(-extra.distance[idx], kind="stable")  # nearest written last
     idx = idx[order]
+    tgt = owner[idx]
+    for name in ("u", "v", "foot", "distance", "normal", "status"):
+        getattr(res, name)[tgt] = getattr(extra, name)[idx]
+    res.iterations[tgt] += extra.iterations[idx]
+
+
+def _failed_check(
+    surface: NurbsSurface, samples: SurfaceSamples, pts: np.ndarray, res: SurfaceProjection, tol: float, max_iter: int
+) -> None:
+    """Points whose Newton still FAILED after the global and edge checks: restart from their
+    2nd to (1 + `FAILED_SEEDS`)th nearest grid samples, keeping the nearest foot found. Beside a
+    tight curl of the surface (the 0.4 mm edge roll of ``occt_bug24012_face``, whose normal
+    turns by 120 degrees within one grid cell) the nearest sample can lie past the curl, Newton
+    from it leaves the domain, and the samples around it need not be discrete local minima of
+    the sampled distance (which `_global_check` restarts from). Updates ``res`` in place."""
+    rows = np.nonzero(res.status == FAILED)[0]
+    k = min(FAILED_SEEDS + 1, len(samples.uv))
+    if rows.size == 0 or k < 2:
+        return
+    _, ik = samples.tree.query(pts[rows], k=k)
+    ik = np.asarray(ik).reshape(len(rows), k)[:, 1:]
+    owner = np.repeat(rows, k - 1)
+    uv = samples.uv[ik.ravel()]
+    extra = _newton(surface, samples, pts[owner], uv[:, 0].copy(), uv[:, 1].copy(), tol, max_iter)
+    idx = np.nonzero(extra.status != FAILED)[0]
+    if idx.size == 0:
+        return
+    idx = idx[np.argsort(-extra.distance[idx], kind="stable")]  # nearest written last
     tgt = owner[idx]
     for name in ("u", "v", "foot", "distance", "normal", "status"):
         getattr(res, name)[tgt] = getattr(extra, name)[idx]

@@ -26,6 +26,7 @@ from cadbridge.nurbs.newton import (
     CHECK_K,
     CHECK_SEEDS,
     EDGE_SEEDS,
+    FAILED_SEEDS,
     ders2_one,
     ders2_scratch,
     global_seeds,
@@ -551,4 +552,17 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         dd = np.where((res.status[owner] == FAILED) | np.isnan(dd), np.inf, dd)  # any valid foot beats a failed one
         better = ~same & (extra.status != FAILED) & (extra.distance < dd - 1e-3 * tol * pack.size[sid[owner]])
         _replace(res, owner, extra, better)
+
+    # failed check (`cadbridge.nurbs.project._failed_check`): a point whose Newton still FAILED
+    # restarts from its 2nd to (1 + FAILED_SEEDS)th nearest samples (queried above: a FAILED
+    # pair always needs the global check)
+    rows = np.flatnonzero(res.status == FAILED)
+    if len(rows):
+        j = np.arange(1, min(FAILED_SEEDS + 1, k))
+        rr, cc = np.nonzero(j[None, :] < kk[rows][:, None])
+        if len(rr):
+            owner = rows[rr]  # ascending: by surface, as _Run needs
+            uv = pack.suv[ik[owner, j[cc]]]
+            extra, _ = _Run(pack, sid[owner], p[owner], tol, max_iter)(uv[:, 0], uv[:, 1])
+            _replace(res, owner, extra, extra.status != FAILED)
     return res, first

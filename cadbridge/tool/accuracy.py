@@ -301,8 +301,12 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
     for name, a in (("surface", surface), ("flat surface", flat_surface), ("normal", normal), ("boundary", boundary)):
         if not np.all(np.isfinite(a)):
             bad = np.flatnonzero(~np.isfinite(a))
-            raise ValueError(f"{name} error could not be measured at {len(bad)} sample points, e.g. on element "
-                             f"{int(elem[bad[0]]) + 1} (1-based) at {pts[bad[0]].tolist()}")
+            from cadbridge.common.errors import CheckFailed
+
+            x = pts[bad[0]]
+            raise CheckFailed(f"the {name} error could not be measured at {len(bad)} sample points of the Nagata "
+                              f"patches (no foot on the CAD found there), e.g. on element {int(elem[bad[0]]) + 1} "
+                              f"(1-based) at ({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g})")
     return ToolErrors(surface, normal, boundary, flat_surface, face, len(miss))
 
 
