@@ -540,7 +540,7 @@ class Builder:
         bad = np.flatnonzero(~(d >= 0))
         if bad.size:
             j = int(bad[0]) + 1
-            raise p.error(f"knots decrease: {knots[j - 1]!r} then {knots[j]!r}", start + j, f"{name}({j - m})")
+            raise p.error(f"knots decrease: {float(knots[j - 1])!r} then {float(knots[j])!r}", start + j, f"{name}({j - m})")
 
     def _ordered(self, p: Params, k: int, na: str, nb: str) -> tuple[float, float]:
         """Fields k, k+1 of a 128 (U0, U1 or V0, V1; IGES 5.3 4.24 has U0 < U1, V0 < V1) in
