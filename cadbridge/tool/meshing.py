@@ -23,9 +23,11 @@ def read_cad(cad: str | Path, progress=None) -> tuple[Model, list[Excursion]]:
     search index or fold line is computed on it), and the excursions cut."""
     from cadbridge.heal.loop_excursions import heal_excursions
     from cadbridge.iges import read_iges
+    from cadbridge.iges.trimcheck import check_trim_agreement
 
     (progress or NoProgress()).stage(f"reading {cad}")
     model = read_iges(str(cad))  # fails early, before anything is meshed or written, on a bad file
+    check_trim_agreement(model)  # a face with two boundaries far apart: refused before meshing
     excursions = heal_excursions(model)  # trim loops that run back beside themselves: cut out
     return model, excursions
 
