@@ -8,6 +8,7 @@ lines inside faces as mesh edges, faces as the reader read them, consistent orie
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from cadbridge.cad.model import Model
@@ -70,6 +71,10 @@ def mesh_for_tools(
     from cadbridge.tool.build import consistently_oriented
 
     progress = progress or NoProgress()
+    if size is not None and size > 0 and math.isfinite(size):  # a size far too small: refused before meshing
+        from cadbridge.mesh.element_count import check_element_count
+
+        check_element_count(model, size, element)
     creases = crease_lines(model)  # C0 knot lines where the normal jumps: mesh edges go there
     folds = folds_for(model).lines  # lines where a face runs back over itself: mesh edges too
     progress.stage(f"meshing {Path(cad).name} with {mesher}"
@@ -82,5 +87,12 @@ def mesh_for_tools(
                         embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
                         mesher=mesher, loop_cuts=excursions)
     mesh.name = Path(cad).stem
+    if mesh.n_elements == 0:  # e.g. a default size from a bounding box one far control point inflates
+        from cadbridge.mesh.mesh import MeshError
+
+        lo, hi = model.bbox()
+        raise MeshError(f"{Path(cad).name}: the mesher made no elements (element size "
+                        f"{'the bounding box diagonal / 20' if size is None else f'{size:g}'}; the model's bounding box "
+                        f"runs from ({', '.join(f'{x:.6g}' for x in lo)}) to ({', '.join(f'{x:.6g}' for x in hi)}))")
     notes = healed_notes(excursions) + list(mesh.notes)
     return consistently_oriented(mesh, True), notes
