@@ -71,6 +71,29 @@ def _known_errors() -> tuple[type[BaseException], ...]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one command; its exit code. A reader that closes stdout early (``cadbridge inspect
+    F | head``) ends the command quietly with exit 0, as other Unix tools do."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        _stdout_to_devnull()
+        return EXIT_OK
+
+
+def _stdout_to_devnull() -> None:
+    """Point the closed stdout at /dev/null, so that the interpreter's final flush of what is
+    still buffered does not fail again at exit."""
+    import os
+
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):  # no real stdout (embedded, replaced): nothing to flush
+        pass
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     Progress.quiet = bool(getattr(args, "quiet", False))
@@ -83,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("cadbridge: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        raise  # stdout closed by its reader: `main` ends quietly
     except _known_errors() as exc:
         from cadbridge.normals.cad import ProjectionError
         from cadbridge.tool.build import ToolQualityError
