@@ -6,7 +6,7 @@ in its own subprocess with a time limit (``--timeout``, default 60 s; the whole 
 is killed at the limit). Writes ``benchmarks/results/mutants.md``: one row per mutant and the
 totals. The mutants live in a temporary folder (``--keep DIR`` keeps them and the outputs).
 
-    python benchmarks/mutants.py [--seed 1] [--per-kind 1] [--timeout 60] [--kinds KIND ...]
+    python benchmarks/mutants.py [--seed 1] [--per-kind 2] [--timeout 60] [--kinds KIND ...]
                                  [--only SUBSTRING ...] [--files FILE ...] [--keep DIR]
                                  [--out benchmarks/results/mutants.md]
 
@@ -435,7 +435,7 @@ def markdown(results: list[Result], command: str, timeout: float, seed: int) -> 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=1, help="the mutants' seed")
-    ap.add_argument("--per-kind", type=int, default=1, help="mutants per file and damage kind")
+    ap.add_argument("--per-kind", type=int, default=2, help="mutants per file and damage kind")
     ap.add_argument("--timeout", type=float, default=60.0, help="time limit per run, s")
     ap.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
     ap.add_argument("--files", nargs="+", type=Path, default=None, help="IGES files to damage (default: seven)")
