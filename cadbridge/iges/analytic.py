@@ -55,6 +55,10 @@ HERMITE_REL_TOL = 1e-10  # `to_nurbs` default: cubic deviation relative to the c
 MIN_PER_SPAN = 16  # samples per knot span of the sampled curve at least
 MAX_REFINE = 14  # bisection rounds of the adaptive sampling
 TWO_PI = 2 * pi
+WIND_TOL = 0.01
+"""Trim loops over a surface of revolution whose angle spans more than (1 + WIND_TOL) turns
+wind round the axis more than once (overlapping themselves): unusable (a damaged number in a
+parameter-space curve made one wind 10^6 turns; a closed face spans exactly one)."""
 
 
 def ax2_x_direction(n: np.ndarray) -> np.ndarray:
@@ -892,7 +896,11 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
         for k in (0, 1):
             if not ang[k]:
                 continue
-            mid = 0.5 * (allp[:, k].min() + allp[:, k].max())
+            lo_k, hi_k = float(allp[:, k].min()), float(allp[:, k].max())
+            if hi_k - lo_k > TWO_PI * (1 + WIND_TOL):  # a loop covers one turn at most
+                raise ValueError(f"trim loop {li + 1} winds {(hi_k - lo_k) / TWO_PI:.4g} turns about the axis "
+                                 f"(angles {lo_k:.6g}..{hi_k:.6g} rad)")
+            mid = 0.5 * (lo_k + hi_k)
             target = None
             if pm.fixed_range is not None and pm.fixed_range[k] is not None:
                 target = 0.5 * (pm.fixed_range[k][0] + pm.fixed_range[k][1])

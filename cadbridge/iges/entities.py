@@ -1231,7 +1231,16 @@ class Builder:
         try:
             res = map_loops(pm, loops, outer is not None, True)
         except ValueError as exc:
-            return self._untrimmed(pm, sde, de, str(exc))
+            # the parameter-space loops are unusable: the model-space curves, where the file has them
+            if not any(m is not None for raw in loops for _, m in raw):
+                return self._untrimmed(pm, sde, de, str(exc))
+            try:
+                res = map_loops(pm, loops, outer is not None, False)
+            except ValueError:
+                return self._untrimmed(pm, sde, de, str(exc))
+            self.note(f"parameter-space curves over the {pm.kind} surface unusable ({exc}): trim derived from the "
+                      f"model-space curves", de)
+            return res.surface, self._trim_of(loops, res, outer is not None)
         prefs = list(prefs) if prefs is not None else [None] * len(loops)
         pref = "model" if "model" in prefs else ("pcurve" if "pcurve" in prefs else "equal")
         closed = all(res.closed())
@@ -1302,12 +1311,16 @@ class Builder:
             res = res2
         if delta is not None:
             self._delta[de] = delta
+        return res.surface, self._trim_of(loops, res, outer is not None)
+
+    @staticmethod
+    def _trim_of(loops: list, res: MappedLoops, has_outer: bool) -> Trim:
+        """The `Trim` of mapped loops ``res`` (model-space curves kept where every edge has them)."""
         tl = []
         for raw, lp in zip(loops, res.loops):
             mc = [c for _, m in raw for c in m] if all(m is not None for _, m in raw) else None
             tl.append(TrimLoop([c for _, c, _ in lp], mc))
-        trims = Trim(tl[0], tl[1:]) if outer is not None else Trim(None, tl)
-        return res.surface, trims
+        return Trim(tl[0], tl[1:]) if has_outer else Trim(None, tl)
 
     def _trimmed_128(self, surface, trims, sde, de, n1, pto, ptis, prefs):
         """144 over a 128 whose 142s prefer the model-space curve: the parameter-space loops
