@@ -26,7 +26,8 @@ Damage kinds (`KINDS`; each picks its place with the mutant's own random generat
 
 Status of a run:
   converted       exit 0 and no NaN or infinity in any output file
-  refused         exit 1 or 2 with exactly one line on stderr, which names no internal
+  refused         exit 1 or 2 with exactly one line on stderr (besides one-line warnings
+                  "cadbridge convert: warning: ..." before it), which names no internal
                   exception class (ValueError, IndexError, ...), holds no "Traceback" and no
                   "CADBRIDGE_DEBUG" (the CLI's hint on errors it did not foresee), and nothing
                   left in the output folder
@@ -74,6 +75,7 @@ INTERNAL = re.compile(r"Traceback|CADBRIDGE_DEBUG|\b(ValueError|IndexError|KeyEr
                       r"ZeroDivisionError|AssertionError|RuntimeError|FloatingPointError|OverflowError|MemoryError|"
                       r"RecursionError|NameError|NotImplementedError|LinAlgError|StopIteration|UnicodeError|"
                       r"UnicodeDecodeError|UnboundLocalError|BrokenPipeError)\b")
+WARNING = re.compile(r"cadbridge \w+: warning: ")
 NONFINITE = re.compile(r"(?<![A-Za-z_])[-+]?(nan|inf|infinity)(?![A-Za-z_])", re.IGNORECASE)
 TEXT_OUTPUTS = (".nagata", ".txt", ".csv", ".md", ".json", ".igs", ".iges")
 MESH_OUTPUTS = (".vtu", ".msh")
@@ -350,8 +352,9 @@ def classify(rc: int | None, stderr: str, out: Path, timeout: float) -> tuple[st
     last = lines[-1] if lines else "(nothing on stderr)"
     if rc not in (1, 2):
         return "internal error", f"exit {rc}: {last}"
-    if len(lines) != 1:
-        return "internal error", f"exit {rc} with {len(lines)} lines on stderr: {last}"
+    errors = [ln for ln in lines if not WARNING.match(ln)]  # one-line warnings may come first
+    if len(errors) != 1 or errors[0] != last:
+        return "internal error", f"exit {rc} with {len(errors)} lines on stderr besides warnings: {last}"
     if INTERNAL.search(last):
         return "internal error", f"exit {rc}: {last}"
     left = sorted(p.name for p in out.iterdir()) if out.is_dir() else []

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from pathlib import Path
 
 from cadbridge._version import __version__
@@ -101,6 +102,11 @@ def _main(argv: list[str] | None) -> int:
 
     # one line on the then-current stderr if numba has to compile (cold cache), not with --quiet
     announce_compilation(quiet=Progress.quiet)
+    plain = warnings.formatwarning
+    # a library warning is one line too ("cadbridge CMD: warning: ..."), not Python's two
+    # (the message, then the source line that warned)
+    warnings.formatwarning = lambda message, category, *_a, **_k: (
+        f"cadbridge {args.command}: warning: {(str(message).splitlines() or [category.__name__])[0]}\n")
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
@@ -127,6 +133,8 @@ def _main(argv: list[str] | None) -> int:
               f"(at {Path(where.filename).name}:{where.lineno}; CADBRIDGE_DEBUG=1 shows the traceback)",
               file=sys.stderr)
         return EXIT_BAD_INPUT
+    finally:
+        warnings.formatwarning = plain
 
 
 if __name__ == "__main__":

@@ -40,3 +40,16 @@ def test_closed_stdout_ends_quietly(args, tmp_path):
     res = _run_with_closed_stdout(args, tmp_path)
     assert res.returncode == 0, res.stderr
     assert res.stderr == "", res.stderr
+
+
+def test_warnings_are_one_line(tmp_path):
+    """A library warning during a command is one line on stderr ("cadbridge CMD: warning:
+    ..."), not Python's message plus the source line that warned; the error stays the last line."""
+    code = ("import sys, warnings\nimport cadbridge.cli.inspect as i\n"
+            "def cmd(args):\n    warnings.warn('first line\\nsecond line')\n    raise FileNotFoundError('no such file')\n"
+            "i.cmd_inspect = cmd\nfrom cadbridge.cli import main\nsys.exit(main(['inspect', 'x.igs']))\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path, env=env,
+                         timeout=600)
+    assert res.returncode == 2
+    assert res.stderr.splitlines() == ["cadbridge inspect: warning: first line", "cadbridge inspect: error: no such file"]
