@@ -381,8 +381,8 @@ def pole_edges(samples: SurfaceSamples) -> tuple[bool, bool, bool, bool]:
     return tuple(out)
 
 
-def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray, v: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray, v: np.ndarray,
+                stalled: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Newton restarts for feet on a degenerate edge (a pole: the whole edge is one point,
     e.g. a sphere cap of revolution at u = 0).
 
@@ -390,6 +390,10 @@ def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray,
     steps keep the start's arbitrary v (or u) and Newton slides back to the pole, 0.68 mm
     off on the SolidWorks file of the OCC corpus. The restarts are the nearest sample of the
     grid ring next to the pole, and half-way to it, both carrying the point's azimuth.
+    A point near the pole whose nearest sample is a pole sample starts Newton there with an
+    arbitrary azimuth, where Su (or Sv) vanishes: the iteration can wander and stall
+    (FAILED) anywhere; ``stalled`` (K,) bool marks such feet, which get the same restarts
+    wherever they ended (points 6e-5 off a cone 0.6 mm from its apex).
 
     pts (K, 3), u, v (K,) the feet; returns start u, v and the row (into the K) of each."""
     u0, u1, v0, v1 = domain
@@ -402,7 +406,8 @@ def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray,
         if not pole:
             continue
         t_edge = (u0, u1)[e] if axis == 0 else (v0, v1)[e]
-        on = np.flatnonzero(np.abs((u if axis == 0 else v) - t_edge) <= eps[axis])
+        on = np.abs((u if axis == 0 else v) - t_edge) <= eps[axis]
+        on = np.flatnonzero(on if stalled is None else on | stalled)
         if not len(on):
             continue
         ring, ring_uv = (g[r], guv[r]) if axis == 0 else (g[:, r], guv[:, r])
@@ -463,7 +468,8 @@ def _edge_check(
         starts_u.append(uv[:, 0])
         starts_v.append(uv[:, 1])
         owner.append(rows[rr])
-    pu, pv, pi = pole_starts(samples, surface.domain, pts[pole_rows], res.u[pole_rows], res.v[pole_rows])
+    pu, pv, pi = pole_starts(samples, surface.domain, pts[pole_rows], res.u[pole_rows], res.v[pole_rows],
+                             res.status[pole_rows] == FAILED)
     starts_u.append(pu)
     starts_v.append(pv)
     owner.append(pole_rows[pi])
