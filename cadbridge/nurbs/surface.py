@@ -516,6 +516,32 @@ class NurbsSurface:
         with np.errstate(invalid="ignore", divide="ignore"):
             return n / np.linalg.norm(n, axis=1)[:, None]
 
+    def limit_tangent(self, u, v, du, dv) -> np.ndarray:
+        """Unit tangent (N, 3) of the curve t -> S(u + t du, v + t dv) at t = 0+ ((N,) each), from
+        the analytic derivatives: the first non-vanishing D^k S, k = 1 .. `LIMIT_ORDER` + 1
+        (|D^k S| > 1e-10 of the largest term of its sum), D = du d/du + dv d/dv. Where the
+        iso-line leaves a collapsed edge (a cone's generatrix at the apex) it is the
+        direction the surface leaves the point in; NaN where every term vanishes."""
+        u = np.atleast_1d(np.asarray(u, dtype=float)).ravel()
+        v = np.atleast_1d(np.asarray(v, dtype=float)).ravel()
+        m = len(u)
+        du = np.broadcast_to(np.asarray(du, dtype=float).ravel(), (m,))
+        dv = np.broadcast_to(np.asarray(dv, dtype=float).ravel(), (m,))
+        kmax = self.LIMIT_ORDER + 1
+        der = self.derivatives(u, v, order=kmax)
+        t = np.full((m, 3), np.nan)
+        todo = np.ones(m, dtype=bool)
+        for k in range(1, kmax + 1):
+            terms = [(comb(k, i) * du ** i * dv ** (k - i))[:, None] * der[:, i, k - i] for i in range(k + 1)]
+            f = np.sum(terms, axis=0)
+            scale = np.max([np.linalg.norm(x, axis=1) for x in terms], axis=0)
+            found = todo & (np.linalg.norm(f, axis=1) > 1e-10 * scale)
+            t[found] = f[found]
+            todo &= ~found
+            if not np.any(todo):
+                break
+        return t / np.linalg.norm(t, axis=1)[:, None]
+
     def collapsed_sides(self) -> tuple[bool, bool, bool, bool]:
         """Which sides of the domain, u = u0, u = u1, v = v0, v = v1, collapse onto one point
         (a pole or a cone apex: a degenerated edge): 17 points of the side within 1e-10 x
