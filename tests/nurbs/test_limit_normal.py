@@ -127,3 +127,23 @@ def test_limit_against_occ_off_the_point(name: str, side: int) -> None:
     theirs = surface_normals(occ, u, np.full(len(u), at + h))
     assert np.all(np.isfinite(theirs))
     assert _angle(ours, theirs).max() < 1e-5
+
+
+def test_limit_tangent_leaves_the_apex_along_the_generatrix() -> None:
+    """The direction a generatrix leaves the apex in: on the cone the unit generatrix (analytic),
+    on the stationary profile (P0 = P1 on the axis) the direction of P2 - P0, from Svv."""
+    s = _sample("cone_apex.igs")
+    u0, u1, v0, v1 = s.domain
+    u = np.linspace(u0, u1, 13)
+    t = s.limit_tangent(u, np.full(len(u), v0), 0.0, 1.0)
+    az = _azimuth(s, u, v1)
+    a = math.radians(30.0)
+    ref = np.column_stack([np.cos(az) * math.sin(a), np.sin(az) * math.sin(a), np.full(len(u), -math.cos(a))])
+    assert np.abs(t - ref).max() < 1e-14
+    p = revolved([(0.0, 15.0), (0.0, 15.0), (4.0, 12.0), (9.0, 6.0), (14.0, 1.0)], [1.0] * 5,
+                 [0, 0, 0, 0, 0.5, 1, 1, 1, 1], 3)
+    u = np.linspace(0.0, 1.0, 13)
+    t = p.limit_tangent(u, np.zeros(len(u)), 0.0, 1.0)
+    az = _azimuth(p, u, 0.5)
+    ref = np.column_stack([0.8 * np.cos(az), 0.8 * np.sin(az), np.full(len(u), -0.6)])
+    assert np.abs(t - ref).max() < 1e-14
