@@ -76,3 +76,26 @@ def test_revolved_apex_is_not_slivers() -> None:
     assert np.abs(np.hypot(x[:, 0], x[:, 1]) - r_exact).max() < 1e-3  # interpolation of the dense profile
     b = np.asarray(boundary_edges(mesh))
     assert np.abs(x[b.ravel(), 2] + 1.0).max() < 1e-9
+
+
+def test_sector_with_apex_corner_stays_sewn(tmp_path) -> None:
+    """A cone sector (90 deg) has its collapsed edge at a corner of the face, not inside it (no
+    seam around the apex): gmsh meshes it sewn, as every face was before, and it is left so
+    (the bearing's 16 three-sided patches likewise keep their sewn, conforming mesh).
+    Generated with OCC (the samples' helpers)."""
+    pytest.importorskip("OCP")
+    import importlib.util
+
+    from OCP.Geom import Geom_ConicalSurface
+
+    spec = importlib.util.spec_from_file_location("make_samples", SAMPLES / "make_samples.py")
+    ms = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ms)
+    a = math.radians(30.0)
+    cone = Geom_ConicalSurface(ms._ax3((0.0, 0.0, 20.0), (0, 0, -1)), a, 0.0)
+    path = tmp_path / "sector.igs"
+    ms.export_iges({"SECTOR": ms._face(ms._exact_bspline(cone, 0.0, math.pi / 2, 0.0, 20.0 / math.cos(a)))}, path, "nurbs")
+    mesh = mesh_cad(path, element="tri")
+    assert not any("collapsed edge" in n for n in mesh.notes)
+    assert np.abs(_cone_gap(mesh.nodes)).max() < 1e-6
+    assert np.sum(np.linalg.norm(mesh.nodes - [0.0, 0.0, 20.0], axis=1) < 1e-9) == 1
