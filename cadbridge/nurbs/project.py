@@ -557,8 +557,9 @@ def _newton(
     edge_u = np.zeros(n, dtype=bool) if cu else ((u <= u0) & (f > 0)) | ((u >= u1) & (f < 0))
     edge_v = np.zeros(n, dtype=bool) if cv else ((v <= v0) & (g > 0)) | ((v >= v1) & (g < 0))
     # tangential offset of the foot (how far from orthogonal), in length units
-    off_u = np.where(edge_u, 0.0, np.abs(f) / np.maximum(lsu, tiny))
-    off_v = np.where(edge_v, 0.0, np.abs(g) / np.maximum(lsv, tiny))
+    # (no offset along a direction that does not move the point: a pole, where it is round-off)
+    off_u = np.where(edge_u | (lsu <= 1e-9 * lsv), 0.0, np.abs(f) / np.maximum(lsu, tiny))
+    off_v = np.where(edge_v | (lsv <= 1e-9 * lsu), 0.0, np.abs(g) / np.maximum(lsv, tiny))
     cos_u = np.abs(f) / np.maximum(lsu * dist, tiny)
     cos_v = np.abs(g) / np.maximum(lsv * dist, tiny)
     # a binding edge is only reported when the cosine is really non-zero there

@@ -203,8 +203,9 @@ def _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, dom
         lsv = np.sqrt(svx * svx + svy * svy + svz * svz)
         edge_u = (not cu) and ((uu <= u0 and f > 0) or (uu >= u1 and f < 0))
         edge_v = (not cv) and ((vv <= v0 and g > 0) or (vv >= v1 and g < 0))
-        off_u = 0.0 if edge_u else abs(f) / max(lsu, tiny)
-        off_v = 0.0 if edge_v else abs(g) / max(lsv, tiny)
+        # (no offset along a direction that does not move the point: a pole, where it is round-off)
+        off_u = 0.0 if (edge_u or lsu <= 1e-9 * lsv) else abs(f) / max(lsu, tiny)
+        off_v = 0.0 if (edge_v or lsv <= 1e-9 * lsu) else abs(g) / max(lsv, tiny)
         cos_u = abs(f) / max(lsu * d, tiny)
         cos_v = abs(g) / max(lsv * d, tiny)
         binding = ((edge_u and cos_u > tol) or (edge_v and cos_v > tol)) and d > e1
