@@ -32,19 +32,22 @@ from OCP.BRepLib import BRepLib
 from OCP.BRepPrimAPI import BRepPrimAPI_MakePrism, BRepPrimAPI_MakeSphere, BRepPrimAPI_MakeTorus
 from OCP.BRepTools import BRepTools
 from OCP.Geom import (
+    Geom_BSplineCurve,
     Geom_BSplineSurface,
+    Geom_ConicalSurface,
     Geom_CylindricalSurface,
     Geom_Plane,
     Geom_RectangularTrimmedSurface,
     Geom_SphericalSurface,
     Geom_Surface,
+    Geom_SurfaceOfRevolution,
     Geom_ToroidalSurface,
 )
 from OCP.GeomAbs import GeomAbs_C0, GeomAbs_C2
 from OCP.GeomAPI import GeomAPI_PointsToBSplineSurface
 from OCP.GeomConvert import GeomConvert
-from OCP.gp import gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Pnt, gp_Vec
-from OCP.TColgp import TColgp_Array2OfPnt
+from OCP.gp import gp_Ax1, gp_Ax2, gp_Ax3, gp_Circ, gp_Dir, gp_Pnt, gp_Vec
+from OCP.TColgp import TColgp_Array1OfPnt, TColgp_Array2OfPnt
 from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal, TColStd_Array2OfReal
 from OCP.TopAbs import TopAbs_EDGE, TopAbs_FACE, TopAbs_WIRE
 from OCP.TopExp import TopExp, TopExp_Explorer
@@ -194,6 +197,47 @@ def multiple_knots_surface() -> Geom_BSplineSurface:
     arr = lambda vals, cls: _fill(cls(1, len(vals)), vals)  # noqa: E731
     return Geom_BSplineSurface(poles, weights, arr(uk, TColStd_Array1OfReal), arr(vk, TColStd_Array1OfReal),
                                arr(um, TColStd_Array1OfInteger), arr(vm, TColStd_Array1OfInteger), 3, 3, False, False)
+
+
+# singular points (issue 32, point 5): a whole iso-line of the surface collapses onto one
+# point, where Su x Sv = 0 and the normal is a limit
+CONE_HALF_ANGLE = 30.0  # deg, cone_apex.igs
+REVOLVED_APEX_ANGLE = 50.0  # deg between the profile's tangent and the axis at the apex, revolved_apex.igs
+
+
+def full_cone() -> Geom_BSplineSurface:
+    """Full cone, half angle 30 deg, apex (0, 0, 20) on top, axis -z, 20 mm tall (base R 11.55 at
+    z = 0): u the angle (0..2 pi, periodic), v along the generatrix from the apex, so the edge
+    v = 0 collapses onto the apex."""
+    a = math.radians(CONE_HALF_ANGLE)
+    return _exact_bspline(Geom_ConicalSurface(_ax3((0.0, 0.0, 20.0), (0, 0, -1)), a, 0.0), 0.0, 2 * math.pi, 0.0, 20.0 / math.cos(a))
+
+
+def hemisphere() -> Geom_BSplineSurface:
+    """Hemisphere R 10 about +z: u the longitude (0..2 pi), v the latitude 0..90 deg, so the edge
+    v = 90 deg collapses onto the pole (0, 0, 10)."""
+    return _exact_bspline(Geom_SphericalSurface(_ax3(), 10.0), 0.0, 2 * math.pi, 0.0, math.pi / 2)
+
+
+def revolved_profile() -> Geom_BSplineCurve:
+    """Cubic B-spline profile in the xz plane from (0, 0, 15) on the z axis, leaving it at
+    `REVOLVED_APEX_ANGLE` to the axis (downwards), to (18, 0, -1)."""
+    b = math.radians(REVOLVED_APEX_ANGLE)
+    pts = [(0.0, 0.0, 15.0), (5.0 * math.sin(b), 0.0, 15.0 - 5.0 * math.cos(b)), (9.0, 0.0, 6.0), (14.0, 0.0, 1.0), (18.0, 0.0, -1.0)]
+    poles = TColgp_Array1OfPnt(1, len(pts))
+    for k, p in enumerate(pts, start=1):
+        poles.SetValue(k, gp_Pnt(*p))
+    knots = _fill(TColStd_Array1OfReal(1, 3), [0.0, 0.5, 1.0])
+    mults = _fill(TColStd_Array1OfInteger(1, 3), [4, 1, 4])
+    return Geom_BSplineCurve(poles, knots, mults, 3)
+
+
+def revolved_apex() -> Geom_BSplineSurface:
+    """The profile of `revolved_profile` revolved a full turn about z: u the angle, v the profile
+    parameter; the edge v = 0 collapses onto the apex (0, 0, 15), where the limit normal depends
+    on u (a cone of directions at 90 - 50 = 40 deg to the axis)."""
+    rev = Geom_SurfaceOfRevolution(revolved_profile(), gp_Ax1(gp_Pnt(0, 0, 0), gp_Dir(0, 0, 1)))
+    return _exact_bspline(rev, 0.0, 2 * math.pi, 0.0, 1.0)
 
 
 def _fill(array, values):
@@ -583,6 +627,9 @@ SAMPLES: dict[str, Callable[[Path], None]] = {
     "multiple_knots.igs": _exact_face_sample(multiple_knots_surface, "MULTKNOT", "rational bicubic with u knots of multiplicity 2 (C1) and 3 (C0)"),
     "placed_by_124.igs": make_placed,
     "trimmed_hole.igs": make_hole,
+    "cone_apex.igs": _exact_face_sample(full_cone, "CONE", "full cone, half angle 30 deg, apex (0, 0, 20) on top (collapsed edge v = 0), 20 tall"),
+    "hemisphere_pole.igs": _exact_face_sample(hemisphere, "HEMISPH", "hemisphere R10 about +z, pole (0, 0, 10) a collapsed edge"),
+    "revolved_apex.igs": _exact_face_sample(revolved_apex, "REVAPEX", "cubic profile revolved about z, leaving the axis at 50 deg at the apex (0, 0, 15)"),
 }
 
 #: The production-size die (issue #8): written only with ``--production`` (about 40 s, 2 x 25

@@ -462,6 +462,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         raise MeshError(f"{path}: gmsh/OCC cannot import the file: {exc}") from exc
     if not g.model.getEntities(2):
         raise MeshError(f"{path}: no surfaces found in the CAD file")
+    unsewn = _unsew_collapsed(g, sess, path, kw) if kw["sew"] else []
     if kw["embed_curves"]:
         _embed_curves(g, kw["embed_curves"], path)
     surfaces = [t for _, t in g.model.getEntities(2)]
@@ -561,7 +562,59 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
                           f"algorithm " + ", ".join(f"{' then '.join(map(str, a))} on {t}" for t, (_, a) in sorted(redone.items())))
     if merged:
         mesh.notes.append(f"mesh: {merged.summary()}")
+    if unsewn:
+        mesh.notes.append(f"mesh: {len(unsewn)} face(s) closed around a collapsed edge (a pole or apex) meshed unsewn, "
+                          f"their borders joined by the node merge (gmsh's sewing drops collapsed edges)")
     return mesh
+
+
+def _collapsed_surfaces(g, tol: float) -> list[int]:
+    """gmsh surfaces closed around a collapsed side of their parameter box: one side maps onto
+    one point within ``tol`` (model units; a pole or a cone apex, a degenerated edge of the
+    face) and the two sides across it onto each other (a seam), so that point lies inside the
+    face (5 points per side). A three-sided patch (a collapsed side, no seam) is not one: gmsh
+    meshes those sewn."""
+    t = np.linspace(0.0, 1.0, 5)
+    out = []
+    for _, s in g.model.getEntities(2):
+        lo, hi = g.model.getParametrizationBounds(2, s)
+        u, v = lo[0] + (hi[0] - lo[0]) * t, lo[1] + (hi[1] - lo[1]) * t
+        sides = [(np.full(5, lo[0]), v), (np.full(5, hi[0]), v), (u, np.full(5, lo[1])), (u, np.full(5, hi[1]))]
+        uv = np.concatenate([np.column_stack(side) for side in sides]).ravel()
+        x = np.asarray(g.model.getValue(2, s, uv.tolist()), dtype=float).reshape(4, 5, 3)
+        point = np.max(np.linalg.norm(x - x[:, :1], axis=2), axis=1) <= tol  # u0, u1, v0, v1 collapse
+        closed_u = np.max(np.linalg.norm(x[0] - x[1], axis=1)) <= tol
+        closed_v = np.max(np.linalg.norm(x[2] - x[3], axis=1)) <= tol
+        if (closed_u and (point[2] or point[3])) or (closed_v and (point[0] or point[1])):
+            out.append(s)
+    return out
+
+
+def _unsew_collapsed(g, sess: GmshSession, path: Path, kw: dict) -> list[int]:
+    """Faces closed around a collapsed edge (`_collapsed_surfaces`) imported unsewn: gmsh's OCC
+    healing (``Geometry.OCCSewFaces`` or ``healShapes``) removes every degenerated edge from the
+    face loops, so the (u, v) loop of a cone or a sphere with its apex or pole inside the face
+    (seam and collapsed edge) no longer closes ("The 1D mesh seems not to be forming a closed
+    loop"), or meshes as slivers. If the
+    sewn import has such faces, the file is imported again without sewing and the other faces
+    are sewn among themselves; the node merge of `mesh_cad` joins the borders of the collapsed
+    ones. Returns the collapsed faces' tags in the new import ([] when there are none)."""
+    if not _collapsed_surfaces(g, kw["sew_tolerance"]):
+        return []
+    g.model.occ.remove(g.model.occ.getEntities(), recursive=True)
+    g.model.occ.synchronize()
+    sess.set("Geometry.OCCSewFaces", 0)
+    with quiet_stdout(not sess.verbose):
+        g.model.occ.importShapes(str(path))
+    g.model.occ.synchronize()
+    collapsed = _collapsed_surfaces(g, kw["sew_tolerance"])
+    others = [(2, s) for _, s in g.model.getEntities(2) if s not in set(collapsed)]
+    if len(others) > 1:
+        g.model.occ.healShapes(others, tolerance=kw["sew_tolerance"], fixDegenerated=kw["heal"],
+                               fixSmallEdges=kw["heal"], fixSmallFaces=False, sewFaces=True, makeSolids=False)
+        g.model.occ.synchronize()
+        collapsed = _collapsed_surfaces(g, kw["sew_tolerance"])
+    return collapsed
 
 
 SUBDIVISION_SMOOTHING = 1

@@ -427,14 +427,19 @@ class NagataMesh:
         straight but its parametrisation stops at one end, Nagata's singular case) the
         normal is the limit approached from inside the patch: with x_eta = 0 it is
         +-x_eta_eta x x_zeta, with x_zeta = 0 it is +-x_eta x x_zeta_zeta. Where both
-        tangents are non-zero but parallel (a 180-degree corner of a degenerate element)
-        it is the normal a step of 1e-7 inside the patch, towards its centroid.
+        tangents are non-zero but parallel (a 180-degree corner of a degenerate element), or
+        both vanish (to round-off of the element's size: a cone apex, whose patches start
+        from rest along its generatrices), it is the normal a step of 1e-7 inside the patch,
+        towards its centroid.
         """
         x, xe, xz = self._eval(elem, eta, zeta, 1)
         n = np.cross(xe, xz)
         ln = np.linalg.norm(n, axis=1)
         le, lz = np.linalg.norm(xe, axis=1), np.linalg.norm(xz, axis=1)
-        bad = ln <= 1e-10 * np.maximum(le, lz) ** 2
+        # both tangents at round-off of the element's size: a corner where both edges start
+        # from rest (a cone apex whose edges are its straight generatrices, c = d)
+        size = self._element_size[np.broadcast_to(np.asarray(elem, dtype=np.int64).ravel(), (len(n),))]
+        bad = (ln <= 1e-10 * np.maximum(le, lz) ** 2) | (np.maximum(le, lz) <= 1e-12 * size)
         if np.any(bad):
             el = np.broadcast_to(np.asarray(elem, dtype=np.int64).ravel(), (len(n),))[bad]
             et = np.broadcast_to(np.asarray(eta, dtype=float).ravel(), (len(n),))[bad]
@@ -445,10 +450,11 @@ class NagataMesh:
             ce, cz = np.where(tri, 2.0 / 3.0, 0.5), np.where(tri, 1.0 / 3.0, 0.5)
             se = np.where(ce - et >= 0, 1.0, -1.0)[:, None]
             sz = np.where(cz - ze >= 0, 1.0, -1.0)[:, None]
-            eta_vanishes = (le[bad] <= 1e-6 * lz[bad])[:, None]
-            zeta_vanishes = (lz[bad] <= 1e-6 * le[bad])[:, None]
+            rest = (np.maximum(le, lz) <= 1e-12 * size)[bad][:, None]
+            eta_vanishes = (le[bad] <= 1e-6 * lz[bad])[:, None] | rest
+            zeta_vanishes = (lz[bad] <= 1e-6 * le[bad])[:, None] | rest
             lim = np.where(eta_vanishes, se * np.cross(xee, xz_b), sz * np.cross(xe_b, xzz))
-            lim[~(eta_vanishes | zeta_vanishes)[:, 0]] = 0.0
+            lim[~(eta_vanishes | zeta_vanishes)[:, 0] | rest[:, 0]] = 0.0
             still = np.linalg.norm(lim, axis=1) <= 1e-300
             if np.any(still):
                 # both tangents vanish, or they are parallel (a flat 180-degree corner of a
@@ -458,6 +464,16 @@ class NagataMesh:
                 lim[still] = np.cross(a, b)
             n[bad] = lim
         return x, unit(n)
+
+    @cached_property
+    def _element_size(self) -> NDArray:
+        """(E,) largest distance of an element's corners from its first corner (global numbering)."""
+        out = np.zeros(self.n_elements)
+        for conn, glob in ((self.tri_elements, self.tri_global), (self.quad_elements, self.quad_global)):
+            if len(conn):
+                x = self.nodes[conn]
+                out[glob] = np.linalg.norm(x - x[:, :1], axis=2).max(axis=1)
+        return out
 
     def derivatives(self, elem: ArrayLike, eta: ArrayLike, zeta: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
         """Points and first derivatives (thesis eqs. 7-8, 12-13): (M, 3) each."""

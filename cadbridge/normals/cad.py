@@ -33,6 +33,7 @@ from cadbridge.mesh.topology import edge_table, non_manifold_edges, orient_consi
 from cadbridge.cad.model import Model
 from cadbridge.nurbs.project_many import project_to_surfaces
 from cadbridge.cad.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, index_for, project_points
+from cadbridge.normals.singular import singular_nodes
 
 __all__ = ["CadNormals", "ProjectionError", "cad_normals"]
 
@@ -58,6 +59,9 @@ class CadNormals:
     status          (N,) projection status (CONVERGED, ON_BOUNDARY, BEYOND_TOLERANCE, FAILED)
     crease          (N,) bool, node sits on a sharp edge (has several corner normals)
     element_face    list of (E_b,) face index of each element (from its centroid)
+    singular        (N,) bool, node at a singular point of a face (cone apex, sphere pole,
+                    degenerated edge): its normal comes from the face's limit normals there
+                    (`cadbridge.normals.singular`), one for all its elements
     mesh            the mesh the corner normals refer to (re-oriented if ``orient=True``)
     flipped         (E,) bool, elements whose winding ``orient=True`` reversed (all False
                     otherwise)
@@ -77,6 +81,7 @@ class CadNormals:
     mesh: Mesh | None = None
     flipped: np.ndarray | None = None
     non_manifold: np.ndarray | None = None
+    singular: np.ndarray | None = None
 
     @property
     def has_creases(self) -> bool:
@@ -492,6 +497,15 @@ def cad_normals(
 
     kink_u, kink_v, knot_u, knot_v = _on_c0_knot_lines(model, proj)
 
+    # nodes at a cone apex, a sphere pole, on a degenerated edge: the normal from the face's
+    # limit normals there (`cadbridge.normals.singular`), in all their elements
+    starts = np.cumsum([0] + [len(c) for c in blocks])
+    sn = singular_nodes(model, nodes, np.asarray(proj.face), np.asarray(proj.u), np.asarray(proj.v), blocks,
+                        [elem_face_all[a:b] for a, b in zip(starts[:-1], starts[1:])], elem_normals,
+                        index_for(model).surface_pack(model), sign)
+    if sn is not None:
+        node_n[np.flatnonzero(sn.node)] = sn.normal
+
     nm_node = np.zeros(len(nodes), dtype=bool)
     nm_node[nm.edges.ravel()] = True
     cx = _Corners(model, nodes, proj.face, node_n, sign, np.cos(np.radians(crease_angle)), kink_u, kink_v, knot_u,
@@ -528,4 +542,5 @@ def cad_normals(
         mesh=mesh,
         flipped=flipped,
         non_manifold=nm.edges,
+        singular=np.zeros(len(nodes), dtype=bool) if sn is None else sn.node,
     )

@@ -147,7 +147,11 @@ def newton_range(pw, ku, kv, p, q, rational, u0, u1, v0, v1, cu, cv, eps1, eps2,
             act_v = (not cv) and ((vv <= v0 and g > 0) or (vv >= v1 and g < 0))
             cos_u = abs(f) / max(lsu * lr, tiny)
             cos_v = abs(g) / max(lsv * lr, tiny)
-            conv = (lr <= eps1) or ((cos_u <= eps2 or act_u) and (cos_v <= eps2 or act_v))
+            # a direction whose derivative is round-off of the other's (on a pole or apex, where
+            # moving along it does not move the point) has no orthogonality to meet
+            pole_u = lsu <= 1e-9 * lsv
+            pole_v = lsv <= 1e-9 * lsu
+            conv = (lr <= eps1) or ((cos_u <= eps2 or act_u or pole_u) and (cos_v <= eps2 or act_v or pole_v))
             if np.isfinite(d2_prev) and not conv:
                 if d2 > d2_prev * (1.0 + 1e-13) + 2.0 * np.sqrt(d2_prev) * e + e * e:
                     if (hit_u and u_prev != uu) or (hit_v and v_prev != vv):

@@ -382,8 +382,8 @@ def pole_edges(samples: SurfaceSamples) -> tuple[bool, bool, bool, bool]:
     return tuple(out)
 
 
-def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray, v: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray, v: np.ndarray,
+                stalled: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Newton restarts for feet on a degenerate edge (a pole: the whole edge is one point,
     e.g. a sphere cap of revolution at u = 0).
 
@@ -391,6 +391,10 @@ def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray,
     steps keep the start's arbitrary v (or u) and Newton slides back to the pole, 0.68 mm
     off on the SolidWorks file of the OCC corpus. The restarts are the nearest sample of the
     grid ring next to the pole, and half-way to it, both carrying the point's azimuth.
+    A point near the pole whose nearest sample is a pole sample starts Newton there with an
+    arbitrary azimuth, where Su (or Sv) vanishes: the iteration can wander and stall
+    (FAILED) anywhere; ``stalled`` (K,) bool marks such feet, which get the same restarts
+    wherever they ended (points 6e-5 off a cone 0.6 mm from its apex).
 
     pts (K, 3), u, v (K,) the feet; returns start u, v and the row (into the K) of each."""
     u0, u1, v0, v1 = domain
@@ -403,7 +407,8 @@ def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray,
         if not pole:
             continue
         t_edge = (u0, u1)[e] if axis == 0 else (v0, v1)[e]
-        on = np.flatnonzero(np.abs((u if axis == 0 else v) - t_edge) <= eps[axis])
+        on = np.abs((u if axis == 0 else v) - t_edge) <= eps[axis]
+        on = np.flatnonzero(on if stalled is None else on | stalled)
         if not len(on):
             continue
         ring, ring_uv = (g[r], guv[r]) if axis == 0 else (g[:, r], guv[:, r])
@@ -464,7 +469,8 @@ def _edge_check(
         starts_u.append(uv[:, 0])
         starts_v.append(uv[:, 1])
         owner.append(rows[rr])
-    pu, pv, pi = pole_starts(samples, surface.domain, pts[pole_rows], res.u[pole_rows], res.v[pole_rows])
+    pu, pv, pi = pole_starts(samples, surface.domain, pts[pole_rows], res.u[pole_rows], res.v[pole_rows],
+                             res.status[pole_rows] == FAILED)
     starts_u.append(pu)
     starts_v.append(pv)
     owner.append(pole_rows[pi])
@@ -580,8 +586,9 @@ def _newton(
     edge_u = np.zeros(n, dtype=bool) if cu else ((u <= u0) & (f > 0)) | ((u >= u1) & (f < 0))
     edge_v = np.zeros(n, dtype=bool) if cv else ((v <= v0) & (g > 0)) | ((v >= v1) & (g < 0))
     # tangential offset of the foot (how far from orthogonal), in length units
-    off_u = np.where(edge_u, 0.0, np.abs(f) / np.maximum(lsu, tiny))
-    off_v = np.where(edge_v, 0.0, np.abs(g) / np.maximum(lsv, tiny))
+    # (no offset along a direction that does not move the point: a pole, where it is round-off)
+    off_u = np.where(edge_u | (lsu <= 1e-9 * lsv), 0.0, np.abs(f) / np.maximum(lsu, tiny))
+    off_v = np.where(edge_v | (lsv <= 1e-9 * lsu), 0.0, np.abs(g) / np.maximum(lsv, tiny))
     cos_u = np.abs(f) / np.maximum(lsu * dist, tiny)
     cos_v = np.abs(g) / np.maximum(lsv * dist, tiny)
     # a binding edge is only reported when the cosine is really non-zero there

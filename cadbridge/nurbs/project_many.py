@@ -204,8 +204,9 @@ def _classify_task(pw, pw_off, ku, ku_off, kv, kv_off, deg, shape, rational, dom
         lsv = np.sqrt(svx * svx + svy * svy + svz * svz)
         edge_u = (not cu) and ((uu <= u0 and f > 0) or (uu >= u1 and f < 0))
         edge_v = (not cv) and ((vv <= v0 and g > 0) or (vv >= v1 and g < 0))
-        off_u = 0.0 if edge_u else abs(f) / max(lsu, tiny)
-        off_v = 0.0 if edge_v else abs(g) / max(lsv, tiny)
+        # (no offset along a direction that does not move the point: a pole, where it is round-off)
+        off_u = 0.0 if (edge_u or lsu <= 1e-9 * lsv) else abs(f) / max(lsu, tiny)
+        off_v = 0.0 if (edge_v or lsv <= 1e-9 * lsu) else abs(g) / max(lsv, tiny)
         cos_u = abs(f) / max(lsu * d, tiny)
         cos_v = abs(g) / max(lsv * d, tiny)
         binding = ((edge_u and cos_u > tol) or (edge_v and cos_v > tol)) and d > e1
@@ -326,6 +327,14 @@ class _Run:
                 sel = bad[self.sid[bad] == s]
                 normal[sel] = self.pack.surfaces[s].normal(u[sel], v[sel])
         return SurfaceProjection(u, v, foot, dist, normal, status, iters), same
+
+
+def _known(res: SurfaceProjection, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The feet (u, v) of ``rows`` that restarts may stop at (`_Run`): NaN where the foot FAILED
+    (a restart heading for a stalled iterate is no foot of its own: a start on a pole, whose
+    restarts carrying the point's azimuth converge next to where it stalled)."""
+    failed = res.status[rows] == FAILED
+    return np.where(failed, np.nan, res.u[rows]), np.where(failed, np.nan, res.v[rows])
 
 
 def _replace(res: SurfaceProjection, tgt: np.ndarray, extra: SurfaceProjection, better: np.ndarray) -> None:
@@ -507,7 +516,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     if rows_all:
         rows = np.concatenate(rows_all)
         uv = pack.suv[np.concatenate(seeds_all)]
-        extra, same = _Run(pack, sid[rows], p[rows], tol, max_iter)(uv[:, 0], uv[:, 1], (res.u[rows], res.v[rows]))
+        extra, same = _Run(pack, sid[rows], p[rows], tol, max_iter)(uv[:, 0], uv[:, 1], _known(res, rows))
         _replace(res, rows, extra, ~same & (extra.status != FAILED) & (extra.distance < d[rows]))
 
     # edge check: feet clamped to a domain edge restart half / one cell inside and from the
@@ -538,7 +547,8 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         polar = np.unique(sid[prows])
         for s_ in polar[pack.has_pole[polar]]:  # feet on a pole: restarts carrying the point's azimuth
             r = prows[sid[prows] == s_]
-            pu, pv, pi = pole_starts(pack.samples[s_], pack.surfaces[s_].domain, p[r], res.u[r], res.v[r])
+            pu, pv, pi = pole_starts(pack.samples[s_], pack.surfaces[s_].domain, p[r], res.u[r], res.v[r],
+                                     res.status[r] == FAILED)
             if len(pi):
                 starts_u.append(pu)
                 starts_v.append(pv)
@@ -547,7 +557,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         order = np.argsort(owner, kind="stable")  # by owner = by surface (sid sorted), same per-pair order
         owner = owner[order]
         eu, ev = np.concatenate(starts_u)[order], np.concatenate(starts_v)[order]
-        extra, same = _Run(pack, sid[owner], p[owner], tol, max_iter)(eu, ev, (res.u[owner], res.v[owner]))
+        extra, same = _Run(pack, sid[owner], p[owner], tol, max_iter)(eu, ev, _known(res, owner))
         dd = res.distance[owner]
         dd = np.where((res.status[owner] == FAILED) | np.isnan(dd), np.inf, dd)  # any valid foot beats a failed one
         better = ~same & (extra.status != FAILED) & (extra.distance < dd - 1e-3 * tol * pack.size[sid[owner]])

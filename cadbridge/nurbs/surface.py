@@ -421,44 +421,144 @@ class NurbsSurface:
 
         ``side_u``/``side_v`` (N,) of -1/+1 give one-sided normals at knots (see `derivatives`).
 
-        At degenerate points (a collapsed edge or pole, where Su or Sv vanishes or they are
-        parallel) the limit normal approached from inside the domain is returned: with Sv = 0
-        it is +-Su x Suv, with Su = 0 it is +-Suv x Sv. With ``return_flags`` the (N,) bool
-        array saying which points were degenerate is returned as well.
+        At degenerate points, where |Su x Sv| <= 1e-10 max(|Su|, |Sv|)^2 (a collapsed edge:
+        a pole or an apex; or Su parallel to Sv), the limit normal approached from inside the
+        domain is returned (`limit_normal`): along v on a collapsed side v = v0 or v1
+        (`collapsed_sides`) or where Su vanishes, along u on a collapsed side u = u0 or u1 or
+        where Sv vanishes, else diagonally; each towards the nearer domain end's inside. With ``return_flags`` the (N,)
+        bool array saying which points were degenerate is returned as well.
         """
         der = self.derivatives(u, v, order=1, side_u=side_u, side_v=side_v)
-        su, sv, suv = der[:, 1, 0], der[:, 0, 1], der[:, 1, 1]
+        su, sv = der[:, 1, 0], der[:, 0, 1]
         n = np.cross(su, sv)
         ln = np.linalg.norm(n, axis=1)
         lu = np.linalg.norm(su, axis=1)
         lv = np.linalg.norm(sv, axis=1)
-        scale = np.maximum(lu, lv)
-        degenerate = ln <= 1e-10 * scale**2
+        degenerate = ln <= 1e-10 * np.maximum(lu, lv) ** 2
         if np.any(degenerate):
-            uu = np.broadcast_to(np.asarray(u, dtype=float), (len(n),))[degenerate]
-            vv = np.broadcast_to(np.asarray(v, dtype=float), (len(n),))[degenerate]
+            m = len(n)
+            uu = np.broadcast_to(np.asarray(u, dtype=float).ravel(), (m,))[degenerate]
+            vv = np.broadcast_to(np.asarray(v, dtype=float).ravel(), (m,))[degenerate]
             u0, u1, v0, v1 = self.domain
-            su_d, sv_d, suv_d = su[degenerate], sv[degenerate], suv[degenerate]
-            sv_vanishes = lv[degenerate] <= lu[degenerate]
             sign_u = np.where(uu - u0 <= u1 - uu, 1.0, -1.0)  # moving into the domain along u
             sign_v = np.where(vv - v0 <= v1 - vv, 1.0, -1.0)
-            lim = np.where(
-                sv_vanishes[:, None],
-                sign_u[:, None] * np.cross(su_d, suv_d),
-                sign_v[:, None] * np.cross(suv_d, sv_d),
-            )
-            # still nothing (e.g. both derivatives vanish): step a little into the domain
-            bad = np.linalg.norm(lim, axis=1) <= 1e-300
-            if np.any(bad):
-                du = 1e-7 * (u1 - u0) * sign_u[bad]
-                dv = 1e-7 * (v1 - v0) * sign_v[bad]
-                dd = self.derivatives(uu[bad] + du, vv[bad] + dv, order=1)
-                lim[bad] = np.cross(dd[:, 1, 0], dd[:, 0, 1])
-            n[degenerate] = lim
+            lu_d, lv_d = lu[degenerate], lv[degenerate]
+            # the iso-line v = const through the point collapses (on a collapsed side v = v0 or
+            # v1, or Su vanishes): approach along v; u = const likewise; else diagonally
+            cu0, cu1, cv0, cv1 = self.collapsed_sides()
+            on_u = (cu0 & (uu == u0)) | (cu1 & (uu == u1))
+            on_v = (cv0 & (vv == v0)) | (cv1 & (vv == v1))
+            along_v = on_v | (~on_u & (lu_d <= 1e-6 * lv_d))
+            along_u = on_u | (~on_v & (lv_d <= 1e-6 * lu_d))
+            along_u &= ~along_v
+            du = np.where(along_v, 0.0, sign_u)
+            dv = np.where(along_u, 0.0, sign_v)
+            sides = [None if s_ is None else np.broadcast_to(np.asarray(s_), (m,))[degenerate]
+                     for s_ in (side_u, side_v)]
+            n[degenerate] = self.limit_normal(uu, vv, du, dv, side_u=sides[0], side_v=sides[1])
             ln = np.linalg.norm(n, axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             n = n / ln[:, None]
         return (n, degenerate) if return_flags else n
+
+    LIMIT_ORDER = 3
+    """Highest order k of the Taylor terms of Su x Sv that `limit_normal` looks at."""
+
+    def limit_normal(self, u, v, du, dv, side_u=None, side_v=None) -> np.ndarray:
+        """Unit normal at (u, v) approached along the parameter direction (du, dv), (N,) each
+        -> (N, 3), from the analytic derivatives (no step off the point).
+
+        Along the ray (u + t du, v + t dv), t -> 0+, Su x Sv = sum_k t^k / k! f_k with
+        f_k = sum_j C(k, j) D^j Su x D^(k-j) Sv, D = du d/du + dv d/dv; the normal is the
+        direction of the first f_k that does not vanish (|f_k| > 1e-10 of its terms' scale,
+        sum_j C(k, j) max(|D^j Su|, |D^(k-j) Sv|)^2), k = 0 .. `LIMIT_ORDER`. At a regular
+        point that is f_0 = Su x Sv; on a collapsed edge v = v0 (Su = 0 for every u) with du =
+        0, dv = 1 it is Suv x Sv, the normal along the generatrix u (a cone apex: one per u;
+        a sphere pole: the axis for every u); where Sv vanishes there too (a profile leaving
+        the axis with zero speed) it is a higher term, e.g. Suvv x Svv. Points where every
+        term vanishes (no normal in any order up to `LIMIT_ORDER`) get the normal a step of
+        1e-7 of the domain along the ray: a last resort, never met on the samples.
+        """
+        u = np.atleast_1d(np.asarray(u, dtype=float)).ravel()
+        v = np.atleast_1d(np.asarray(v, dtype=float)).ravel()
+        m = len(u)
+        du = np.broadcast_to(np.asarray(du, dtype=float).ravel(), (m,))
+        dv = np.broadcast_to(np.asarray(dv, dtype=float).ravel(), (m,))
+        kmax = self.LIMIT_ORDER
+        der = self.derivatives(u, v, order=kmax + 1, side_u=side_u, side_v=side_v)  # (N, K+2, K+2, 3)
+
+        def directional(a: int, b: int, j: int) -> np.ndarray:
+            """D^j of S_(a, b), (N, 3): sum_i C(j, i) du^i dv^(j-i) S_(a+i, b+j-i)."""
+            out = np.zeros((m, 3))
+            for i in range(j + 1):
+                out += (comb(j, i) * du ** i * dv ** (j - i))[:, None] * der[:, a + i, b + j - i]
+            return out
+
+        dsu = [directional(1, 0, j) for j in range(kmax + 1)]
+        dsv = [directional(0, 1, j) for j in range(kmax + 1)]
+        n = np.zeros((m, 3))
+        todo = np.ones(m, dtype=bool)
+        for k in range(kmax + 1):
+            f = np.zeros((m, 3))
+            scale = np.zeros(m)
+            for j in range(k + 1):
+                f += comb(k, j) * np.cross(dsu[j], dsv[k - j])
+                scale += comb(k, j) * np.maximum(np.linalg.norm(dsu[j], axis=1), np.linalg.norm(dsv[k - j], axis=1)) ** 2
+            found = todo & (np.linalg.norm(f, axis=1) > 1e-10 * scale)
+            n[found] = f[found]
+            todo &= ~found
+            if not np.any(todo):
+                break
+        if np.any(todo):  # every term up to LIMIT_ORDER vanishes: the normal just along the ray
+            u0, u1, v0, v1 = self.domain
+            d = self.derivatives(u[todo] + 1e-7 * (u1 - u0) * du[todo], v[todo] + 1e-7 * (v1 - v0) * dv[todo], order=1)
+            n[todo] = np.cross(d[:, 1, 0], d[:, 0, 1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return n / np.linalg.norm(n, axis=1)[:, None]
+
+    def limit_tangent(self, u, v, du, dv) -> np.ndarray:
+        """Unit tangent (N, 3) of the curve t -> S(u + t du, v + t dv) at t = 0+ ((N,) each), from
+        the analytic derivatives: the first non-vanishing D^k S, k = 1 .. `LIMIT_ORDER` + 1
+        (|D^k S| > 1e-10 of the largest term of its sum), D = du d/du + dv d/dv. Where the
+        iso-line leaves a collapsed edge (a cone's generatrix at the apex) it is the
+        direction the surface leaves the point in; NaN where every term vanishes."""
+        u = np.atleast_1d(np.asarray(u, dtype=float)).ravel()
+        v = np.atleast_1d(np.asarray(v, dtype=float)).ravel()
+        m = len(u)
+        du = np.broadcast_to(np.asarray(du, dtype=float).ravel(), (m,))
+        dv = np.broadcast_to(np.asarray(dv, dtype=float).ravel(), (m,))
+        kmax = self.LIMIT_ORDER + 1
+        der = self.derivatives(u, v, order=kmax)
+        t = np.full((m, 3), np.nan)
+        todo = np.ones(m, dtype=bool)
+        for k in range(1, kmax + 1):
+            terms = [(comb(k, i) * du ** i * dv ** (k - i))[:, None] * der[:, i, k - i] for i in range(k + 1)]
+            f = np.sum(terms, axis=0)
+            scale = np.max([np.linalg.norm(x, axis=1) for x in terms], axis=0)
+            found = todo & (np.linalg.norm(f, axis=1) > 1e-10 * scale)
+            t[found] = f[found]
+            todo &= ~found
+            if not np.any(todo):
+                break
+        return t / np.linalg.norm(t, axis=1)[:, None]
+
+    def collapsed_sides(self) -> tuple[bool, bool, bool, bool]:
+        """Which sides of the domain, u = u0, u = u1, v = v0, v = v1, collapse onto one point
+        (a pole or a cone apex: a degenerated edge): 17 points of the side within 1e-10 x
+        the control net's size of each other. Cached (the surface is immutable)."""
+        hit = self.__dict__.get("_collapsed")
+        if hit is None:
+            u0, u1, v0, v1 = self.domain
+            t = np.linspace(0.0, 1.0, 17)
+            uu, vv = u0 + (u1 - u0) * t, v0 + (v1 - v0) * t
+            pts = self.evaluate(np.concatenate([np.full(17, u0), np.full(17, u1), uu, uu]),
+                                np.concatenate([vv, vv, np.full(17, v0), np.full(17, v1)])).reshape(4, 17, 3)
+            b = self.bbox()
+            size = float(np.linalg.norm(b[1] - b[0]))
+            spread = np.linalg.norm(pts - pts[:, :1], axis=2).max(axis=1)
+            hit = tuple(bool(x) for x in spread <= 1e-10 * size)
+            self.__dict__["_collapsed"] = hit
+        return hit
 
     def crease_knots(self, angle: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
         """Interior knots across which the surface normal jumps (a crease inside the face).

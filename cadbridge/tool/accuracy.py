@@ -257,6 +257,9 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
     from cadbridge.heal.folds import fold_reference_normals  # on a fold line: the sheets' cusp normal
 
     ncad = fold_reference_normals(model, pts - surface[:, None] * ncad, ncad, pn)
+    from cadbridge.normals.singular import reference_normals  # at a cone apex: the limit into the element
+
+    ncad = reference_normals(model, pts - surface[:, None] * ncad, face, _centroids(nm)[elem], ncad, pn)
     # the flat element lies on the same smooth piece as its Nagata patch
     _, inv = np.unique(elem, return_inverse=True)
     ok = np.isfinite(uv[:, 0])
@@ -308,6 +311,14 @@ def tool_errors(nm, elem: np.ndarray, eta: np.ndarray, zeta: np.ndarray, element
                               f"patches (no foot on the CAD found there), e.g. on element {int(elem[bad[0]]) + 1} "
                               f"(1-based) at ({x[0]:.6g}, {x[1]:.6g}, {x[2]:.6g})")
     return ToolErrors(surface, normal, boundary, flat_surface, face, len(miss))
+
+
+def _centroids(nm) -> np.ndarray:
+    """(E, 3) corner centroids of the elements of the `NagataMesh` ``nm`` (global numbering)."""
+    out = np.empty((nm.n_elements, 3))
+    out[nm.tri_global] = nm.nodes[nm.tri_elements].mean(axis=1)
+    out[nm.quad_global] = nm.nodes[nm.quad_elements].mean(axis=1)
+    return out
 
 
 def own_face_nearest(model: Model, pts: np.ndarray, face: np.ndarray, uv: np.ndarray

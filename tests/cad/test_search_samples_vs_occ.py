@@ -8,7 +8,8 @@ on the paired OCC surface).
   the edges of the face. Where our parametrisation is OCC's (every 128 face), the reference is
   `GeomAPI_ProjectPointOnSurf` for interior extrema plus `GeomAPI_ProjectPointOnCurve` on the
   four boundary iso-curves (as in tests/nurbs/test_project.py): foot within 1e-9 x model size,
-  normal within 1e-9 rad of `GeomLProp_SLProps` at our (u, v), never farther than OCC's best.
+  normal within 1e-9 rad of `GeomLProp_SLProps` at our (u, v) (at a pole or cone apex, where
+  OCC has no normal, within 1e-6 rad of OCC's 1e-7 inside), never farther than OCC's best.
   Where it is not (analytic-mode faces converted to NURBS by our reader), interior feet are
   compared with OCC's projection on its own surface, normals up to the sign of the
   parametrisation.
@@ -64,6 +65,21 @@ def points_around(rng, s, n: int, spread: float) -> np.ndarray:
             + (u - uc)[:, None] * der[:, 1, 0] + (v - vc)[:, None] * der[:, 0, 1])
 
 
+def _occ_reference_normal(occ_surface, s, u: float, v: float) -> tuple[np.ndarray, float]:
+    """OCC's normal to compare ours at (u, v) with, and the tolerance (radians). At a collapsed
+    edge (a pole, a cone apex: S_u x S_v = 0) OCC's normal at the point is round-off (a sphere's
+    pole came back 41 deg off its axis): there ours, the limit from inside the domain, is
+    compared with OCC's a step of 1e-7 of the parameter range inside, within 1e-6 rad."""
+    _, degenerate = s.normal([u], [v], return_flags=True)
+    if not degenerate[0]:
+        return occ_normal(occ_surface, u, v)[0], ANG
+    u0, u1, v0, v1 = s.domain
+    cu0, cu1, cv0, cv1 = s.collapsed_sides()
+    du = 1.0 if (cu0 and u == u0) else -1.0 if (cu1 and u == u1) else 0.0
+    dv = 1.0 if (cv0 and v == v0) else -1.0 if (cv1 and v == v1) else 0.0
+    return occ_normal(occ_surface, u + 1e-7 * (u1 - u0) * du, v + 1e-7 * (v1 - v0) * dv)[0], 1e-6
+
+
 def same_parametrisation(face, occ, size: float) -> bool:
     from cadbridge.verify.reference import occ_eval
 
@@ -117,10 +133,10 @@ def test_single_face_against_occ(sample):
                     continue  # OCC missed the global minimum
                 err = float(np.linalg.norm(res.foot[i] - f_ref))
                 assert err <= tol, f"{name} face {k} point {i} ({p.tolist()}): foot differs from OCC by {err:.3g}"
-                n_ref = occ_normal(o.surface, res.u[i], res.v[i])[0]
+                n_ref, ang = _occ_reference_normal(o.surface, s, res.u[i], res.v[i])
                 if np.all(np.isfinite(n_ref)):
                     a = float(_angle(res.normal[i], n_ref))
-                    assert a <= ANG, f"{name} face {k} point {i}: normal off OCC's by {a:.3g} rad"
+                    assert a <= ang, f"{name} face {k} point {i}: normal off OCC's by {a:.3g} rad"
                 compared += 1
         else:
             # other parametrisation: interior feet against OCC's projection on its surface

@@ -122,6 +122,22 @@ def face_normal(face, u: float, v: float) -> np.ndarray:
     return n / ln if ln > 0 else np.full(3, np.nan)
 
 
+def surface_normals(surface, u, v) -> np.ndarray:
+    """Unit normals S_u x S_v (N, 3) of a Geom_Surface at (u, v) (N,) each (Geom_Surface.D1);
+    NaN where S_u x S_v vanishes (a pole, a cone apex: OCC has no normal there)."""
+    from OCP.gp import gp_Pnt, gp_Vec
+
+    out = np.full((len(u), 3), np.nan)
+    for k, (a, b) in enumerate(zip(np.asarray(u, dtype=float), np.asarray(v, dtype=float))):
+        p, du, dv = gp_Pnt(), gp_Vec(), gp_Vec()
+        surface.D1(float(a), float(b), p, du, dv)
+        n = np.cross(du.Coord(), dv.Coord())
+        ln = np.linalg.norm(n)
+        if ln > 0:
+            out[k] = n / ln
+    return out
+
+
 def surface_distance(surface, x) -> float:
     """OCC's distance from the point x (3,) to an untrimmed Geom_Surface: the nearest
     orthogonal foot (GeomAPI_ProjectPointOnSurf); inf where OCC finds none."""
