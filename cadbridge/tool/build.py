@@ -17,12 +17,45 @@ import numpy as np
 from cadbridge.common.progress import NoProgress
 from cadbridge.mesh.mesh import CellBlock, Mesh
 
-__all__ = ['CadProjector', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
+__all__ = ['CadProjector', 'GuardTrips', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'guard_trips', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
 
 
 class ToolQualityError(ValueError):
     """A Nagata tool whose surface is worse than its own flat mesh (exit code 1 in the CLI):
     the message names the worst elements and why."""
+
+@dataclass
+class GuardTrips:
+    """The elements of one tool that trip the soundness guards of `build_tool` (0-based ids in
+    the tool's numbering: ``ToolResult.mesh`` and ``nagata``, triangles first), each (K,) int64
+    sorted; ``reversed`` leaves out the straddling ones.
+
+    straddling  corners on both sides of a crease line or sharp edge (`_straddling_ids`)
+    reversed    two corner normals more than `REVERSAL_DEG` apart (`reversed_normal_elements`)
+    folded      wound against the normals at all corners (`folded_elements`)
+    """
+
+    straddling: np.ndarray
+    reversed: np.ndarray
+    folded: np.ndarray
+
+    @property
+    def refinable(self) -> np.ndarray:
+        """(K,) sorted ids of the elements a finer mesh can cure: straddling and reversed."""
+        return np.union1d(self.straddling, self.reversed)
+
+    def __bool__(self) -> bool:
+        return bool(len(self.straddling) or len(self.reversed) or len(self.folded))
+
+
+def guard_trips(nm, straddling=None, element_face=None) -> GuardTrips:
+    """The `GuardTrips` of the `NagataMesh` ``nm``: ``straddling`` the element ids found
+    straddling on the CAD (`cadbridge.heal.creases.straddling_elements`, tool numbering),
+    ``element_face`` (E,) the face of each element (see `_straddling_ids`)."""
+    strad = _straddling_ids(nm, straddling, element_face)
+    turned = np.setdiff1d(reversed_normal_elements(nm), strad)
+    return GuardTrips(strad, turned.astype(np.int64), folded_elements(nm).astype(np.int64))
+
 
 @dataclass
 class ToolResult:
@@ -45,6 +78,7 @@ class ToolResult:
     node_distance: np.ndarray | None = None
     element_face: np.ndarray | None = None  # (E,) face of each element (global numbering)
     diagnosis: list[str] = field(default_factory=list)  # worst elements, when worse than flat
+    trips: GuardTrips | None = None  # elements that trip the guards (their ids as data)
 
 def element_blocks(mesh: Mesh) -> list[np.ndarray]:
     return [np.asarray(b.data) for b in mesh.cells]
@@ -166,6 +200,7 @@ def build_tool(
     element_face: list[np.ndarray] | np.ndarray | None = None,
     straddling: np.ndarray | None = None,
     boundary_curves: bool = True,
+    measure: bool = True,
 ) -> ToolResult:
     """Nagata patches over ``mesh`` with the given normals and their errors against the CAD
     (`cadbridge.tool.accuracy`: surface, boundary, flat surface and normal errors).
@@ -174,7 +209,8 @@ def build_tool(
     element centroids are projected. straddling: global element ids (block order) that
     straddle a crease (`cadbridge.heal.creases.straddling_elements`), named in the diagnosis.
     boundary_curves: free boundary edges follow their faces' trim curves
-    (`cadbridge.nagata.boundary_edges`; needs ``model``)."""
+    (`cadbridge.nagata.boundary_edges`; needs ``model``). measure: False skips the errors
+    against the CAD (no stats; the guards' ``trips`` and lines only)."""
     from cadbridge.nagata import NagataMesh
 
     progress = progress or NoProgress()
@@ -209,7 +245,11 @@ def build_tool(
     sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
     stats: dict = {}
     diagnosis: list[str] = []
-    if model is not None:
+    if straddling is not None and remap is not None:  # given in block order: to the tool's numbering
+        inv = np.empty_like(remap)
+        inv[remap] = np.arange(len(remap))
+        straddling = inv[np.asarray(straddling, dtype=np.int64)]
+    if model is not None and measure:
         from cadbridge.tool.accuracy import tool_errors
 
         progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
@@ -218,19 +258,23 @@ def build_tool(
                       flat_surface_error=err.flat_surface, normal_error=err.normal, face=err.face)
         stats = err.stats()
         stats["grid"] = grid
-        if straddling is not None and remap is not None:
-            inv = np.empty_like(remap)
-            inv[remap] = np.arange(len(remap))
-            straddling = inv[np.asarray(straddling, dtype=np.int64)]
         diagnosis = _diagnose(nm, err, g.elem, straddling, model.size(), ef)
-    strad = _straddling_ids(nm, straddling, ef)
-    if len(strad):
-        more = f" (and {len(strad) - 10} more)" if len(strad) > 10 else ""
-        diagnosis.insert(0, f"mesh straddles a crease: elements {', '.join(str(int(e) + 1) for e in strad[:10])}"
-                            f"{more} (1-based, {len(strad)} in all) have corners on both sides of a crease line or "
-                            f"sharp edge, and no normal can make a patch fold inside an element; remesh with mesh "
-                            f"edges on the creases (cadbridge convert does)")
-    turned = sorted(set(reversed_normal_elements(nm).tolist()) - set(strad.tolist()))
+    trips = guard_trips(nm, straddling, ef)
+    diagnosis = _guard_lines(trips, ef, model) + diagnosis
+    return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance,
+                      ef, diagnosis, trips)
+
+
+def _guard_lines(trips: GuardTrips, ef, model) -> list[str]:
+    """The diagnosis lines of the guards that ``trips`` trip (folded, reversed, straddling, in
+    that order), elements 1-based; ``ef`` (E,) element faces and ``model`` name the faces."""
+    lines = []
+    folded, turned, strad = trips.folded, trips.reversed.tolist(), trips.straddling
+    if len(folded):
+        more = f" (and {len(folded) - 10} more)" if len(folded) > 10 else ""
+        lines.append(f"mesh folds over itself: elements {', '.join(str(int(e) + 1) for e in folded[:10])}{more} "
+                     f"(1-based, {len(folded)} in all) are wound against the normals at all their corners "
+                     f"(overlapping elements); remesh")
     if turned:
         more = f" (and {len(turned) - 10} more)" if len(turned) > 10 else ""
         where = ""
@@ -238,19 +282,18 @@ def build_tool(
             fs = np.unique(ef[turned])
             where = " on face " + ", ".join(f"{int(f)} ({model.faces[int(f)].name or 'DE %d' % model.faces[int(f)].de})"
                                              for f in fs[:3])
-        diagnosis.insert(0, f"the CAD normal reverses inside elements {', '.join(str(e + 1) for e in turned[:10])}"
-                            f"{more} (1-based, {len(turned)} in all){where}: their corner normals differ by more "
-                            f"than {REVERSAL_DEG:.0f} degrees, so the surface folds back over itself there or the "
-                            f"elements span more than that of its turn; no quadratic patch can follow it (check the "
-                            f"face in CAD, or refine)")
-    folded = folded_elements(nm)
-    if len(folded):
-        more = f" (and {len(folded) - 10} more)" if len(folded) > 10 else ""
-        diagnosis.insert(0, f"mesh folds over itself: elements {', '.join(str(int(e) + 1) for e in folded[:10])}{more} "
-                            f"(1-based, {len(folded)} in all) are wound against the normals at all their corners "
-                            f"(overlapping elements); remesh")
-    return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance,
-                      ef, diagnosis)
+        lines.append(f"the CAD normal reverses inside elements {', '.join(str(e + 1) for e in turned[:10])}"
+                     f"{more} (1-based, {len(turned)} in all){where}: their corner normals differ by more "
+                     f"than {REVERSAL_DEG:.0f} degrees, so the surface folds back over itself there or the "
+                     f"elements span more than that of its turn; no quadratic patch can follow it (check the "
+                     f"face in CAD, or refine)")
+    if len(strad):
+        more = f" (and {len(strad) - 10} more)" if len(strad) > 10 else ""
+        lines.append(f"mesh straddles a crease: elements {', '.join(str(int(e) + 1) for e in strad[:10])}"
+                     f"{more} (1-based, {len(strad)} in all) have corners on both sides of a crease line or "
+                     f"sharp edge, and no normal can make a patch fold inside an element; remesh with mesh "
+                     f"edges on the creases (cadbridge convert does)")
+    return lines
 
 def folded_elements(nm) -> np.ndarray:
     """Elements (global ids) whose polyhedral normal (winding) points against the normal at
@@ -434,13 +477,15 @@ def tools_from_mesh(
     progress=None,
     orient: bool = False,
     meshed_per_face: bool = False,
+    measure: bool = True,
 ) -> list[ToolResult]:
     """Tools of ``mesh`` on ``model`` (None: estimated normals, no CAD errors): normals
     (`tool_normals`), one tool per connected part (`tool_groups`), Nagata patches and their
     errors (`build_tool`). ``orient``: re-orient an inconsistently wound mesh
     (`consistently_oriented`) instead of raising. ``meshed_per_face``: the mesh was made face
     by face from this CAD (gmsh), so no element can span two faces; only crease lines inside
-    faces are checked for straddling elements."""
+    faces are checked for straddling elements. ``measure``: False skips the errors against
+    the CAD (`build_tool`)."""
     progress = progress or NoProgress()
     mesh = consistently_oriented(mesh, orient)
     progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
@@ -483,16 +528,20 @@ def tools_from_mesh(
             node_distance=None if node_dist is None else node_dist[used],
             projector=projector, progress=progress,
             element_face=None if elem_face is None else np.concatenate(elem_face)[sel],
-            straddling=np.flatnonzero(straddle[sel]),
+            straddling=np.flatnonzero(straddle[sel]), measure=measure,
         ))
     return tools
 
-def check_tools(tools: list[ToolResult], allow_worse: bool = False) -> None:
+def check_tools(tools: list[ToolResult], allow_worse: bool = False, refinement_rounds: int = 0) -> None:
     """The guard: raise `ToolQualityError` if a tool has elements that straddle a crease, or
     its Nagata surface is worse than its flat mesh (max surface error on the same samples),
     naming the worst elements and why; ``allow_worse`` lets such tools through (for
-    inspection: the summary still says so)."""
+    inspection: the summary still says so). ``refinement_rounds``: how many times the mesh
+    was made again finer where the guards tripped (`cadbridge.tool.guard_refinement`), said
+    in the message."""
     bad = [t for t in tools if t.diagnosis]
     if bad and not allow_worse:
         msg = " | ".join(f"{t.name}: {d}" for t in bad for d in t.diagnosis)
-        raise ToolQualityError(f"{msg} (nothing written; --allow-worse writes the tool anyway, for inspection)")
+        rounds = (f"after {refinement_rounds} refinement round{'s' if refinement_rounds > 1 else ''}; "
+                  if refinement_rounds else "")
+        raise ToolQualityError(f"{msg} ({rounds}nothing written; --allow-worse writes the tool anyway, for inspection)")
