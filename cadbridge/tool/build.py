@@ -17,7 +17,7 @@ import numpy as np
 from cadbridge.common.progress import NoProgress
 from cadbridge.mesh.mesh import CellBlock, Mesh
 
-__all__ = ['CadProjector', 'GuardTrips', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'guard_trips', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
+__all__ = ['CadProjector', 'GuardTrips', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'guard_trips', 'measure_tool', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
 
 
 class ToolQualityError(ValueError):
@@ -209,8 +209,9 @@ def build_tool(
     element centroids are projected. straddling: global element ids (block order) that
     straddle a crease (`cadbridge.heal.creases.straddling_elements`), named in the diagnosis.
     boundary_curves: free boundary edges follow their faces' trim curves
-    (`cadbridge.nagata.boundary_edges`; needs ``model``). measure: False skips the errors
-    against the CAD (no stats; the guards' ``trips`` and lines only)."""
+    (`cadbridge.nagata.boundary_edges`; needs ``model``). measure: False leaves out the sample
+    grid and the errors against the CAD (`measure_tool` adds them later; the guards'
+    ``trips`` and lines only)."""
     from cadbridge.nagata import NagataMesh
 
     progress = progress or NoProgress()
@@ -240,29 +241,41 @@ def build_tool(
             edge_normals = boundary_conormals(mesh, corner_normals, ef, model).as_edge_normals()
     progress.stage(f"{name}: Nagata patches")
     nm = NagataMesh(mesh.nodes, element_blocks(mesh), corner_normals, edge_normals=edge_normals)
-    grid = sample_divisions(nm, grid)
-    g = nm.sample_grid(grid)
-    sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
-    stats: dict = {}
-    diagnosis: list[str] = []
     if straddling is not None and remap is not None:  # given in block order: to the tool's numbering
         inv = np.empty_like(remap)
         inv[remap] = np.arange(len(remap))
         straddling = inv[np.asarray(straddling, dtype=np.int64)]
-    if model is not None and measure:
-        from cadbridge.tool.accuracy import tool_errors
-
-        progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
-        err = tool_errors(nm, g.elem, g.eta, g.zeta, ef, model, projector.project)
-        sample.update(surface_error=err.surface, boundary_error=err.boundary,
-                      flat_surface_error=err.flat_surface, normal_error=err.normal, face=err.face)
-        stats = err.stats()
-        stats["grid"] = grid
-        diagnosis = _diagnose(nm, err, g.elem, straddling, model.size(), ef)
     trips = guard_trips(nm, straddling, ef)
-    diagnosis = _guard_lines(trips, ef, model) + diagnosis
-    return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance,
-                      ef, diagnosis, trips)
+    tool = ToolResult(name, mesh, normals, corner_normals, source, nm, {}, {}, node_face, node_distance, ef,
+                      _guard_lines(trips, ef, model), trips)
+    if measure:
+        measure_tool(tool, model, projector=projector, grid=grid, progress=progress)
+    return tool
+
+
+def measure_tool(tool: ToolResult, model, *, projector: CadProjector | None = None, grid: int = 10,
+                 progress=None) -> None:
+    """The sample grid of ``tool`` (``grid`` divisions per patch at most, `sample_divisions`)
+    and, with a ``model``, its errors against the CAD (`cadbridge.tool.accuracy.tool_errors`):
+    sets ``tool.grid`` and ``tool.stats``, and adds the diagnosis line of a tool worse than
+    its flat mesh (`_diagnose`) after the guards' lines."""
+    progress = progress or NoProgress()
+    nm = tool.nagata
+    grid = sample_divisions(nm, grid)
+    g = nm.sample_grid(grid)
+    tool.grid = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
+    if model is None:
+        return
+    from cadbridge.tool.accuracy import tool_errors
+
+    projector = projector or CadProjector(model, progress)
+    progress.stage(f"{tool.name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
+    err = tool_errors(nm, g.elem, g.eta, g.zeta, tool.element_face, model, projector.project)
+    tool.grid.update(surface_error=err.surface, boundary_error=err.boundary,
+                     flat_surface_error=err.flat_surface, normal_error=err.normal, face=err.face)
+    tool.stats = err.stats()
+    tool.stats["grid"] = grid
+    tool.diagnosis += _diagnose(nm, err, g.elem, tool.trips.straddling, model.size())
 
 
 def _guard_lines(trips: GuardTrips, ef, model) -> list[str]:
@@ -372,7 +385,7 @@ def sample_divisions(nm, grid: int, budget: int = SAMPLE_BUDGET) -> int:
         n -= 1
     return n
 
-def _diagnose(nm, err, elem: np.ndarray, straddling, size: float, element_face=None) -> list[str]:
+def _diagnose(nm, err, elem: np.ndarray, straddling: np.ndarray, size: float) -> list[str]:
     """Lines naming the elements (1-based, tool-file numbering) whose Nagata surface error
     exceeds their flat element's, worst first, each with the reason: straddles a crease,
     inadmissible edge (|c . d| >= |d|^2: the edge curve turns back), bad normal (a corner
@@ -385,7 +398,7 @@ def _diagnose(nm, err, elem: np.ndarray, straddling, size: float, element_face=N
     if s["max_abs_surface_error"] <= max(s["max_abs_flat_surface_error"], floor):
         return []
     worst, nag, flat = worst_elements(err, elem, nm.n_elements, floor)
-    strad = set(_straddling_ids(nm, straddling, element_face).tolist())
+    strad = set(np.asarray(straddling).tolist())
     reasons = []
     for e, a, b in zip(worst[:5].tolist(), nag[:5], flat[:5]):  # the five worst, for the message
         reasons.append(f"element {e + 1} ({a:.3g} vs flat {b:.3g}): {_reason(nm, e, strad)}")
@@ -532,16 +545,15 @@ def tools_from_mesh(
         ))
     return tools
 
-def check_tools(tools: list[ToolResult], allow_worse: bool = False, refinement_rounds: int = 0) -> None:
+def check_tools(tools: list[ToolResult], allow_worse: bool = False, refinement: str = "") -> None:
     """The guard: raise `ToolQualityError` if a tool has elements that straddle a crease, or
     its Nagata surface is worse than its flat mesh (max surface error on the same samples),
     naming the worst elements and why; ``allow_worse`` lets such tools through (for
-    inspection: the summary still says so). ``refinement_rounds``: how many times the mesh
-    was made again finer where the guards tripped (`cadbridge.tool.guard_refinement`), said
-    in the message."""
+    inspection: the summary still says so). ``refinement``: what the refinement where the
+    guards tripped did (`cadbridge.tool.guard_refinement.GuardRefinement.failure`, e.g.
+    "after 3 refinement rounds"), said in the message."""
     bad = [t for t in tools if t.diagnosis]
     if bad and not allow_worse:
         msg = " | ".join(f"{t.name}: {d}" for t in bad for d in t.diagnosis)
-        rounds = (f"after {refinement_rounds} refinement round{'s' if refinement_rounds > 1 else ''}; "
-                  if refinement_rounds else "")
-        raise ToolQualityError(f"{msg} ({rounds}nothing written; --allow-worse writes the tool anyway, for inspection)")
+        done = f"{refinement}; " if refinement else ""
+        raise ToolQualityError(f"{msg} ({done}nothing written; --allow-worse writes the tool anyway, for inspection)")

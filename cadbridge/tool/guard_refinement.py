@@ -4,30 +4,36 @@ with a local size field that is finer there, a few rounds at most.
 
 One round of `refine_where_guards_trip`:
 
-1. **Marks.** Every element that trips (`GuardTrips.refinable`) asks for a new size: its
-   longest edge h times 1/2, or times MAX_TURN / a where its corner normals are a > 120
-   degrees apart (the normal turns at least that much across it; the new elements should
-   turn it by at most MAX_TURN = 60 degrees each, the limit of the Nagata error law,
-   `cadbridge.mesh.sizing`), over a ball about the element (`cadbridge.tool.refine.element_marks`:
-   the nodes gmsh makes there read the size asked). Marks add up over the rounds.
-2. **Field.** The carriers are the nodes of the first mesh, each with the mean length of its
-   edges there (the sizes gmsh chose by its own rules: ``size`` and the curvature rule), and
-   the marks; the field is the graded minimum of them (`cadbridge.mesh.sizing.SizeField`, g =
-   0.5), so the smaller size wins and the sizes grow smoothly away from the marks. gmsh gets
-   it as ``background_sizes`` with the curvature rule off: gmsh clamps every size, the field's
-   too, to the curvature rule's floor (``Mesh.MeshSizeMin`` = size / 20), which is what the
-   marks must go below on a tight radius; the first mesh's sizes already hold that rule.
+1. **Marks.** Every element that trips (`GuardTrips.refinable`) asks for a new size: MAX_TURN
+   / k, k the largest principal curvature of the CAD over the element (`turn_curvature`: an
+   element over a tight turn has its corners on the flat sides and the turn between them),
+   so that no new element turns the normal by more than MAX_TURN = 60 degrees (the limit of
+   the Nagata error law, `cadbridge.mesh.sizing`); at most half its longest edge h, at least
+   h / 16 (`MIN_FACTOR`) per round. The size holds over a ball about the element of radius
+   its reach plus h (`cadbridge.mesh.sizing.ball_marks`): the sides next to a tight turn
+   lie close to each other, and elements a little farther out must not bridge the gap.
+   Marks add up over the rounds.
+2. **Field.** The first mesh's nodes, each with the mean length of its edges there (the
+   sizes gmsh chose by its own rules: ``size`` and the curvature rule), and the marks; the
+   field is their graded minimum (`cadbridge.mesh.sizing.SizeField`, `GRADATION` 0.3), so the
+   smaller size wins and the sizes grow smoothly away from the marks, read at the nodes, the
+   marks and balls of growing radius about the marked elements (`grading_carriers`: gmsh
+   takes the size of the nearest carrier). gmsh gets it as ``background_sizes`` with the
+   curvature rule off: gmsh clamps every size, the field's too, to the curvature rule's
+   floor (``Mesh.MeshSizeMin`` = size / 20), which is what the marks must go below on a
+   tight radius; the first mesh's sizes already hold that rule.
 3. **Mesh and check** again (the caller's ``remesh`` and ``build``).
 
-The loop stops when no element trips (converged), when a round leaves as many or more
-elements tripping than the one before (refinement does not cure them: a crease the mesh does
-not follow, a seam, a degenerate element), after ``rounds`` rounds, or when a round's mesh
-or projection fails (the round before stands). Lengths in model units.
+The loop stops when no element trips (converged); when a round does not shrink the
+tripping elements' area below `PROGRESS` x what it was (refinement does not cure them: a
+crease the mesh does not follow, a seam, a degenerate element; the mesh before that round
+stands); after ``rounds`` rounds; or when a round's mesh or projection fails (the round
+before stands). Their count is no measure: where a tight turn is meshed finer, more and
+smaller elements trip until they are small enough. Lengths in model units.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -42,9 +48,15 @@ __all__ = ["GUARD_ROUNDS", "GRADATION", "GuardRefinement", "node_sizes", "refine
 GUARD_ROUNDS = 3
 """Rounds of refinement at most before the guards' message stands."""
 GRADATION = 0.3
-"""How fast the local field grows away from a mark (an element next to one of size h: 1.3 h)."""
+"""How fast the local field grows away from a mark (an element next to one of size h: 1.3 h).
+Below the 0.5 of `cadbridge.mesh.sizing`: the two sides beside a tight turn part at about
+2 sin(a / 2) per unit length (a: the angle between them, 0.85 at a turn of 130 degrees), and
+elements growing faster than that bridge them."""
 MIN_FACTOR = 1.0 / 16.0
 """The smallest factor on an element's size in one round."""
+PROGRESS = 0.75
+"""A round must leave the tripping elements' area (`_tripping_area`) below this x the area
+before it, or the loop stops with the mesh before it."""
 
 
 @dataclass
@@ -58,10 +70,28 @@ class GuardRefinement:
     rounds: int = 0
     converged: bool = True
     notes: list[str] = field(default_factory=list)
+    failed_round: str = ""  # why the last round tried gave no mesh to check, if it did not
+
+    @property
+    def failure(self) -> str:
+        """What the refinement did, for the guards' message where it did not converge: "after N
+        refinement rounds" (and why the round after them failed); "" with no round tried."""
+        done = f"after {self.rounds} refinement round{'' if self.rounds == 1 else 's'}" if self.rounds else ""
+        if not self.failed_round:
+            return done
+        failed = f"refinement round {self.rounds + 1} failed: {self.failed_round}"
+        return f"{done}; {failed}" if done else failed
 
 
 def _tripping(tools: list[ToolResult]) -> int:
     return sum(len(t.trips.refinable) for t in tools if t.trips is not None)
+
+
+def _tripping_area(tools: list[ToolResult]) -> float:
+    """Sum of the squared longest edges of the tripping elements [length^2]: what a round must
+    shrink (their count grows where a tight turn is meshed finer, their area falls)."""
+    return float(sum(np.sum(_longest_edges(t.nagata, t.trips.refinable) ** 2) for t in tools
+                     if t.trips is not None and len(t.trips.refinable)))
 
 
 def _longest_edges(nm, ids: np.ndarray) -> np.ndarray:
@@ -76,44 +106,58 @@ def _longest_edges(nm, ids: np.ndarray) -> np.ndarray:
     return h
 
 
+def _box_samples(lo: float, hi: float, knots: np.ndarray, samples: int) -> np.ndarray:
+    """Parameters over [lo, hi]: ``samples`` evenly, the knots inside and the middle of every
+    knot span between them (a tight turn lies within a few spans: these find it however
+    small it is against the box)."""
+    k = np.unique(knots[(knots > lo) & (knots < hi)])
+    ends = np.concatenate([[lo], k, [hi]])
+    return np.unique(np.concatenate([np.linspace(lo, hi, samples), k, 0.5 * (ends[1:] + ends[:-1])]))
+
+
 def turn_curvature(nm, ids: np.ndarray, faces: np.ndarray, model, samples: int = 9) -> np.ndarray:
     """Largest |principal curvature| (K,) [1/length] of the CAD over each element ``ids`` (K,)
-    of the `NagataMesh` ``nm``: on a ``samples`` x ``samples`` grid over the (u, v) box of its
-    corners' feet on its face ``faces`` (K,) (an element that spans a tight turn has its
-    corners on the flat sides and the turn between them); 0 where no curvature is finite."""
+    of the `NagataMesh` ``nm``: over the (u, v) box of its corners' feet on its face ``faces``
+    (K,), on a grid of ``samples`` parameters per direction plus the knots inside the box and
+    the middles of their spans (`_box_samples`); an element that spans a tight turn has its
+    corners on the flat sides and the turn between them. 0 where no curvature is finite."""
     from cadbridge.nurbs.curvature import principal_curvatures
     from cadbridge.nurbs.project import project_to_surface
 
     out = np.zeros(len(ids))
     kind, local = nm.element_kind[ids], nm.element_local[ids]
-    t = np.linspace(0.0, 1.0, samples)
-    a, b = (g.ravel() for g in np.meshgrid(t, t, indexing="ij"))
-    for f in np.unique(faces):  # loop over faces, vectorised over elements and samples
+    for f in np.unique(faces):  # loop over faces, vectorised over their elements' samples
         if f < 0:
             continue
         s = model.faces[int(f)].surface
+        sel = np.flatnonzero(faces == f)
+        uv = np.zeros((len(sel), 4))  # the (u, v) box of each element's corners
         for k, conn in ((3, nm.tri_elements), (4, nm.quad_elements)):
-            sel = np.flatnonzero((faces == f) & (kind == k))
-            if not len(sel):
-                continue
-            pr = project_to_surface(s, nm.nodes[conn[local[sel]]].reshape(-1, 3))
-            u, v = pr.u.reshape(len(sel), k), pr.v.reshape(len(sel), k)
-            uu = u.min(axis=1)[:, None] + np.ptp(u, axis=1)[:, None] * a[None]  # (S, samples^2)
-            vv = v.min(axis=1)[:, None] + np.ptp(v, axis=1)[:, None] * b[None]
-            k1, k2 = principal_curvatures(s, uu.ravel(), vv.ravel())
-            kmax = np.maximum(np.abs(k1), np.abs(k2)).reshape(len(sel), -1)
-            out[sel] = np.max(np.where(np.isfinite(kmax), kmax, 0.0), axis=1)
+            on = np.flatnonzero(kind[sel] == k)
+            if len(on):
+                pr = project_to_surface(s, nm.nodes[conn[local[sel[on]]]].reshape(-1, 3))
+                u, v = pr.u.reshape(len(on), k), pr.v.reshape(len(on), k)
+                uv[on] = np.column_stack([u.min(axis=1), u.max(axis=1), v.min(axis=1), v.max(axis=1)])
+        grids = [np.meshgrid(_box_samples(a, b, s.knots_u, samples), _box_samples(c, d, s.knots_v, samples),
+                             indexing="ij") for a, b, c, d in uv]  # loop over the few tripping elements
+        owner = np.concatenate([np.full(g[0].size, i) for i, g in enumerate(grids)])
+        k1, k2 = principal_curvatures(s, np.concatenate([g[0].ravel() for g in grids]),
+                                      np.concatenate([g[1].ravel() for g in grids]))
+        kmax = np.maximum(np.abs(k1), np.abs(k2))
+        best = np.zeros(len(sel))
+        np.maximum.at(best, owner, np.where(np.isfinite(kmax), kmax, 0.0))
+        out[sel] = best
     return out
 
 
-def trip_marks(tools: list[ToolResult], model) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def trip_marks(tools: list[ToolResult], model) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
     """Refinement marks (points (M, 3), sizes (M,)) at the elements of ``tools`` that trip the
-    guards (module docs, step 1), and per tool a phrase naming how many elements on which
-    faces of ``model``."""
+    guards (module docs, step 1), the centroids (K, 3) of those elements, and per tool a
+    phrase naming how many elements on which faces of ``model``."""
     from cadbridge.mesh.sizing import MAX_TURN, ball_marks
     from cadbridge.tool.refine import _reach
 
-    pts, sizes, where = [np.zeros((0, 3))], [np.zeros(0)], []
+    pts, sizes, centres, where = [np.zeros((0, 3))], [np.zeros(0)], [np.zeros((0, 3))], []
     for t in tools:
         ids = t.trips.refinable if t.trips is not None else np.zeros(0, dtype=np.int64)
         if not len(ids):
@@ -128,12 +172,13 @@ def trip_marks(tools: list[ToolResult], model) -> tuple[np.ndarray, np.ndarray, 
         p, s = ball_marks(cen, _reach(t.mesh, ids, cen) + h, size)
         pts.append(p)
         sizes.append(s)
+        centres.append(cen)
         faces = "" if t.element_face is None else " on " + ", ".join(
             model.faces[int(f)].name or f"DE {model.faces[int(f)].de}" for f in np.unique(t.element_face[ids])[:6])
         kinds = [f"{len(t.trips.reversed)} with a reversing normal"] if len(t.trips.reversed) else []
         kinds += [f"{len(t.trips.straddling)} straddling a crease"] if len(t.trips.straddling) else []
         where.append(f"{t.name}: {' and '.join(kinds)}{faces}")
-    return np.concatenate(pts), np.concatenate(sizes), where
+    return np.concatenate(pts), np.concatenate(sizes), np.concatenate(centres), where
 
 
 def _centroids(mesh: Mesh, ids: np.ndarray) -> np.ndarray:
@@ -154,19 +199,42 @@ def node_sizes(mesh: Mesh) -> np.ndarray:
     return np.where(count > 0, total / np.maximum(count, 1.0), 0.0)
 
 
-def local_sizes(first: Mesh, mark_points: np.ndarray, mark_sizes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def grading_carriers(centres: np.ndarray, radius: float, reach: float) -> np.ndarray:
+    """Points (M, 3) about ``centres`` (K, 3) at which a graded field is read, for gmsh's
+    nearest-carrier view of it (`cadbridge.mesh.sizing.SizeField.background`): without them a
+    point a few elements from a mark takes the mark's size, the nearest carrier being the
+    mark (the first mesh has few nodes where its elements were large). Balls of radius
+    ``radius`` x 2^j, j = 1, 2, ... up to ``reach``, each a lattice of spacing a third of its
+    radius (`cadbridge.mesh.sizing.ball_marks`), about the centres snapped to a grid of
+    half that radius (one ball per grid cell: overlapping balls add nothing)."""
+    from cadbridge.mesh.sizing import ball_marks
+
+    out = [np.zeros((0, 3))]
+    r = 2.0 * radius
+    while r <= 2.0 * reach:
+        cells = np.unique(np.round(centres / (0.5 * r)), axis=0) * (0.5 * r)
+        out.append(ball_marks(cells, np.full(len(cells), r), np.zeros(len(cells)))[0])
+        r *= 2.0
+    return np.concatenate(out)
+
+
+def local_sizes(first: Mesh, mark_points: np.ndarray, mark_sizes: np.ndarray, centres: np.ndarray,
+                radius: float) -> tuple[np.ndarray, np.ndarray]:
     """``background_sizes`` (points (M, 3), sizes (M,)) of a round (module docs, step 2): the
-    nodes of the ``first`` mesh with their `node_sizes`, and the marks, graded."""
+    nodes of the ``first`` mesh with their `node_sizes` and the marks, graded, read at those
+    points, the marks and the `grading_carriers` about the marked elements' ``centres`` (K, 3)
+    (innermost ball ``radius``)."""
     from cadbridge.mesh.sizing import SizeField
 
     h = node_sizes(first)
     used = h > 0
     h_max = float(h[used].max())
+    h_min = float(np.min(mark_sizes, initial=h_max))
     field = SizeField(np.vstack([first.nodes[used], mark_points]), np.concatenate([h[used], mark_sizes]),
-                      h_min=float(np.min(mark_sizes, initial=h_max)), h_max=h_max, gradation=GRADATION)
-    # the nodes' own sizes bound nothing at h_max in SizeField (samples at h_max are left out):
-    # carriers at the largest size keep it, as their nodes did
-    return field.background()
+                      h_min=h_min, h_max=h_max, gradation=GRADATION)
+    # (nodes at the largest size bound nothing in the field; as carriers they keep that size)
+    extra = grading_carriers(centres, radius, (h_max - h_min) / GRADATION)
+    return field.background(extra)
 
 
 def refine_where_guards_trip(
@@ -197,23 +265,30 @@ def refine_where_guards_trip(
     out = GuardRefinement(mesh, tools, list(mesh_notes), converged=n == 0)
     if n == 0:
         return out
-    marks_p, marks_h = np.zeros((0, 3)), np.zeros(0)
+    marks_p, marks_h, centres = np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))
     for r in range(1, rounds + 1):
-        p, h, where = trip_marks(out.tools, model)
-        marks_p, marks_h = np.vstack([marks_p, p]), np.concatenate([marks_h, h])
+        p, h, c, where = trip_marks(out.tools, model)
+        marks_p, marks_h, centres = np.vstack([marks_p, p]), np.concatenate([marks_h, h]), np.vstack([centres, c])
         progress.stage(f"refinement round {r} of at most {rounds}: meshing again finer at {n} elements where the "
                        f"tool guards tripped ({'; '.join(where)}; sizes down to {h.min():.3g})")
         try:
-            new_mesh, new_notes = remesh(local_sizes(mesh, marks_p, marks_h))
+            new_mesh, new_notes = remesh(local_sizes(mesh, marks_p, marks_h, centres, float(marks_h.min())))
             new_tools = build(new_mesh)
         except ValueError as exc:  # MeshError, ProjectionError, a measure that failed: the round before stands
-            out.notes.append(f"refinement round {r} ({'; '.join(where)}): its mesh failed: {exc}")
+            first = str(exc).split(": node ")[0].split("; ")[0]  # its first clause: one line stays short
+            out.failed_round = first[:160] + ("..." if len(first) > 160 else "")
+            out.notes.append(f"refinement round {r} ({'; '.join(where)}): failed: {out.failed_round}")
             break
-        m = _tripping(new_tools)
-        out.notes.append(f"refinement round {r}: {n} elements refined ({'; '.join(where)}; sizes down to "
-                         f"{h.min():.3g}): {len(new_mesh.nodes)} nodes, {m} elements tripping after it")
-        out.mesh, out.tools, out.mesh_notes, out.rounds = new_mesh, new_tools, list(new_notes), r
-        if m == 0 or m >= n:
+        m, area = _tripping(new_tools), _tripping_area(new_tools)
+        line = (f"refinement round {r}: {n} elements refined ({'; '.join(where)}; sizes down to {h.min():.3g}): "
+                f"{len(new_mesh.nodes)} nodes, {m} elements tripping after it")
+        out.rounds = r
+        if m and area > PROGRESS * _tripping_area(out.tools):  # refinement does not cure these elements
+            out.notes.append(line + "; the mesh before it kept")
+            break
+        out.notes.append(line)
+        out.mesh, out.tools, out.mesh_notes = new_mesh, new_tools, list(new_notes)
+        if m == 0:
             break
         n = m
     out.converged = _tripping(out.tools) == 0

@@ -15,7 +15,8 @@ from typing import Callable
 import numpy as np
 
 from cadbridge.mesh.mesh import Mesh
-from cadbridge.tool.build import CadProjector, check_tools, NoProgress, ToolQualityError, ToolResult, tools_from_mesh
+from cadbridge.tool.build import (CadProjector, check_tools, measure_tool, NoProgress, ToolQualityError, ToolResult,
+                                  tools_from_mesh)
 from cadbridge.tool import outputs
 from cadbridge.tool.meshing import healed_notes, mesh_for_tools, read_cad
 from cadbridge.tool.outputs import staged_output, write_tool_outputs
@@ -210,22 +211,25 @@ def convert(
         projector = CadProjector(model, progress)
     stem = Path(cad).stem
 
-    def build(m: Mesh) -> list[ToolResult]:
+    def build(m: Mesh) -> list[ToolResult]:  # the tools and their guards; errors vs CAD measured last
         m.name = stem
         return tools_from_mesh(m, model, method=method, grid=grid, tolerance=tolerance, flip=flip,
-                               projector=projector, progress=progress, orient=True, meshed_per_face=True)
+                               projector=projector, progress=progress, orient=True, meshed_per_face=True,
+                               measure=False)
 
-    rounds = 0
+    refined = ""
     if adaptive is None:
         guarded = guarded_mesh(cad, model, excursions=excursions, build=build, progress=progress, element=element,
                                size=size, structured=structured, radius_divisions=radius_divisions,
                                length_divisions=length_divisions, curvature_elements=curvature_elements,
                                mesher=mesher)
         mesh, tools, notes = guarded.mesh, guarded.tools, guarded.mesh_notes + guarded.notes
-        rounds = 0 if guarded.converged else guarded.rounds
+        refined = "" if guarded.converged else guarded.failure
     else:
         tools = build(mesh)
-    check_tools(tools, allow_worse, refinement_rounds=rounds)
+    for t in tools:
+        measure_tool(t, model, projector=projector, grid=grid, progress=progress)
+    check_tools(tools, allow_worse, refinement=refined)
     result = RunResult(Path(output), tools, notes=notes)
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
