@@ -4,15 +4,17 @@ with a local size field that is finer there, a few rounds at most.
 
 One round of `refine_where_guards_trip`:
 
-1. **Marks.** Every element that trips (`GuardTrips.refinable`) asks for a new size: MAX_TURN
-   / k, k the largest principal curvature of the CAD over the element (`turn_curvature`: an
-   element over a tight turn has its corners on the flat sides and the turn between them),
-   so that no new element turns the normal by more than MAX_TURN = 60 degrees (the limit of
-   the Nagata error law, `cadbridge.mesh.sizing`); at most half its longest edge h, at least
-   h / 16 (`MIN_FACTOR`) per round. The size holds over a ball about the element of radius
-   its reach plus h (`cadbridge.mesh.sizing.ball_marks`): the sides next to a tight turn
-   lie close to each other, and elements a little farther out must not bridge the gap.
-   Marks add up over the rounds.
+1. **Marks.** Every element that trips (`GuardTrips.refinable`) asks for a new size:
+   `TURN_PER_ELEMENT` / k, k the largest principal curvature of the CAD over the element
+   (`turn_curvature`: an element over a tight turn has its corners on the flat sides and the
+   turn between them), 30 degrees of the turn per element as convert's curvature rule asks
+   (12 per full turn): gmsh's quads come out up to ~1.7 x the size asked, so asking for
+   MAX_TURN = 60 degrees, the limit of the Nagata error law (`cadbridge.mesh.sizing`), left
+   elements over 120 degrees on a 130-degree turn; at most half its longest edge h, at least
+   h / 64 (`MIN_FACTOR`) per round, so that a tight turn gets the size it needs in one
+   round. The size holds over a ball about the element of radius its reach plus that size
+   (`cadbridge.mesh.sizing.ball_marks`: the nodes gmsh makes there read it). Marks add up
+   over the rounds.
 2. **Field.** The first mesh's nodes, each with the mean length of its edges there (the
    sizes gmsh chose by its own rules: ``size`` and the curvature rule), and the marks; the
    field is their graded minimum (`cadbridge.mesh.sizing.SizeField`, `GRADATION` 0.3), so the
@@ -24,12 +26,11 @@ One round of `refine_where_guards_trip`:
    tight radius; the first mesh's sizes already hold that rule.
 3. **Mesh and check** again (the caller's ``remesh`` and ``build``).
 
-The loop stops when no element trips (converged); when a round does not shrink the
-tripping elements' area below `PROGRESS` x what it was (refinement does not cure them: a
-crease the mesh does not follow, a seam, a degenerate element; the mesh before that round
-stands); after ``rounds`` rounds; or when a round's mesh or projection fails (the round
-before stands). Their count is no measure: where a tight turn is meshed finer, more and
-smaller elements trip until they are small enough. Lengths in model units.
+The loop stops when no element trips (converged); when a round leaves as many elements
+tripping as before or more (refinement does not cure them: a crease or seam the mesh does not
+follow trips along its length, more elements the finer the mesh; a degenerate element; the
+mesh before that round stands); after ``rounds`` rounds; or when a round's mesh or
+projection fails (the round before stands). Lengths in model units.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from cadbridge.common.progress import NoProgress
 from cadbridge.mesh.mesh import Mesh
 from cadbridge.tool.build import ToolResult
 
-__all__ = ["GUARD_ROUNDS", "GRADATION", "GuardRefinement", "node_sizes", "refine_where_guards_trip", "trip_marks"]
+__all__ = ["GUARD_ROUNDS", "GRADATION", "MIN_FACTOR", "TURN_PER_ELEMENT", "GuardRefinement", "node_sizes", "refine_where_guards_trip", "trip_marks"]
 
 GUARD_ROUNDS = 3
 """Rounds of refinement at most before the guards' message stands."""
@@ -52,11 +53,12 @@ GRADATION = 0.3
 Below the 0.5 of `cadbridge.mesh.sizing`: the two sides beside a tight turn part at about
 2 sin(a / 2) per unit length (a: the angle between them, 0.85 at a turn of 130 degrees), and
 elements growing faster than that bridge them."""
-MIN_FACTOR = 1.0 / 16.0
-"""The smallest factor on an element's size in one round."""
-PROGRESS = 0.75
-"""A round must leave the tripping elements' area (`_tripping_area`) below this x the area
-before it, or the loop stops with the mesh before it."""
+TURN_PER_ELEMENT = np.pi / 6
+"""The turn of the normal [rad] a mark asks each new element to span at most (module docs)."""
+MIN_FACTOR = 1.0 / 64.0
+"""The smallest factor on an element's size in one round (a turn of radius 1e-5 x model size,
+the fold radius of `cadbridge.heal.folds`, in an element of the curvature rule's floor, model
+size / 400, asks for 1 / 40)."""
 
 
 @dataclass
@@ -85,13 +87,6 @@ class GuardRefinement:
 
 def _tripping(tools: list[ToolResult]) -> int:
     return sum(len(t.trips.refinable) for t in tools if t.trips is not None)
-
-
-def _tripping_area(tools: list[ToolResult]) -> float:
-    """Sum of the squared longest edges of the tripping elements [length^2]: what a round must
-    shrink (their count grows where a tight turn is meshed finer, their area falls)."""
-    return float(sum(np.sum(_longest_edges(t.nagata, t.trips.refinable) ** 2) for t in tools
-                     if t.trips is not None and len(t.trips.refinable)))
 
 
 def _longest_edges(nm, ids: np.ndarray) -> np.ndarray:
@@ -150,34 +145,91 @@ def turn_curvature(nm, ids: np.ndarray, faces: np.ndarray, model, samples: int =
     return out
 
 
+def _span_samples(lo: float, hi: float, knots: np.ndarray, per_span: int) -> np.ndarray:
+    """``per_span`` + 1 parameters over every knot span inside [lo, hi] (ends included)."""
+    k = np.unique(np.concatenate([[lo, hi], knots[(knots > lo) & (knots < hi)]]))
+    t = np.linspace(0.0, 1.0, per_span + 1)[:-1]
+    return np.concatenate([(k[:-1, None] + np.diff(k)[:, None] * t[None]).ravel(), [hi]])
+
+
+def turn_region(surface, curvature: float, size: float, per_span: int = 4, cap: int = 2_000_000) -> np.ndarray:
+    """Points (M, 3) on ``surface`` no farther apart than ``size`` [length] over the whole
+    region where its largest |principal curvature| reaches half ``curvature`` [1/length]:
+    a tight turn found at a few tripping elements runs on along the face, and the next mesh
+    spans it wherever it is left coarse. The region: the cells of a grid of ``per_span``
+    parameters per knot span whose centre has that curvature; each such cell is sampled
+    finer, to ``size`` along both its sides (at most ``cap`` points in all: beyond that the
+    marks stay at the tripping elements)."""
+    from cadbridge.nurbs.curvature import principal_curvatures
+
+    u0, u1, v0, v1 = surface.domain
+    uu = _span_samples(u0, u1, surface.knots_u, per_span)
+    vv = _span_samples(v0, v1, surface.knots_v, per_span)
+    U, V = np.meshgrid(uu, vv, indexing="ij")
+    cu, cv = np.meshgrid(0.5 * (uu[1:] + uu[:-1]), 0.5 * (vv[1:] + vv[:-1]), indexing="ij")  # cell centres
+    k1, k2 = principal_curvatures(surface, cu.ravel(), cv.ravel())
+    k = np.nan_to_num(np.maximum(np.abs(k1), np.abs(k2)), nan=0.0).reshape(cu.shape)
+    ci, cj = np.nonzero(k >= 0.5 * curvature)  # (not by corners: a corner on the knot that ends a
+    if not len(ci):                             # turn's span would take in the flat span beside it)
+        return np.zeros((0, 3))
+    x = surface.evaluate(U.ravel(), V.ravel()).reshape(U.shape + (3,))
+    along_u = np.maximum(np.linalg.norm(x[ci + 1, cj] - x[ci, cj], axis=1), np.linalg.norm(x[ci + 1, cj + 1] - x[ci, cj + 1], axis=1))
+    along_v = np.maximum(np.linalg.norm(x[ci, cj + 1] - x[ci, cj], axis=1), np.linalg.norm(x[ci + 1, cj + 1] - x[ci + 1, cj], axis=1))
+    nu = np.ceil(along_u / size).astype(np.int64) + 1  # chords: the arc between samples is longer only where it turns
+    nv = np.ceil(along_v / size).astype(np.int64) + 1
+    if int(np.sum(nu * nv)) > cap:
+        return np.zeros((0, 3))
+    pu, pv = [], []
+    for i, j, a, b in zip(ci, cj, nu, nv):  # loop over the region's cells (a turn: a strip of them)
+        su, sv = np.meshgrid(np.linspace(uu[i], uu[i + 1], a), np.linspace(vv[j], vv[j + 1], b), indexing="ij")
+        pu.append(su.ravel())
+        pv.append(sv.ravel())
+    return surface.evaluate(np.concatenate(pu), np.concatenate(pv))
+
+
 def trip_marks(tools: list[ToolResult], model) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
     """Refinement marks (points (M, 3), sizes (M,)) at the elements of ``tools`` that trip the
-    guards (module docs, step 1), the centroids (K, 3) of those elements, and per tool a
-    phrase naming how many elements on which faces of ``model``."""
+    guards and at those that come near (module docs, step 1), the centroids (K, 3) of those
+    elements, and per tool a phrase naming how many trip on which faces of ``model``."""
     from cadbridge.mesh.sizing import MAX_TURN, ball_marks
-    from cadbridge.tool.refine import _reach
+    from cadbridge.tool.refine import _normal_turn, _reach
 
     pts, sizes, centres, where = [np.zeros((0, 3))], [np.zeros(0)], [np.zeros((0, 3))], []
     for t in tools:
-        ids = t.trips.refinable if t.trips is not None else np.zeros(0, dtype=np.int64)
-        if not len(ids):
+        trip = t.trips.refinable if t.trips is not None else np.zeros(0, dtype=np.int64)
+        if not len(trip):
             continue
+        ids = trip
+        if t.element_face is not None:  # the rest of a tight turn: it trips wherever the next mesh spans it
+            ef = np.asarray(t.element_face)
+            near = (_normal_turn(t.nagata) > MAX_TURN) & np.isin(ef, ef[trip])
+            ids = np.union1d(trip, np.flatnonzero(near))
         h = _longest_edges(t.nagata, ids)
-        need = np.full(len(ids), np.inf)  # MAX_TURN of the CAD's turn per new element, where it turns
+        need = np.full(len(ids), np.inf)  # TURN_PER_ELEMENT of the CAD's turn per new element, where it turns
         if t.element_face is not None:
             k = turn_curvature(t.nagata, ids, np.asarray(t.element_face)[ids], model)
-            need = np.where(k > 0, MAX_TURN / np.where(k > 0, k, 1.0), np.inf)
+            need = np.where(k > 0, TURN_PER_ELEMENT / np.where(k > 0, k, 1.0), np.inf)
         size = np.clip(need, MIN_FACTOR * h, 0.5 * h)
         cen = _centroids(t.mesh, ids)
-        p, s = ball_marks(cen, _reach(t.mesh, ids, cen) + h, size)
+        p, s = ball_marks(cen, _reach(t.mesh, ids, cen) + size, size)
         pts.append(p)
         sizes.append(s)
         centres.append(cen)
+        if t.element_face is not None:  # the whole tight turn of each face, where its curvature sets the size
+            fid = np.asarray(t.element_face)[ids]
+            for f in np.unique(fid[np.isfinite(need) & (need < 0.5 * h)]):  # loop over the few tripping faces
+                on = fid == f
+                kf, sf = float(np.max(k[on])), float(np.min(size[on]))
+                region = turn_region(model.faces[int(f)].surface, kf, sf)
+                pts.append(region)
+                sizes.append(np.full(len(region), sf))
         faces = "" if t.element_face is None else " on " + ", ".join(
-            model.faces[int(f)].name or f"DE {model.faces[int(f)].de}" for f in np.unique(t.element_face[ids])[:6])
+            model.faces[int(f)].name or f"DE {model.faces[int(f)].de}" for f in np.unique(t.element_face[trip])[:6])
         kinds = [f"{len(t.trips.reversed)} with a reversing normal"] if len(t.trips.reversed) else []
         kinds += [f"{len(t.trips.straddling)} straddling a crease"] if len(t.trips.straddling) else []
-        where.append(f"{t.name}: {' and '.join(kinds)}{faces}")
+        close = (f", and {len(ids) - len(trip)} whose corner normals differ by more than {np.degrees(MAX_TURN):.0f} degrees"
+                 if len(ids) > len(trip) else "")
+        where.append(f"{t.name}: {' and '.join(kinds)}{faces}{close}")
     return np.concatenate(pts), np.concatenate(sizes), np.concatenate(centres), where
 
 
@@ -279,11 +331,11 @@ def refine_where_guards_trip(
             out.failed_round = first[:160] + ("..." if len(first) > 160 else "")
             out.notes.append(f"refinement round {r} ({'; '.join(where)}): failed: {out.failed_round}")
             break
-        m, area = _tripping(new_tools), _tripping_area(new_tools)
+        m = _tripping(new_tools)
         line = (f"refinement round {r}: {n} elements refined ({'; '.join(where)}; sizes down to {h.min():.3g}): "
                 f"{len(new_mesh.nodes)} nodes, {m} elements tripping after it")
         out.rounds = r
-        if m and area > PROGRESS * _tripping_area(out.tools):  # refinement does not cure these elements
+        if m >= n:  # refinement does not cure these elements
             out.notes.append(line + "; the mesh before it kept")
             break
         out.notes.append(line)
