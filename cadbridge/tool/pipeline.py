@@ -184,7 +184,10 @@ def convert(
     ``curvature_elements`` (gmsh ``Mesh.MeshSizeFromCurvature``): elements per full turn of
     the normal; the default 12 gives 30 degrees per element, the normalized edge length 0.52
     of thesis Fig. 8 (0.06 % radial error) and 3 elements across a quarter fillet (§5.2).
-    Raises `ToolQualityError` when a tool is worse than its flat mesh, unless
+    Where elements straddle a crease or the CAD normal reverses inside them, the mesh is made
+    again finer there, 3 rounds at most (`guarded_mesh`); the notes say which faces and
+    elements and how many rounds. Raises `ToolQualityError` when a tool is worse than its
+    flat mesh or those elements remain (the message says after how many rounds), unless
     ``allow_worse``. ``full_report``: the per-patch listings also for tools above
     `cadbridge.tool.outputs.LISTING_MAX_ELEMENTS` elements.
 
