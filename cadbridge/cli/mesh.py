@@ -17,16 +17,21 @@ def cmd_mesh(args: argparse.Namespace) -> int:
         with Progress("cadbridge mesh") as progress:
             return mesh_command(args, progress, say)
     from cadbridge.mesh.io import write_mesh
-    from cadbridge.tool.meshing import mesh_for_tools, read_cad
+    from cadbridge.tool.build import tools_from_mesh
+    from cadbridge.tool.meshing import read_cad
+    from cadbridge.tool.pipeline import guarded_mesh
 
     with Progress("cadbridge mesh") as progress:  # the mesh `convert` builds its tools on
         model, excursions = read_cad(args.cad, progress)
-        mesh, notes = mesh_for_tools(
-            args.cad, model, excursions=excursions, element=args.element, size=args.size,
-            structured=args.structured, radius_divisions=args.radius_divisions,
-            length_divisions=args.length_divisions, curvature_elements=args.curvature_elements,
-            mesher=args.mesher, progress=progress,
+        guarded = guarded_mesh(
+            args.cad, model, excursions=excursions, progress=progress, unchecked_ok=True,
+            build=lambda m: tools_from_mesh(m, model, progress=progress, orient=True, meshed_per_face=True,
+                                            measure=False),  # the guards of convert, without its error measures
+            element=args.element, size=args.size, structured=args.structured,
+            radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
+            curvature_elements=args.curvature_elements, mesher=args.mesher,
         )
+        mesh, notes = guarded.mesh, guarded.mesh_notes + guarded.notes
         write_mesh(mesh, args.output)
     say(f"wrote {args.output}: {len(mesh.nodes)} nodes, {mesh.n_elements} elements")
     for n in notes:

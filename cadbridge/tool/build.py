@@ -17,12 +17,45 @@ import numpy as np
 from cadbridge.common.progress import NoProgress
 from cadbridge.mesh.mesh import CellBlock, Mesh
 
-__all__ = ['CadProjector', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
+__all__ = ['CadProjector', 'GuardTrips', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'guard_trips', 'measure_tool', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
 
 
 class ToolQualityError(ValueError):
     """A Nagata tool whose surface is worse than its own flat mesh (exit code 1 in the CLI):
     the message names the worst elements and why."""
+
+@dataclass
+class GuardTrips:
+    """The elements of one tool that trip the soundness guards of `build_tool` (0-based ids in
+    the tool's numbering: ``ToolResult.mesh`` and ``nagata``, triangles first), each (K,) int64
+    sorted; ``reversed`` leaves out the straddling ones.
+
+    straddling  corners on both sides of a crease line or sharp edge (`_straddling_ids`)
+    reversed    two corner normals more than `REVERSAL_DEG` apart (`reversed_normal_elements`)
+    folded      wound against the normals at all corners (`folded_elements`)
+    """
+
+    straddling: np.ndarray
+    reversed: np.ndarray
+    folded: np.ndarray
+
+    @property
+    def refinable(self) -> np.ndarray:
+        """(K,) sorted ids of the elements a finer mesh can cure: straddling and reversed."""
+        return np.union1d(self.straddling, self.reversed)
+
+    def __bool__(self) -> bool:
+        return bool(len(self.straddling) or len(self.reversed) or len(self.folded))
+
+
+def guard_trips(nm, straddling=None, element_face=None) -> GuardTrips:
+    """The `GuardTrips` of the `NagataMesh` ``nm``: ``straddling`` the element ids found
+    straddling on the CAD (`cadbridge.heal.creases.straddling_elements`, tool numbering),
+    ``element_face`` (E,) the face of each element (see `_straddling_ids`)."""
+    strad = _straddling_ids(nm, straddling, element_face)
+    turned = np.setdiff1d(reversed_normal_elements(nm), strad)
+    return GuardTrips(strad, turned.astype(np.int64), folded_elements(nm).astype(np.int64))
+
 
 @dataclass
 class ToolResult:
@@ -45,6 +78,7 @@ class ToolResult:
     node_distance: np.ndarray | None = None
     element_face: np.ndarray | None = None  # (E,) face of each element (global numbering)
     diagnosis: list[str] = field(default_factory=list)  # worst elements, when worse than flat
+    trips: GuardTrips | None = None  # elements that trip the guards (their ids as data)
 
 def element_blocks(mesh: Mesh) -> list[np.ndarray]:
     return [np.asarray(b.data) for b in mesh.cells]
@@ -166,6 +200,7 @@ def build_tool(
     element_face: list[np.ndarray] | np.ndarray | None = None,
     straddling: np.ndarray | None = None,
     boundary_curves: bool = True,
+    measure: bool = True,
 ) -> ToolResult:
     """Nagata patches over ``mesh`` with the given normals and their errors against the CAD
     (`cadbridge.tool.accuracy`: surface, boundary, flat surface and normal errors).
@@ -174,7 +209,9 @@ def build_tool(
     element centroids are projected. straddling: global element ids (block order) that
     straddle a crease (`cadbridge.heal.creases.straddling_elements`), named in the diagnosis.
     boundary_curves: free boundary edges follow their faces' trim curves
-    (`cadbridge.nagata.boundary_edges`; needs ``model``)."""
+    (`cadbridge.nagata.boundary_edges`; needs ``model``). measure: False leaves out the sample
+    grid and the errors against the CAD (`measure_tool` adds them later; the guards'
+    ``trips`` and lines only)."""
     from cadbridge.nagata import NagataMesh
 
     progress = progress or NoProgress()
@@ -204,33 +241,53 @@ def build_tool(
             edge_normals = boundary_conormals(mesh, corner_normals, ef, model).as_edge_normals()
     progress.stage(f"{name}: Nagata patches")
     nm = NagataMesh(mesh.nodes, element_blocks(mesh), corner_normals, edge_normals=edge_normals)
+    if straddling is not None and remap is not None:  # given in block order: to the tool's numbering
+        inv = np.empty_like(remap)
+        inv[remap] = np.arange(len(remap))
+        straddling = inv[np.asarray(straddling, dtype=np.int64)]
+    trips = guard_trips(nm, straddling, ef)
+    tool = ToolResult(name, mesh, normals, corner_normals, source, nm, {}, {}, node_face, node_distance, ef,
+                      _guard_lines(trips, ef, model), trips)
+    if measure:
+        measure_tool(tool, model, projector=projector, grid=grid, progress=progress)
+    return tool
+
+
+def measure_tool(tool: ToolResult, model, *, projector: CadProjector | None = None, grid: int = 10,
+                 progress=None) -> None:
+    """The sample grid of ``tool`` (``grid`` divisions per patch at most, `sample_divisions`)
+    and, with a ``model``, its errors against the CAD (`cadbridge.tool.accuracy.tool_errors`):
+    sets ``tool.grid`` and ``tool.stats``, and adds the diagnosis line of a tool worse than
+    its flat mesh (`_diagnose`) after the guards' lines."""
+    progress = progress or NoProgress()
+    nm = tool.nagata
     grid = sample_divisions(nm, grid)
     g = nm.sample_grid(grid)
-    sample = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
-    stats: dict = {}
-    diagnosis: list[str] = []
-    if model is not None:
-        from cadbridge.tool.accuracy import tool_errors
+    tool.grid = {"points": g.points, "normals": g.normals, "element": g.elem, "eta": g.eta, "zeta": g.zeta}
+    if model is None:
+        return
+    from cadbridge.tool.accuracy import tool_errors
 
-        progress.stage(f"{name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
-        err = tool_errors(nm, g.elem, g.eta, g.zeta, ef, model, projector.project)
-        sample.update(surface_error=err.surface, boundary_error=err.boundary,
-                      flat_surface_error=err.flat_surface, normal_error=err.normal, face=err.face)
-        stats = err.stats()
-        stats["grid"] = grid
-        if straddling is not None and remap is not None:
-            inv = np.empty_like(remap)
-            inv[remap] = np.arange(len(remap))
-            straddling = inv[np.asarray(straddling, dtype=np.int64)]
-        diagnosis = _diagnose(nm, err, g.elem, straddling, model.size(), ef)
-    strad = _straddling_ids(nm, straddling, ef)
-    if len(strad):
-        more = f" (and {len(strad) - 10} more)" if len(strad) > 10 else ""
-        diagnosis.insert(0, f"mesh straddles a crease: elements {', '.join(str(int(e) + 1) for e in strad[:10])}"
-                            f"{more} (1-based, {len(strad)} in all) have corners on both sides of a crease line or "
-                            f"sharp edge, and no normal can make a patch fold inside an element; remesh with mesh "
-                            f"edges on the creases (cadbridge convert does)")
-    turned = sorted(set(reversed_normal_elements(nm).tolist()) - set(strad.tolist()))
+    projector = projector or CadProjector(model, progress)
+    progress.stage(f"{tool.name}: errors vs CAD ({len(g.points)} patch points, {grid} divisions per patch)")
+    err = tool_errors(nm, g.elem, g.eta, g.zeta, tool.element_face, model, projector.project)
+    tool.grid.update(surface_error=err.surface, boundary_error=err.boundary,
+                     flat_surface_error=err.flat_surface, normal_error=err.normal, face=err.face)
+    tool.stats = err.stats()
+    tool.stats["grid"] = grid
+    tool.diagnosis += _diagnose(nm, err, g.elem, tool.trips.straddling, model.size())
+
+
+def _guard_lines(trips: GuardTrips, ef, model) -> list[str]:
+    """The diagnosis lines of the guards that ``trips`` trip (folded, reversed, straddling, in
+    that order), elements 1-based; ``ef`` (E,) element faces and ``model`` name the faces."""
+    lines = []
+    folded, turned, strad = trips.folded, trips.reversed.tolist(), trips.straddling
+    if len(folded):
+        more = f" (and {len(folded) - 10} more)" if len(folded) > 10 else ""
+        lines.append(f"mesh folds over itself: elements {', '.join(str(int(e) + 1) for e in folded[:10])}{more} "
+                     f"(1-based, {len(folded)} in all) are wound against the normals at all their corners "
+                     f"(overlapping elements); remesh")
     if turned:
         more = f" (and {len(turned) - 10} more)" if len(turned) > 10 else ""
         where = ""
@@ -238,19 +295,18 @@ def build_tool(
             fs = np.unique(ef[turned])
             where = " on face " + ", ".join(f"{int(f)} ({model.faces[int(f)].name or 'DE %d' % model.faces[int(f)].de})"
                                              for f in fs[:3])
-        diagnosis.insert(0, f"the CAD normal reverses inside elements {', '.join(str(e + 1) for e in turned[:10])}"
-                            f"{more} (1-based, {len(turned)} in all){where}: their corner normals differ by more "
-                            f"than {REVERSAL_DEG:.0f} degrees, so the surface folds back over itself there or the "
-                            f"elements span more than that of its turn; no quadratic patch can follow it (check the "
-                            f"face in CAD, or refine)")
-    folded = folded_elements(nm)
-    if len(folded):
-        more = f" (and {len(folded) - 10} more)" if len(folded) > 10 else ""
-        diagnosis.insert(0, f"mesh folds over itself: elements {', '.join(str(int(e) + 1) for e in folded[:10])}{more} "
-                            f"(1-based, {len(folded)} in all) are wound against the normals at all their corners "
-                            f"(overlapping elements); remesh")
-    return ToolResult(name, mesh, normals, corner_normals, source, nm, sample, stats, node_face, node_distance,
-                      ef, diagnosis)
+        lines.append(f"the CAD normal reverses inside elements {', '.join(str(e + 1) for e in turned[:10])}"
+                     f"{more} (1-based, {len(turned)} in all){where}: their corner normals differ by more "
+                     f"than {REVERSAL_DEG:.0f} degrees, so the surface folds back over itself there or the "
+                     f"elements span more than that of its turn; no quadratic patch can follow it (check the "
+                     f"face in CAD, or refine)")
+    if len(strad):
+        more = f" (and {len(strad) - 10} more)" if len(strad) > 10 else ""
+        lines.append(f"mesh straddles a crease: elements {', '.join(str(int(e) + 1) for e in strad[:10])}"
+                     f"{more} (1-based, {len(strad)} in all) have corners on both sides of a crease line or "
+                     f"sharp edge, and no normal can make a patch fold inside an element; remesh with mesh "
+                     f"edges on the creases (cadbridge convert does)")
+    return lines
 
 def folded_elements(nm) -> np.ndarray:
     """Elements (global ids) whose polyhedral normal (winding) points against the normal at
@@ -329,7 +385,7 @@ def sample_divisions(nm, grid: int, budget: int = SAMPLE_BUDGET) -> int:
         n -= 1
     return n
 
-def _diagnose(nm, err, elem: np.ndarray, straddling, size: float, element_face=None) -> list[str]:
+def _diagnose(nm, err, elem: np.ndarray, straddling: np.ndarray, size: float) -> list[str]:
     """Lines naming the elements (1-based, tool-file numbering) whose Nagata surface error
     exceeds their flat element's, worst first, each with the reason: straddles a crease,
     inadmissible edge (|c . d| >= |d|^2: the edge curve turns back), bad normal (a corner
@@ -342,7 +398,7 @@ def _diagnose(nm, err, elem: np.ndarray, straddling, size: float, element_face=N
     if s["max_abs_surface_error"] <= max(s["max_abs_flat_surface_error"], floor):
         return []
     worst, nag, flat = worst_elements(err, elem, nm.n_elements, floor)
-    strad = set(_straddling_ids(nm, straddling, element_face).tolist())
+    strad = set(np.asarray(straddling).tolist())
     reasons = []
     for e, a, b in zip(worst[:5].tolist(), nag[:5], flat[:5]):  # the five worst, for the message
         reasons.append(f"element {e + 1} ({a:.3g} vs flat {b:.3g}): {_reason(nm, e, strad)}")
@@ -434,13 +490,15 @@ def tools_from_mesh(
     progress=None,
     orient: bool = False,
     meshed_per_face: bool = False,
+    measure: bool = True,
 ) -> list[ToolResult]:
     """Tools of ``mesh`` on ``model`` (None: estimated normals, no CAD errors): normals
     (`tool_normals`), one tool per connected part (`tool_groups`), Nagata patches and their
     errors (`build_tool`). ``orient``: re-orient an inconsistently wound mesh
     (`consistently_oriented`) instead of raising. ``meshed_per_face``: the mesh was made face
     by face from this CAD (gmsh), so no element can span two faces; only crease lines inside
-    faces are checked for straddling elements."""
+    faces are checked for straddling elements. ``measure``: False skips the errors against
+    the CAD (`build_tool`)."""
     progress = progress or NoProgress()
     mesh = consistently_oriented(mesh, orient)
     progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
@@ -483,16 +541,19 @@ def tools_from_mesh(
             node_distance=None if node_dist is None else node_dist[used],
             projector=projector, progress=progress,
             element_face=None if elem_face is None else np.concatenate(elem_face)[sel],
-            straddling=np.flatnonzero(straddle[sel]),
+            straddling=np.flatnonzero(straddle[sel]), measure=measure,
         ))
     return tools
 
-def check_tools(tools: list[ToolResult], allow_worse: bool = False) -> None:
+def check_tools(tools: list[ToolResult], allow_worse: bool = False, refinement: str = "") -> None:
     """The guard: raise `ToolQualityError` if a tool has elements that straddle a crease, or
     its Nagata surface is worse than its flat mesh (max surface error on the same samples),
     naming the worst elements and why; ``allow_worse`` lets such tools through (for
-    inspection: the summary still says so)."""
+    inspection: the summary still says so). ``refinement``: what the refinement where the
+    guards tripped did (`cadbridge.tool.guard_refinement.GuardRefinement.failure`, e.g.
+    "after 3 refinement rounds"), said in the message."""
     bad = [t for t in tools if t.diagnosis]
     if bad and not allow_worse:
         msg = " | ".join(f"{t.name}: {d}" for t in bad for d in t.diagnosis)
-        raise ToolQualityError(f"{msg} (nothing written; --allow-worse writes the tool anyway, for inspection)")
+        done = f"{refinement}; " if refinement else ""
+        raise ToolQualityError(f"{msg} ({done}nothing written; --allow-worse writes the tool anyway, for inspection)")

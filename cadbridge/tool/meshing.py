@@ -51,6 +51,7 @@ def mesh_for_tools(
     curvature_elements: int = 12,
     mesher: str = "gmsh",
     progress=None,
+    local_sizes=None,
 ) -> tuple[Mesh, list[str]]:
     """The mesh `convert` builds its tools on, and what was done on the way.
 
@@ -60,7 +61,8 @@ def mesh_for_tools(
     (`cadbridge.heal.mesh_source`) without the excursions; the elements are then oriented
     consistently (`cadbridge.tool.build.consistently_oriented`: the lowest element of each
     connected part keeps gmsh's orientation), so the mesh written to a file needs no
-    ``--orient``. The mesh is named after ``cad``. Options as `cadbridge.mesh.generate.mesh_cad`.
+    ``--orient``. The mesh is named after ``cad``. Options as `cadbridge.mesh.generate.mesh_cad`;
+    ``local_sizes`` (points (M, 3), sizes (M,)) is its ``background_sizes``.
 
     Returns (mesh, notes): the notes are the healed excursions and the mesher's notes.
     """
@@ -85,7 +87,7 @@ def mesh_for_tools(
                         radius_divisions=radius_divisions, length_divisions=length_divisions,
                         curvature_elements=curvature_elements,
                         embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
-                        mesher=mesher, loop_cuts=excursions)
+                        mesher=mesher, loop_cuts=excursions, background_sizes=local_sizes)
     mesh.name = Path(cad).stem
     if mesh.n_elements == 0:  # e.g. a default size from a bounding box one far control point inflates
         from cadbridge.mesh.mesh import MeshError

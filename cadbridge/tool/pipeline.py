@@ -10,16 +10,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from cadbridge.mesh.mesh import Mesh
-from cadbridge.tool.build import CadProjector, check_tools, NoProgress, ToolQualityError, ToolResult, tools_from_mesh
+from cadbridge.tool.build import (CadProjector, check_tools, measure_tool, NoProgress, ToolQualityError, ToolResult,
+                                  tools_from_mesh)
 from cadbridge.tool import outputs
 from cadbridge.tool.meshing import healed_notes, mesh_for_tools, read_cad
 from cadbridge.tool.outputs import staged_output, write_tool_outputs
 
-__all__ = ["RunResult", "convert", "nagata_from_mesh"]
+__all__ = ["RunResult", "convert", "guarded_mesh", "nagata_from_mesh"]
 
 
 @dataclass
@@ -59,6 +61,43 @@ def meshed_face_by_face(mesh: Mesh) -> bool:
     check (`tools_from_mesh` ``meshed_per_face``)."""
     ent = mesh.cell_data.get("element_entity")
     return ent is not None and len(ent) == mesh.n_elements and bool(np.all(np.asarray(ent) >= 1))
+
+
+def guarded_mesh(
+    cad: str,
+    model,
+    *,
+    excursions: list,
+    build: Callable[[Mesh], list[ToolResult]],
+    progress=None,
+    unchecked_ok: bool = False,
+    **mesh_options,
+):
+    """The mesh stage with the guards' refinement: `mesh_for_tools` (``mesh_options``), the
+    tools ``build(mesh)`` makes on it and, where they trip the straddle or reversal guard,
+    meshes made again finer there (`cadbridge.tool.guard_refinement.refine_where_guards_trip`;
+    gmsh only: the QIT mesher takes no size field). `convert` and `cadbridge mesh` both mesh
+    through it, so `cadbridge nagata` on the mesh `cadbridge mesh` writes builds the tools
+    `convert` builds. ``unchecked_ok``: where no tools can be built on the first mesh (its
+    nodes do not project, `ProjectionError`, or `MeshError`), that mesh unchecked instead of
+    the error. Returns a `GuardRefinement` (mesh, tools, notes, rounds, converged)."""
+    from cadbridge.mesh.mesh import MeshError
+    from cadbridge.normals.cad import ProjectionError
+    from cadbridge.tool.guard_refinement import GuardRefinement, refine_where_guards_trip
+
+    mesh, notes = mesh_for_tools(cad, model, excursions=excursions, progress=progress, **mesh_options)
+    try:
+        tools = build(mesh)
+    except (MeshError, ProjectionError):
+        if not unchecked_ok:
+            raise
+        return GuardRefinement(mesh, [], notes)
+    if mesh_options.get("mesher", "gmsh") != "gmsh":
+        return GuardRefinement(mesh, tools, notes)
+    return refine_where_guards_trip(
+        mesh, tools, notes, model, progress=progress, build=build,
+        remesh=lambda sizes: mesh_for_tools(cad, model, excursions=excursions, progress=progress,
+                                            **{**mesh_options, "curvature_elements": 0}, local_sizes=sizes))
 
 
 def nagata_from_mesh(
@@ -145,7 +184,10 @@ def convert(
     ``curvature_elements`` (gmsh ``Mesh.MeshSizeFromCurvature``): elements per full turn of
     the normal; the default 12 gives 30 degrees per element, the normalized edge length 0.52
     of thesis Fig. 8 (0.06 % radial error) and 3 elements across a quarter fillet (§5.2).
-    Raises `ToolQualityError` when a tool is worse than its flat mesh, unless
+    Where elements straddle a crease or the CAD normal reverses inside them, the mesh is made
+    again finer there, 3 rounds at most (`guarded_mesh`); the notes say which faces and
+    elements and how many rounds. Raises `ToolQualityError` when a tool is worse than its
+    flat mesh or those elements remain (the message says after how many rounds), unless
     ``allow_worse``. ``full_report``: the per-patch listings also for tools above
     `cadbridge.tool.outputs.LISTING_MAX_ELEMENTS` elements.
 
@@ -169,15 +211,28 @@ def convert(
         mesh, notes = adaptive.mesh, healed_notes(excursions) + list(adaptive.mesh.notes)
     else:
         adaptive = None
-        mesh, notes = mesh_for_tools(cad, model, excursions=excursions, element=element, size=size,
-                                     structured=structured, radius_divisions=radius_divisions,
-                                     length_divisions=length_divisions, curvature_elements=curvature_elements,
-                                     mesher=mesher, progress=progress)
         projector = CadProjector(model, progress)
-    mesh.name = Path(cad).stem
-    tools = tools_from_mesh(mesh, model, method=method, grid=grid, tolerance=tolerance, flip=flip,
-                            projector=projector, progress=progress, orient=True, meshed_per_face=True)
-    check_tools(tools, allow_worse)
+    stem = Path(cad).stem
+
+    def build(m: Mesh) -> list[ToolResult]:  # the tools and their guards; errors vs CAD measured last
+        m.name = stem
+        return tools_from_mesh(m, model, method=method, grid=grid, tolerance=tolerance, flip=flip,
+                               projector=projector, progress=progress, orient=True, meshed_per_face=True,
+                               measure=False)
+
+    refined = ""
+    if adaptive is None:
+        guarded = guarded_mesh(cad, model, excursions=excursions, build=build, progress=progress, element=element,
+                               size=size, structured=structured, radius_divisions=radius_divisions,
+                               length_divisions=length_divisions, curvature_elements=curvature_elements,
+                               mesher=mesher)
+        mesh, tools, notes = guarded.mesh, guarded.tools, guarded.mesh_notes + guarded.notes
+        refined = "" if guarded.converged else guarded.failure
+    else:
+        tools = build(mesh)
+    for t in tools:
+        measure_tool(t, model, projector=projector, grid=grid, progress=progress)
+    check_tools(tools, allow_worse, refinement=refined)
     result = RunResult(Path(output), tools, notes=notes)
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
