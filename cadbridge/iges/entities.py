@@ -400,6 +400,8 @@ class Builder:
                 raise self._wrap(p, exc) from None
         elif t == 106:
             pieces = [self.copious(p)]
+        elif t == 112:
+            pieces = [self.parametric_spline(p)]
         else:
             raise Unsupported(f"curve entity {t} is not supported", de, t, e.line)
         xf = self.transform(de)
@@ -414,6 +416,45 @@ class Builder:
             return _construct().composite_curve(pieces)
         except ValueError as exc:
             raise self._wrap(self.params(de), exc) from None
+
+    def parametric_spline(self, p: Params) -> NurbsCurve:
+        """112 parametric spline curve (IGES 5.3 4.9): CTYPE, H, NDIM, N, breakpoints T(1..N+1),
+        then per segment i the cubic coefficients A, B, C, D of x, y and z in s = t - T(i)
+        (12 values; NDIM = 2 has them too), then the terminal derivatives (not needed).
+        Exactly the cubic B-spline in Bezier form on the same parameter: segment i's control
+        points A, A + B h/3, A + 2 B h/3 + C h^2/3, A + B h + C h^2 + D h^3 (h = T(i+1) - T(i)),
+        knots T(i) of multiplicity 3. Where a segment's end misses the next one's start (the
+        file's continuity H says it should not), the next start is kept and the gap noted."""
+        ctype, n = p.int(1, "CTYPE"), p.int(4, "N")
+        if not 1 <= ctype <= 6:
+            raise p.error(f"spline type CTYPE = {ctype} is not 1..6", 1, "CTYPE")
+        if n < 1:
+            raise p.error(f"number of segments N = {n} must be at least 1", 4, "N")
+        p.require(5 + n + 12 * n, "N")
+        t = p.reals(5, n + 1, "T")
+        if not (np.diff(t) > 0).all():
+            j = int(np.flatnonzero(~(np.diff(t) > 0))[0])
+            raise p.error(f"breakpoints not increasing: T({j + 2}) = {t[j + 1]!r} after {t[j]!r}", 6 + j, f"T({j + 2})")
+        k0 = 6 + n
+        coef = p.reals(k0, 12 * n, "AX..DZ").reshape(n, 3, 4)  # (segment, x/y/z, A..D)
+        self._own_end[p.de] = k0 + 12 * n + (12 if p.has(k0 + 12 * n + 11) else 0)
+        h = np.diff(t)[:, None]
+        a, b, c, d = (coef[:, :, j] for j in range(4))  # (N, 3) each
+        ends = a + b * h + c * h * h + d * h ** 3
+        gap = np.linalg.norm(ends[:-1] - a[1:], axis=1) if n > 1 else np.zeros(0)
+        scale = float(np.ptp(np.vstack([a, ends]), axis=0).max()) or 1.0
+        if gap.size and gap.max() > 1e-9 * scale:
+            j = int(np.argmax(gap))
+            self.note(f"parametric spline segments {j + 1} and {j + 2} miss each other by {gap[j]:.3g}: "
+                      f"the curve runs on from the start of segment {j + 2}", p.de, p.line(k0))
+        cp = np.empty((3 * n + 1, 3))
+        cp[0:-1:3], cp[1::3], cp[2::3] = a, a + b * h / 3, a + (2 * b * h + c * h * h) / 3
+        cp[-1] = ends[-1]
+        knots = np.concatenate([[t[0]] * 4, np.repeat(t[1:-1], 3), [t[-1]] * 4])
+        try:
+            return NurbsCurve(3, knots, cp)
+        except ValueError as exc:
+            raise self._wrap(p, exc, "T") from None
 
     def copious(self, p: Params) -> NurbsCurve:
         """106 copious data forms 1, 2, 11, 12, 63 as a degree-1 curve through the points."""
