@@ -380,6 +380,9 @@ class _TrimCurve:
             bad = np.flatnonzero(~(err <= tol) & (h > gap))
             if bad.size == 0:
                 break
+            if len(t) + bad.size > MAX_HERMITE_INTERVALS:  # no cubic within tol (noise, a jump): stop early
+                raise ValueError(f"cubic approximation of the trim curve did not reach {tol:.3g} "
+                                 f"within {MAX_HERMITE_INTERVALS} intervals")
             t = np.insert(t, bad + 1, a[bad] + 0.5 * h[bad])
         else:
             raise ValueError(f"cubic approximation of the trim curve did not reach {tol:.3g}")
@@ -491,6 +494,11 @@ class MappedCurve(_TrimCurve):
         for j, (src, mp) in enumerate(self.post):
             out[:, :, j] = _apply_scalar(mp, nat[:, :, src], order)
         return out
+
+
+MAX_HERMITE_INTERVALS = 20000
+"""`_TrimCurve.to_nurbs` gives up beyond this many cubic pieces: where the exact curve is
+noisy or jumps over a stretch, each bisection round doubled the pieces without end."""
 
 
 class InvertedCurve(_TrimCurve):
