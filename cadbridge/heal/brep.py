@@ -1,0 +1,307 @@
+"""cadbridge's own model as an OpenCASCADE B-rep: the geometry the mesher meshes.
+
+gmsh meshes an OCC shape; cadbridge projects onto its own reading of the file. When gmsh read
+the file through OCC's IGES reader, every difference between the two readers (C0 splits,
+seams, 120 conventions, trim curves, healed edges) became a mesh off the CAD. Here the shape
+is built from the model itself, so mesher and projector see one geometry:
+
+* each `Face` becomes one `TopoDS_Face` on a `Geom_BSplineSurface` with the poles, weights
+  and knots of its `NurbsSurface` (so a node's (u, v) in gmsh is its (u, v) on the model);
+* its trim loops become wires of edges built from the loops' parameter-space curves (pieces
+  that are not NURBS -- `cadbridge.iges.analytic.MappedCurve` / ``InvertedCurve`` over analytic
+  surfaces -- through their cubic within `cadbridge.iges.writer.TRIM_REL_TOL`, as the IGES
+  writer does); untrimmed faces are bounded by their surface's domain;
+* OCC's shape healing mends what the file leaves open: `ShapeFix_Wire` (order, gaps,
+  degenerate edges at poles and apexes, lacking edges), ``BRepLib.BuildCurves3d`` (the 3D
+  curves of the edges, from the pcurves), `ShapeFix_Face` (orientation of the loops, missing
+  seams), then `BRepBuilderAPI_Sewing` joins neighbouring faces so the mesh is conforming;
+* the faces are written in model order into a compound, so gmsh's surface tag k + 1 is the
+  model's face k (`ModelBrep.face_of_tag`).
+
+Every fix the healing made is kept per face (`FaceBuild.fixes`) for ``inspect`` and the
+convert summary.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from cadbridge.cad.model import Face, Model
+from cadbridge.nurbs.curve import NurbsCurve
+
+__all__ = ["FaceBuild", "ModelBrep", "model_brep", "brep_source", "trim_sew_tolerance", "SEW_TOLERANCE_MM"]
+
+SEW_TOLERANCE_MM = 1e-4
+"""Sewing tolerance floor in mm: the tolerance gmsh's import sewed OCC's reading with (OCC's
+IGES export of a cylinder leaves its circles ~1e-5 mm apart)."""
+
+EDGE_TOLERANCE = 1e-7
+"""Tolerance of the built edges and faces, x model size."""
+
+CURVE3D_TOLERANCE = 1e-12
+"""Tolerance of the edges' 3D curves approximated from S(pcurve(t)), x model size. gmsh puts
+the boundary nodes on these curves: at `EDGE_TOLERANCE` they lay 8.7e-8 x size off the
+surface (multiple_knots.igs), at this 8e-13 (4e-9 on the bearing, where OCC's approximation
+stops); the build costs the same (0.4 s for the bearing's 213 faces)."""
+
+
+@dataclass
+class FaceBuild:
+    """How one model face became an OCC face.
+
+    index   the face's index in ``model.faces``
+    valid   `BRepCheck_Analyzer` finds the OCC face valid
+    fixes   what OCC's shape healing changed, in words (empty: nothing)
+    """
+
+    index: int
+    valid: bool
+    fixes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class ModelBrep:
+    """The model as one OCC compound of faces (sewn), in model order.
+
+    shape   `TopoDS_Compound` holding the faces (neighbours share their edges)
+    faces   one `FaceBuild` per model face
+    sew_tolerance  the sewing tolerance used (model units)
+    free_edges     edges the sewing left unshared (the model's open boundary, and gaps)
+    """
+
+    shape: object
+    faces: list[FaceBuild]
+    sew_tolerance: float
+    free_edges: int
+
+    anchors: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
+    """(F, 5) one point per model face, (u, v, x, y, z): S(u, v) at the centre of the face's
+    surface domain (for the mesher to check that its k-th face is the model's k-th)."""
+
+    def notes(self) -> list[str]:
+        """One line per face that the healing changed or that OCC finds invalid."""
+        out = []
+        for f in self.faces:
+            if f.fixes:
+                out.append(f"face {f.index}: OCC shape healing: {'; '.join(f.fixes)}")
+            if not f.valid:
+                out.append(f"face {f.index}: OCC finds the built face invalid (BRepCheck); meshed as it is")
+        return out
+
+
+def _array1(values, kind: str):
+    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal
+
+    arr = (TColStd_Array1OfInteger if kind == "int" else TColStd_Array1OfReal)(1, len(values))
+    for i, x in enumerate(values):
+        arr.SetValue(i + 1, int(x) if kind == "int" else float(x))
+    return arr
+
+
+def _knots(knots: np.ndarray):
+    """Distinct knots and multiplicities as OCC 1-based arrays."""
+    vals, mult = np.unique(np.asarray(knots, dtype=float), return_counts=True)
+    return _array1(vals, "real"), _array1(mult, "int")
+
+
+def occ_surface(s):
+    """`Geom_BSplineSurface` with the poles, weights and knots of a `NurbsSurface`."""
+    from OCP.Geom import Geom_BSplineSurface
+    from OCP.gp import gp_Pnt
+    from OCP.TColgp import TColgp_Array2OfPnt
+    from OCP.TColStd import TColStd_Array2OfReal
+
+    nu, nv = s.shape
+    poles = TColgp_Array2OfPnt(1, nu, 1, nv)
+    wts = TColStd_Array2OfReal(1, nu, 1, nv)
+    cp, w = np.asarray(s.control_points, dtype=float), np.asarray(s.weights, dtype=float)
+    for i in range(nu):
+        for j in range(nv):
+            poles.SetValue(i + 1, j + 1, gp_Pnt(*cp[i, j, :3].tolist()))
+            wts.SetValue(i + 1, j + 1, float(w[i, j]))
+    ku, mu = _knots(s.knots_u)
+    kv, mv = _knots(s.knots_v)
+    return Geom_BSplineSurface(poles, wts, ku, kv, mu, mv, s.degree_u, s.degree_v, False, False)
+
+
+def occ_pcurve(c, surface) -> tuple[object, float, float]:
+    """(`Geom2d_BSplineCurve`, t0, t1) of a trim piece in the (u, v) of ``surface`` (a
+    `NurbsSurface`); non-NURBS pieces through their cubic within ``TRIM_REL_TOL`` x the
+    domain diagonal."""
+    from OCP.Geom2d import Geom2d_BSplineCurve
+    from OCP.gp import gp_Pnt2d
+    from OCP.TColgp import TColgp_Array1OfPnt2d
+
+    from cadbridge.iges.writer import TRIM_REL_TOL
+
+    if not isinstance(c, NurbsCurve):
+        u0, u1, v0, v1 = surface.domain
+        tol = TRIM_REL_TOL * float(np.hypot(u1 - u0, v1 - v0))
+        for k in range(4):  # a curve inverted near a pole is noisy in (u, v): looser, up to 1e-6 x domain
+            try:
+                c = c.to_nurbs(tol=tol * 1e3 ** k)
+                break
+            except ValueError:
+                if k == 3:
+                    raise
+    cp = np.asarray(c.control_points, dtype=float)
+    poles = TColgp_Array1OfPnt2d(1, len(cp))
+    for i, p in enumerate(cp):
+        poles.SetValue(i + 1, gp_Pnt2d(float(p[0]), float(p[1])))
+    k, m = _knots(c.knots)
+    t0, t1 = c.domain
+    return Geom2d_BSplineCurve(poles, _array1(c.weights, "real"), k, m, int(c.degree), False), float(t0), float(t1)
+
+
+def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list[str]]:
+    """The OCC face of one model face, and the fixes OCC's healing made on it. ``tol``: the
+    edges' tolerance; consecutive loop pieces closer than ``resolution`` (the file's minimum
+    resolution, IGES global parameter 19: points closer are the same point) are joined;
+    a join is reported where it moved an end by more than 1 % of ``resolution``."""
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeFace
+    from OCP.BRepLib import BRepLib
+    from OCP.GeomAbs import GeomAbs_C1
+    from OCP.ShapeExtend import ShapeExtend_DONE3, ShapeExtend_DONE4, ShapeExtend_DONE5, ShapeExtend_WireData
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.ShapeFix import ShapeFix_Face, ShapeFix_Shape, ShapeFix_Wire
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS, TopoDS_Face
+
+    surface = occ_surface(face.surface)
+    u0, u1, v0, v1 = face.surface.domain
+    trims = face.trims
+    fixes: list[str] = []
+    builder = BRep_Builder()
+    if trims is None or trims.outer is None:
+        occ = BRepBuilderAPI_MakeFace(surface, u0, u1, v0, v1, tol).Face()
+        loops = [] if trims is None else list(trims.inner)
+    else:
+        occ = TopoDS_Face()
+        builder.MakeFace(occ, surface, tol)
+        loops = [trims.outer] + list(trims.inner)
+    for k, loop in enumerate(loops):
+        data = ShapeExtend_WireData()
+        for c in loop.curves:
+            g2, t0, t1 = occ_pcurve(c, face.surface)
+            data.Add(BRepBuilderAPI_MakeEdge(g2, surface, t0, t1).Edge())
+        fw = ShapeFix_Wire(data.Wire(), occ, tol)
+        name = "outer loop" if (k == 0 and trims is not None and trims.outer is not None) else "hole"
+        if fw.FixReorder():
+            fixes.append(f"{name}: pieces reordered")
+        sa = fw.Analyzer()  # the gaps between consecutive pieces, in order
+        prec = max(tol, resolution)
+        sa.CheckConnected(prec)
+        gap = sa.MaxDistance3d()
+        if fw.FixConnected(prec) and gap > max(tol, 0.01 * resolution):
+            fixes.append(f"{name}: gaps up to {gap:.3g} closed")
+        if fw.FixDegenerated():
+            fixes.append(f"{name}: degenerate edge added (pole or apex)")
+        if fw.FixLacking():
+            fixes.append(f"{name}: lacking edge added")
+        if fw.FixSelfIntersection():
+            fixes.append(f"{name}: self-intersection removed")
+        builder.Add(occ, fw.Wire())
+    BRepLib.BuildCurves3d_s(occ, tol * CURVE3D_TOLERANCE / EDGE_TOLERANCE, GeomAbs_C1, 14, 0)
+    ff = ShapeFix_Face(occ)
+    if ff.FixOrientation():  # Perform() alone leaves a clockwise outer loop as it is
+        fixes.append("loop orientation turned")
+    ff = ShapeFix_Face(ff.Face())
+    ff.Perform()
+    for status, what in ((ShapeExtend_DONE3, "missing seam added"), (ShapeExtend_DONE4, "small-area loop removed"),
+                         (ShapeExtend_DONE5, "natural bounds added")):
+        if ff.Status(status):
+            fixes.append(what)
+    out = ff.Face()
+    if not BRepCheck_Analyzer(out).IsValid():  # what the steps above leave invalid: OCC's whole healing
+        shape = ShapeFix_Shape(out)
+        shape.Perform()
+        ex = TopExp_Explorer(shape.Shape(), TopAbs_FACE)
+        one = TopoDS.Face_s(ex.Current()) if ex.More() else None
+        ex.Next()
+        if one is not None and not ex.More() and BRepCheck_Analyzer(one).IsValid():  # one valid face: kept
+            out = one
+            fixes.append("made valid by ShapeFix_Shape")
+    return out, fixes
+
+
+def model_brep(model: Model, *, sew_tolerance: float | None = None) -> ModelBrep:
+    """``model`` as a sewn OCC compound of faces in model order (module docstring).
+
+    sew_tolerance : model units; default `SEW_TOLERANCE_MM`, the tolerance the mesher sews
+        OCC's reading of a file with. Not the file's trim tolerance: sewing ANSA faces whose
+        trims miss their surfaces by 0.04 mm at 1.5 x that tolerance gave vertices that wide,
+        and the fold lines fragmented into them made faces gmsh folds over itself
+        (OCC131-2) or loops that do not close (OCC131-3); wider gaps are closed in the mesh
+        (`cadbridge.mesh.cleanup.merge_close_nodes`), as on OCC's reading. Where OCC cannot
+        make wires of faces sewn that tightly (Inventor's spring: trims 0.01 apart),
+        `trim_sew_tolerance` (`cadbridge.tool.meshing` tries both).
+    """
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.TopAbs import TopAbs_FACE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS, TopoDS_Compound
+
+    size = model.size()
+    tol = EDGE_TOLERANCE * size
+    if sew_tolerance is None:
+        sew_tolerance = SEW_TOLERANCE_MM / model.units.to_mm
+    resolution = float(model.resolution) if model.resolution and np.isfinite(model.resolution) else 0.0
+    resolution = min(resolution, 1e-4 * size)  # a resolution the size of the part means nothing
+    built = [_face(f, tol, resolution) for f in model.faces]  # loop over faces: OCC builds one at a time
+    sew = BRepBuilderAPI_Sewing(sew_tolerance)
+    for occ, _ in built:
+        sew.Add(occ)
+    sew.Perform()
+    faces, reports = [], []
+    for k, (occ, fixes) in enumerate(built):
+        out = sew.Modified(occ)
+        ex = TopExp_Explorer(out, TopAbs_FACE)  # the sewn face (one face in, one face out)
+        sewn = TopoDS.Face_s(ex.Current()) if ex.More() else occ
+        faces.append(sewn)
+        reports.append(FaceBuild(k, BRepCheck_Analyzer(sewn).IsValid(), fixes))
+    compound = TopoDS_Compound()
+    b = BRep_Builder()
+    b.MakeCompound(compound)
+    for f in faces:
+        b.Add(compound, f)
+    anchors = np.zeros((len(model.faces), 5))
+    for k, f in enumerate(model.faces):  # one point per face
+        u0, u1, v0, v1 = f.surface.domain
+        uv = np.array([0.5 * (u0 + u1), 0.5 * (v0 + v1)])
+        anchors[k, :2], anchors[k, 2:] = uv, f.surface.evaluate(uv[:1], uv[1:])[0]
+    return ModelBrep(compound, reports, float(sew_tolerance), int(sew.NbFreeEdges()), anchors)
+
+
+def trim_sew_tolerance(model: Model) -> float:
+    """Sewing tolerance where the file's trims miss each other by more than `SEW_TOLERANCE_MM`
+    (model units): 1.5 x the largest trim tolerance of its faces (``Face.trim_delta``: the
+    trims miss the surface by that much, so neighbouring edges lie that far apart), at least
+    `SEW_TOLERANCE_MM`, at most 1e-3 x the model size."""
+    deltas = [f.trim_delta for f in model.faces if f.trim_delta is not None and np.isfinite(f.trim_delta)]
+    floor = SEW_TOLERANCE_MM / model.units.to_mm
+    return float(min(max(floor, 1.5 * max(deltas, default=0.0)), 1e-3 * model.size()))
+
+
+@contextmanager
+def brep_source(model: Model, *, sew_tolerance: float | None = None) -> Iterator[tuple[Path, ModelBrep]]:
+    """A temporary OCC ``.brep`` file of `model_brep` (``model``, ``sew_tolerance``) for the
+    mesher, and the build report; removed on exit."""
+    from OCP.BRepTools import BRepTools
+
+    brep = model_brep(model, sew_tolerance=sew_tolerance)
+    stem = Path(model.source or model.filename or "model").stem or "model"
+    with tempfile.TemporaryDirectory(prefix="cadbridge-brep-") as tmp:
+        path = Path(tmp) / f"{stem}.brep"
+        if not BRepTools.Write_s(brep.shape, str(path)):
+            raise OSError(f"could not write the model's B-rep to {path}")
+        yield path, brep

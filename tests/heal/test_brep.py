@@ -1,0 +1,128 @@
+"""`cadbridge.heal.brep`: cadbridge's own model as the OCC B-rep the mesher meshes.
+
+References:
+- OCC's own reading of the same IGES file (`IGESControl_Reader`): the built faces have its
+  trimmed areas (`BRepGProp`, adaptive to 1e-9), face by face, on samples whose faces OCC
+  reads soundly (analytic and NURBS, holes, a cone apex, a torus);
+- gmsh's evaluation of the written ``.brep`` (gmsh's own OCC): its k-th surface is the model's
+  k-th face at the same (u, v), checked at random points of each surface's domain against
+  cadbridge's NURBS evaluation (`NurbsSurface.evaluate`), to 1e-9 x size;
+- OCC's sewing of OCC's reading at the same tolerance: the same number of free edges;
+- the trim-curve cubic's interval cap (`MAX_HERMITE_INTERVALS`): a curve no cubic follows
+  within tolerance raises at once instead of doubling its intervals without end (PRO19800's
+  hang).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.helpers.occ import faces, read_faces, read_shape
+
+from cadbridge.heal.brep import SEW_TOLERANCE_MM, brep_source, model_brep
+from cadbridge.iges import read_iges
+
+pytest.importorskip("OCP")
+
+SAMPLES = Path(__file__).resolve().parents[2] / "iges_samples"
+FILES = ["ushape_tools_nurbs.igs", "trimmed_hole.igs", "cone_apex.igs", "torus_patch.igs", "sphere_patch.igs"]
+
+
+def _area(face) -> float:
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    g = GProp_GProps()
+    BRepGProp.SurfaceProperties_s(face, g, 1e-9)
+    return g.Mass()
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_built_faces_have_occs_trimmed_areas(name):
+    model = read_iges(SAMPLES / name)
+    brep = model_brep(model)
+    built = faces(brep.shape)
+    occ = read_faces(SAMPLES / name)
+    assert len(built) == len(model.faces) == len(occ)
+    assert all(f.valid for f in brep.faces), [f for f in brep.faces if not f.valid]
+    mine, theirs = np.array([_area(f) for f in built]), np.array([_area(f) for f in occ])
+    # OCC's reader keeps the file's entity order, as cadbridge's does: face k is face k
+    np.testing.assert_allclose(mine, theirs, rtol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["ushape_tools_nurbs.igs", "trimmed_hole.igs"])
+def test_gmsh_surface_k_is_model_face_k(name):
+    """Face identity between mesh and model holds by construction: gmsh's surface k + 1 of
+    the written .brep evaluates to the model's face k at the same (u, v)."""
+    import gmsh
+
+    model = read_iges(SAMPLES / name)
+    size = model.size()
+    rng = np.random.default_rng(7)
+    with brep_source(model) as (path, brep):
+        gmsh.initialize(readConfigFiles=False)
+        try:
+            gmsh.option.setNumber("General.Terminal", 0)
+            gmsh.model.occ.importShapes(str(path))
+            gmsh.model.occ.synchronize()
+            tags = [t for _, t in gmsh.model.getEntities(2)]
+            assert len(tags) == len(model.faces)
+            for k, (face, tag) in enumerate(zip(model.faces, tags)):  # loop over the faces
+                u0, u1, v0, v1 = face.surface.domain
+                uv = np.column_stack([rng.uniform(u0, u1, 20), rng.uniform(v0, v1, 20)])
+                theirs = np.array(gmsh.model.getValue(2, tag, uv.ravel().tolist())).reshape(-1, 3)
+                mine = face.surface.evaluate(uv[:, 0], uv[:, 1])
+                assert np.max(np.linalg.norm(theirs - mine, axis=1)) <= 1e-9 * size, k
+                anchor = np.array(gmsh.model.getValue(2, tag, brep.anchors[k, :2].tolist()))
+                assert np.linalg.norm(anchor - brep.anchors[k, 2:]) <= 1e-9 * size
+        finally:
+            gmsh.finalize()
+
+
+def test_sewing_leaves_the_free_edges_occs_reading_leaves():
+    """The U-shape tools' faces meet edge to edge: sewn at the same tolerance, cadbridge's
+    B-rep and OCC's reading of the file keep the same open boundary."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Sewing
+
+    path = SAMPLES / "ushape_tools_nurbs.igs"
+    brep = model_brep(read_iges(path))
+    sew = BRepBuilderAPI_Sewing(SEW_TOLERANCE_MM)
+    sew.Add(read_shape(path))
+    sew.Perform()
+    assert brep.free_edges == sew.NbFreeEdges() > 0
+    assert brep.notes() == []  # a clean CAD file: nothing to heal, nothing reported
+
+
+def test_trim_cubic_gives_up_at_the_interval_cap():
+    """A trim curve no cubic follows (an oscillation far below the sampling) raises at the cap
+    instead of bisecting without end."""
+    import time
+
+    from cadbridge.iges.analytic import MAX_HERMITE_INTERVALS, _TrimCurve
+    from cadbridge.nurbs.curve import NurbsCurve
+
+    class Wiggle(_TrimCurve):  # (t, 1e-3 sin(1e7 t)): smooth, but 1e6 waves on [0, 1]
+        def __init__(self):
+            self.base = NurbsCurve(3, np.array([0, 0, 0, 0, 1, 1, 1, 1.0]),
+                                   np.column_stack([np.linspace(0, 1, 4), np.zeros(4)]), None, (0.0, 1.0))
+
+        @property
+        def knots(self):
+            return self.base.knots
+
+        def derivatives(self, t, order=1):
+            t = np.asarray(t, dtype=float)
+            out = np.zeros((len(t), order + 1, 2))
+            w = 1e7
+            for k in range(order + 1):  # d^k/dt^k of (t, 1e-3 sin(w t))
+                out[:, k, 0] = t if k == 0 else (1.0 if k == 1 else 0.0)
+                out[:, k, 1] = 1e-3 * w ** k * np.sin(w * t + k * np.pi / 2)
+            return out
+
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=f"within {MAX_HERMITE_INTERVALS} intervals"):
+        Wiggle().to_nurbs(tol=1e-9)
+    assert time.perf_counter() - start < 30  # a limit against the old endless doubling, not a timing
