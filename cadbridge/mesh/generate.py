@@ -333,6 +333,9 @@ def mesh_cad(
     mesher: str = "gmsh",
     background_sizes=None,
     loop_cuts: Sequence = (),
+    straight_splines: bool = False,
+    embed_faces: Sequence | None = None,
+    face_anchors=None,
 ) -> Mesh:
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
@@ -382,6 +385,14 @@ def mesh_cad(
     Raises `MeshError` naming the file on import / meshing failure.
     loop_cuts : trim-loop excursions (`cadbridge.heal.loop_excursions.heal_excursions`): the faces
         holding them are meshed without them (`cadbridge.mesh.gmsh.loop_cuts`).
+    straight_splines : a straight curve shorter than ``size`` that is no OCC line gets one
+        segment, as a line would (`_one_segment_straight_splines`; for `cadbridge.heal.brep`).
+    embed_faces, face_anchors : where the file is the model itself (`cadbridge.heal.brep`: face
+        k of the model is the k-th OCC face, on the same surface parametrisation), the model
+        face each of ``embed_curves`` lies on (index, or None) and one anchor per model face,
+        (F, 5) rows (u, v, x, y, z) = a point S(u, v) of its surface: a curve is then
+        embedded in the surface of its face, checked by the anchor, without the geometric
+        search (which misses a knot line that runs mostly outside its trimmed face).
     mesher : "gmsh" (default) or "qit": the quasi-isotropic triangulation of
         `cadbridge.mesh.qit.mesher` (IGES only; ``size`` is its target edge length R; the gmsh
         options do not apply).
@@ -409,7 +420,8 @@ def mesh_cad(
               fillet_max_radius=fillet_max_radius, sew=sew, sew_tolerance=sew_tolerance,
               curvature_elements=curvature_elements, target_unit=target_unit, parametric=parametric,
               embed_curves=list(embed_curves), size_callback=size_callback, curve_size=curve_size,
-              background_sizes=background_sizes, loop_cuts=list(loop_cuts))
+              background_sizes=background_sizes, loop_cuts=list(loop_cuts), straight_splines=straight_splines,
+              embed_faces=None if embed_faces is None else list(embed_faces), face_anchors=face_anchors)
     try:
         return _mesh_once(path, verbose, heal=False, **kw)
     except MeshError as first:
@@ -464,7 +476,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         raise MeshError(f"{path}: no surfaces found in the CAD file")
     unsewn = _unsew_collapsed(g, sess, path, kw) if kw["sew"] else []
     if kw["embed_curves"]:
-        _embed_curves(g, kw["embed_curves"], path)
+        _embed_curves(g, kw["embed_curves"], path, _known_hosts(g, kw["embed_faces"], kw["face_anchors"]))
     surfaces = [t for _, t in g.model.getEntities(2)]
     bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
     diag = float(np.linalg.norm(bb[3:] - bb[:3]))
@@ -502,6 +514,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         # boundary sizes across them, filling a plane next to a small round with small elements)
         sess.set("Mesh.MeshSizeExtendFromBoundary", 0)
     _set_sizes(g, sess, kw, size, 1.0)
+    if kw["straight_splines"] and kw["size_callback"] is None and kw["background_sizes"] is None:
+        _one_segment_straight_splines(g, size)
     if kw["structured"]:
         faces, shapes = _classify(g, kw["fillet_max_radius"])
         counts = _structured_counts(
@@ -911,6 +925,20 @@ def _vertex_nodes(g, mesh: Mesh) -> np.ndarray:
     return np.unique(i[d == 0.0]).astype(np.int64)
 
 
+def _one_segment_straight_splines(g, size: float) -> None:
+    """One segment on every straight curve shorter than ``size`` that OCC does not hold as a
+    line (a B-spline edge of `cadbridge.heal.brep`, its 3D curve built from the trim's
+    pcurve): gmsh meshes an OCC line shorter than the size with one segment but any other
+    curve with two at least (``Mesh.MinimumCurveNodes``), so a model read by OCC's IGES
+    reader (lines as lines) and the same model as cadbridge's B-rep mesh alike."""
+    for _, c in g.model.getEntities(1):  # loop over curves: a few curvature samples each
+        if g.model.getType(1, c) == "Line":
+            continue
+        kind, _, length = _curve_shape(g, c)
+        if kind == "line" and length < size:
+            g.model.mesh.setTransfiniteCurve(c, 2)
+
+
 def _one_segment_short_curves(g, shorter: float, skip: set[int]) -> None:
     """One segment on every curve shorter than ``shorter`` (model units), but those in
     ``skip``, before gmsh's all-quad subdivision halves it. gmsh gives any curve at least two
@@ -1031,16 +1059,52 @@ def _check_all_meshed(g, surfaces: list[int], path: Path) -> None:
                     f"try another --size, or mesh the CAD elsewhere and run `cadbridge nagata MESH --cad CAD`")
 
 
-def _embed_curves(g, curves: list, path: Path) -> None:
-    """Fragment the surfaces with the curves lying on them, so mesh edges follow the curves."""
+def _add_bspline(g, c) -> int:
+    """gmsh OCC tag of a new B-spline curve with the poles, weights and knots of ``c``."""
+    knots, mult = np.unique(c.knots, return_counts=True)
+    pts = [g.model.occ.addPoint(*map(float, x)) for x in c.control_points]
+    return g.model.occ.addBSpline(pts, degree=int(c.degree), weights=[float(w) for w in c.weights],
+                                  knots=knots.tolist(), multiplicities=mult.tolist())
+
+
+def _known_hosts(g, embed_faces, anchors) -> list[int | None] | None:
+    """gmsh surface tag of each embedded curve's model face (`mesh_cad`'s ``embed_faces``),
+    None where the face is not known or its anchor is not on the surface at the same (u, v)."""
+    if embed_faces is None or anchors is None:
+        return None
+    anchors = np.asarray(anchors, dtype=float).reshape(-1, 5)
+    surf = [t for _, t in g.model.getEntities(2)]
+    if len(surf) != len(anchors):
+        return None  # the import split or dropped faces: no face-by-face correspondence
+    bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
+    tol = 1e-9 * float(np.linalg.norm(bb[3:] - bb[:3]))
+    tags: list[int | None] = []
+    for k in embed_faces:  # loop over the (few) embedded curves
+        if k is None or not 0 <= int(k) < len(surf):
+            tags.append(None)
+            continue
+        t = surf[int(k)]
+        x = np.asarray(g.model.getValue(2, t, anchors[int(k), :2].tolist()), dtype=float)
+        tags.append(t if float(np.linalg.norm(x - anchors[int(k), 2:])) <= tol else None)
+    return tags
+
+
+def _embed_curves(g, curves: list, path: Path, known: list[int | None] | None = None) -> None:
+    """Fragment the surfaces with the curves lying on them, so mesh edges follow the curves.
+    ``known``: the host surface of each curve where it is known (`_known_hosts`), else
+    found by probing 7 of the curve's points."""
     bb_all = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
     tol = 1e-7 * float(np.linalg.norm(bb_all[3:] - bb_all[:3]))
     surf = [t for _, t in g.model.getEntities(2)]
     boxes = np.array([g.model.getBoundingBox(2, t) for t in surf], dtype=float).reshape(-1, 6)
     hosts: set[int] = set()
     tools = []
-    for c in curves:  # loop over the (few) crease curves
+    for i, c in enumerate(curves):  # loop over the (few) crease curves
         t0, t1 = c.domain
+        if known is not None and known[i] is not None:
+            hosts.add(int(known[i]))
+            tools.append((1, _add_bspline(g, c)))
+            continue
         probe = c.evaluate(np.linspace(t0, t1, 9)[1:-1])  # (7, 3) interior points
         inbox = np.all((probe.min(0) >= boxes[:, :3] - 10 * tol) & (probe.max(0) <= boxes[:, 3:] + 10 * tol), axis=1)
         found = []
@@ -1051,10 +1115,7 @@ def _embed_curves(g, curves: list, path: Path) -> None:
         if not found:
             raise MeshError(f"{path}: a crease curve (from {probe[0].tolist()}) lies on no gmsh surface")
         hosts.update(found)
-        knots, mult = np.unique(c.knots, return_counts=True)
-        pts = [g.model.occ.addPoint(*map(float, x)) for x in c.control_points]
-        tools.append((1, g.model.occ.addBSpline(pts, degree=int(c.degree), weights=[float(w) for w in c.weights],
-                                                knots=knots.tolist(), multiplicities=mult.tolist())))
+        tools.append((1, _add_bspline(g, c)))
     # the hosts' neighbours go into the fuse too: where a curve ends on a host's boundary
     # (within tolerance of a corner or an edge), OCC's fuse rebuilds that vertex and the host's
     # edges there, and a neighbour left out keeps the old ones, so the two no longer share
