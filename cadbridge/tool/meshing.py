@@ -2,8 +2,9 @@
 step-by-step commands (`cadbridge mesh`, `normals`, `nagata`), so both make the same tools.
 
 `read_cad`: the model as every tool stage uses it (trim-loop excursions cut out,
-`cadbridge.heal.loop_excursions`). `mesh_for_tools`: the mesh of `convert` (crease and fold
-lines inside faces as mesh edges, faces as the reader read them, consistent orientation).
+`cadbridge.heal.loop_excursions`). `mesh_for_tools`: the mesh of `convert` (the model itself
+meshed, `cadbridge.heal.brep`; crease and fold lines inside faces as mesh edges; consistent
+orientation).
 """
 
 from __future__ import annotations
@@ -57,8 +58,9 @@ def mesh_for_tools(
 
     ``model`` and ``excursions`` come from `read_cad` (``cad``). Crease lines
     (`cadbridge.heal.creases.crease_lines`) and fold lines (`cadbridge.heal.folds.folds_for`)
-    inside faces become mesh edges; the mesher reads the faces as the reader read them
-    (`cadbridge.heal.mesh_source`) without the excursions; the elements are then oriented
+    inside faces become mesh edges; gmsh meshes the model itself (`_mesh_model_brep`), or
+    where that cannot be meshed the file as OCC reads it (`cadbridge.heal.mesh_source`),
+    without the excursions; QIT meshes the file's faces. The elements are then oriented
     consistently (`cadbridge.tool.build.consistently_oriented`: the lowest element of each
     connected part keeps gmsh's orientation), so the mesh written to a file needs no
     ``--orient``. The mesh is named after ``cad``. Options as `cadbridge.mesh.generate.mesh_cad`;
@@ -82,12 +84,16 @@ def mesh_for_tools(
     progress.stage(f"meshing {Path(cad).name} with {mesher}"
                    + (f" ({len(creases)} crease lines inside faces become mesh edges)" if creases else "")
                    + (f" ({len(folds)} fold lines inside faces become mesh edges)" if folds else ""))
-    with mesh_source(cad, model) as source:  # the file as cadbridge read it (faces re-read by the reader)
-        mesh = mesh_cad(source, element=element, size=size, structured=structured,
-                        radius_divisions=radius_divisions, length_divisions=length_divisions,
-                        curvature_elements=curvature_elements,
-                        embed_curves=[c.curve for c in creases] + [f.curve for f in folds],
-                        mesher=mesher, loop_cuts=excursions, background_sizes=local_sizes)
+    lines = [(c.face, c.curve) for c in creases] + [(f.face, f.curve) for f in folds]
+    opts = dict(element=element, size=size, structured=structured, radius_divisions=radius_divisions,
+                length_divisions=length_divisions, curvature_elements=curvature_elements,
+                embed_curves=[c for _, c in lines], mesher=mesher, loop_cuts=excursions,
+                background_sizes=local_sizes)
+    mesh, tried = _mesh_model_brep(model, lines, opts) if mesher == "gmsh" else (None, [])
+    if mesh is None:  # QIT (it meshes the file's faces itself), or the B-rep could not be meshed
+        with mesh_source(cad, model) as source:  # the file as cadbridge read it (faces re-read by the reader)
+            mesh = mesh_cad(source, **opts)
+        mesh.notes = tried + list(mesh.notes)
     mesh.name = Path(cad).stem
     if mesh.n_elements == 0:  # e.g. a default size from a bounding box one far control point inflates
         from cadbridge.mesh.mesh import MeshError
@@ -98,3 +104,39 @@ def mesh_for_tools(
                         f"runs from ({', '.join(f'{x:.6g}' for x in lo)}) to ({', '.join(f'{x:.6g}' for x in hi)}))")
     notes = healed_notes(excursions) + list(mesh.notes)
     return consistently_oriented(mesh, True), notes
+
+
+def _mesh_model_brep(model: Model, lines: list, opts: dict) -> tuple[Mesh | None, list[str]]:
+    """gmsh's mesh of the model itself (`cadbridge.heal.brep`): face k of the mesh is face k
+    of the model by construction, crease and fold lines are embedded in their own faces, and
+    the excursions are already cut out of the model's loops. Sewn first at the mesher's
+    tolerance (`SEW_TOLERANCE_MM`), then, where OCC cannot make the faces' wires of that
+    (trims that miss each other by more: gmsh's import fails), at the file's trim tolerance.
+    Returns (mesh, notes); mesh None where neither meshes (`MeshError`): `convert` then
+    meshes the file as OCC reads it, and the notes say why.
+    ``lines``: (model face index, curve) of each crease and fold line; ``opts``: `mesh_cad`'s."""
+    from cadbridge.heal.brep import brep_source, trim_sew_tolerance
+    from cadbridge.mesh.generate import mesh_cad
+    from cadbridge.mesh.mesh import MeshError
+    from OCP.Standard import Standard_Failure
+
+    failures: list[str] = []
+    for sew in (None, trim_sew_tolerance(model)):  # loop over (at most) two sewing tolerances
+        try:
+            with brep_source(model, sew_tolerance=sew) as (source, brep):
+                mesh = mesh_cad(source, straight_splines=True, embed_faces=[k for k, _ in lines],
+                                face_anchors=brep.anchors, **{**opts, "loop_cuts": ()})
+        except (MeshError, ValueError, Standard_Failure) as e:  # ValueError: a trim no cubic follows
+            failures.append(f"mesh: the model's B-rep sewn at {_sew_text(sew, model)} could not be meshed ({e})")
+            continue
+        mesh.notes = failures + brep.notes() + list(mesh.notes)
+        return mesh, []
+    failures.append("mesh: meshed the file as OCC's IGES reader reads it instead")
+    return None, failures
+
+
+def _sew_text(sew: float | None, model: Model) -> str:
+    """The sewing tolerance in words, for the notes."""
+    from cadbridge.heal.brep import SEW_TOLERANCE_MM
+
+    return f"{SEW_TOLERANCE_MM / model.units.to_mm:.3g}" if sew is None else f"the trim tolerance {sew:.3g}"
