@@ -9,8 +9,7 @@ is built from the model itself, so mesher and projector see one geometry:
   and knots of its `NurbsSurface` (so a node's (u, v) in gmsh is its (u, v) on the model);
 * its trim loops become wires of edges built from the loops' parameter-space curves (pieces
   that are not NURBS -- `cadbridge.iges.analytic.MappedCurve` / ``InvertedCurve`` over analytic
-  surfaces -- through their cubic within `cadbridge.iges.writer.TRIM_REL_TOL`, as the IGES
-  writer does); untrimmed faces are bounded by their surface's domain;
+  surfaces -- through their cubic within `PCURVE_REL_TOL`); untrimmed faces are bounded by their surface's domain;
 * OCC's shape healing mends what the file leaves open: `ShapeFix_Wire` (order, gaps,
   degenerate edges at poles and apexes, lacking edges), ``BRepLib.BuildCurves3d`` (the 3D
   curves of the edges, from the pcurves), `ShapeFix_Face` (orientation of the loops, missing
@@ -44,11 +43,11 @@ IGES export of a cylinder leaves its circles ~1e-5 mm apart)."""
 EDGE_TOLERANCE = 1e-7
 """Tolerance of the built edges and faces, x model size."""
 
-CURVE3D_TOLERANCE = 1e-12
-"""Tolerance of the edges' 3D curves approximated from S(pcurve(t)), x model size. gmsh puts
-the boundary nodes on these curves: at `EDGE_TOLERANCE` they lay 8.7e-8 x size off the
-surface (multiple_knots.igs), at this 8e-13 (4e-9 on the bearing, where OCC's approximation
-stops); the build costs the same (0.4 s for the bearing's 213 faces)."""
+PCURVE_REL_TOL = 1e-8
+"""Cubic deviation of a non-NURBS trim piece's pcurve (`MappedCurve`, `InvertedCurve`), x the
+(u, v) domain diagonal: 100x below the soundness tolerance (nodes on the trimmed face within
+1e-6 x size). Not the IGES writer's 1e-10: an inverted trim of PRO20358-W8 then took 15 796
+poles (13 s), and OCC's checks of the face another 16 s."""
 
 
 @dataclass
@@ -132,17 +131,15 @@ def occ_surface(s):
 
 def occ_pcurve(c, surface) -> tuple[object, float, float]:
     """(`Geom2d_BSplineCurve`, t0, t1) of a trim piece in the (u, v) of ``surface`` (a
-    `NurbsSurface`); non-NURBS pieces through their cubic within ``TRIM_REL_TOL`` x the
+    `NurbsSurface`); non-NURBS pieces through their cubic within `PCURVE_REL_TOL` x the
     domain diagonal."""
     from OCP.Geom2d import Geom2d_BSplineCurve
     from OCP.gp import gp_Pnt2d
     from OCP.TColgp import TColgp_Array1OfPnt2d
 
-    from cadbridge.iges.writer import TRIM_REL_TOL
-
     if not isinstance(c, NurbsCurve):
         u0, u1, v0, v1 = surface.domain
-        tol = TRIM_REL_TOL * float(np.hypot(u1 - u0, v1 - v0))
+        tol = PCURVE_REL_TOL * float(np.hypot(u1 - u0, v1 - v0))
         for k in range(4):  # a curve inverted near a pole is noisy in (u, v): looser, up to 1e-6 x domain
             try:
                 c = c.to_nurbs(tol=tol * 1e3 ** k)
@@ -159,15 +156,15 @@ def occ_pcurve(c, surface) -> tuple[object, float, float]:
     return Geom2d_BSplineCurve(poles, _array1(c.weights, "real"), k, m, int(c.degree), False), float(t0), float(t1)
 
 
-def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list[str]]:
-    """The OCC face of one model face, and the fixes OCC's healing made on it. ``tol``: the
+def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list[str], bool]:
+    """The OCC face of one model face, the fixes OCC's healing made on it, and whether
+    `BRepCheck_Analyzer` finds it valid. ``tol``: the
     edges' tolerance; consecutive loop pieces closer than ``resolution`` (the file's minimum
     resolution, IGES global parameter 19: points closer are the same point) are joined;
     a join is reported where it moved an end by more than 1 % of ``resolution``."""
     from OCP.BRep import BRep_Builder
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeFace
     from OCP.BRepLib import BRepLib
-    from OCP.GeomAbs import GeomAbs_C1
     from OCP.ShapeExtend import ShapeExtend_DONE3, ShapeExtend_DONE4, ShapeExtend_DONE5, ShapeExtend_WireData
     from OCP.BRepCheck import BRepCheck_Analyzer
     from OCP.ShapeFix import ShapeFix_Face, ShapeFix_Shape, ShapeFix_Wire
@@ -206,10 +203,8 @@ def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list
             fixes.append(f"{name}: degenerate edge added (pole or apex)")
         if fw.FixLacking():
             fixes.append(f"{name}: lacking edge added")
-        if fw.FixSelfIntersection():
-            fixes.append(f"{name}: self-intersection removed")
         builder.Add(occ, fw.Wire())
-    BRepLib.BuildCurves3d_s(occ, tol * CURVE3D_TOLERANCE / EDGE_TOLERANCE, GeomAbs_C1, 14, 0)
+    BRepLib.BuildCurves3d_s(occ, tol)  # approximations of S(c(t)): the mesher puts its nodes back on S(c(t))
     ff = ShapeFix_Face(occ)
     if ff.FixOrientation():  # Perform() alone leaves a clockwise outer loop as it is
         fixes.append("loop orientation turned")
@@ -220,16 +215,17 @@ def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list
         if ff.Status(status):
             fixes.append(what)
     out = ff.Face()
-    if not BRepCheck_Analyzer(out).IsValid():  # what the steps above leave invalid: OCC's whole healing
+    valid = BRepCheck_Analyzer(out).IsValid()
+    if not valid:  # what the steps above leave invalid: OCC's whole healing
         shape = ShapeFix_Shape(out)
         shape.Perform()
         ex = TopExp_Explorer(shape.Shape(), TopAbs_FACE)
         one = TopoDS.Face_s(ex.Current()) if ex.More() else None
         ex.Next()
         if one is not None and not ex.More() and BRepCheck_Analyzer(one).IsValid():  # one valid face: kept
-            out = one
+            out, valid = one, True
             fixes.append("made valid by ShapeFix_Shape")
-    return out, fixes
+    return out, fixes, valid
 
 
 def model_brep(model: Model, *, sew_tolerance: float | None = None) -> ModelBrep:
@@ -259,16 +255,18 @@ def model_brep(model: Model, *, sew_tolerance: float | None = None) -> ModelBrep
     resolution = min(resolution, 1e-4 * size)  # a resolution the size of the part means nothing
     built = [_face(f, tol, resolution) for f in model.faces]  # loop over faces: OCC builds one at a time
     sew = BRepBuilderAPI_Sewing(sew_tolerance)
-    for occ, _ in built:
+    for occ, _, _ in built:
         sew.Add(occ)
     sew.Perform()
     faces, reports = [], []
-    for k, (occ, fixes) in enumerate(built):
+    for k, (occ, fixes, valid) in enumerate(built):
         out = sew.Modified(occ)
         ex = TopExp_Explorer(out, TopAbs_FACE)  # the sewn face (one face in, one face out)
         sewn = TopoDS.Face_s(ex.Current()) if ex.More() else occ
         faces.append(sewn)
-        reports.append(FaceBuild(k, BRepCheck_Analyzer(sewn).IsValid(), fixes))
+        # checked again only where the sewing changed the face (the check is the build's
+        # costliest step on faces with long approximated trims: 7.7 s on PRO20358-W8)
+        reports.append(FaceBuild(k, BRepCheck_Analyzer(sewn).IsValid() if sew.IsModified(occ) else valid, fixes))
     compound = TopoDS_Compound()
     b = BRep_Builder()
     b.MakeCompound(compound)

@@ -336,6 +336,7 @@ def mesh_cad(
     straight_splines: bool = False,
     embed_faces: Sequence | None = None,
     face_anchors=None,
+    exact_curve_nodes: bool = False,
 ) -> Mesh:
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
@@ -387,6 +388,9 @@ def mesh_cad(
         holding them are meshed without them (`cadbridge.mesh.gmsh.loop_cuts`).
     straight_splines : a straight curve shorter than ``size`` that is no OCC line gets one
         segment, as a line would (`_one_segment_straight_splines`; for `cadbridge.heal.brep`).
+    exact_curve_nodes : nodes on curves moved onto S(c(t)), the surface at the curve's pcurve
+        on a face next to it (`_exact_curve_nodes`; for `cadbridge.heal.brep`, whose edges'
+        3D curves are approximations of S(c(t)) within a tolerance).
     embed_faces, face_anchors : where the file is the model itself (`cadbridge.heal.brep`: face
         k of the model is the k-th OCC face, on the same surface parametrisation), the model
         face each of ``embed_curves`` lies on (index, or None) and one anchor per model face,
@@ -421,7 +425,8 @@ def mesh_cad(
               curvature_elements=curvature_elements, target_unit=target_unit, parametric=parametric,
               embed_curves=list(embed_curves), size_callback=size_callback, curve_size=curve_size,
               background_sizes=background_sizes, loop_cuts=list(loop_cuts), straight_splines=straight_splines,
-              embed_faces=None if embed_faces is None else list(embed_faces), face_anchors=face_anchors)
+              embed_faces=None if embed_faces is None else list(embed_faces), face_anchors=face_anchors,
+              exact_curve_nodes=exact_curve_nodes)
     try:
         return _mesh_once(path, verbose, heal=False, **kw)
     except MeshError as first:
@@ -566,6 +571,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
 
     if kw["parametric"]:
         mesh = _collect(g, surfaces, True, path)
+    if kw["exact_curve_nodes"]:
+        _exact_curve_nodes(g, mesh, diag)
     tol = _merge_tolerance(size, subdivided)
     mesh, merged = merge_close_nodes(mesh, tol, anchors=_vertex_nodes(g, mesh))
     mesh.notes += filled
@@ -923,6 +930,32 @@ def _vertex_nodes(g, mesh: Mesh) -> np.ndarray:
 
     d, i = cKDTree(mesh.nodes).query(xyz)
     return np.unique(i[d == 0.0]).astype(np.int64)
+
+
+def _exact_curve_nodes(g, mesh: Mesh, diag: float) -> None:
+    """Move the nodes gmsh put on curves onto S(c(t)): the curve parameter t of each node
+    through the pcurve c of the curve on a surface next to it (gmsh's
+    ``reparametrizeOnSurface``, OCC's pcurve), evaluated on that surface. Where an edge's 3D
+    curve approximates S(c(t)) (a B-rep built from pcurves, `cadbridge.heal.brep`) its nodes
+    lay up to that approximation's tolerance off the surface; now on it to rounding. A node
+    moves only where the mesh holds a node at gmsh's position (found by its exact
+    coordinates: the mesh drops gmsh's unused nodes), by at most 1e-6 x ``diag``."""
+    nodes = mesh.nodes
+    where = {tuple(x): i for i, x in enumerate(nodes.tolist())}  # exact coordinates -> mesh node
+    for _, c in g.model.getEntities(1):  # loop over curves, vectorised over their nodes
+        _, cx, ts = g.model.mesh.getNodes(1, c, includeBoundary=False, returnParametricCoord=True)
+        up, _ = g.model.getAdjacencies(1, c)
+        if len(ts) == 0 or len(up) == 0:
+            continue
+        try:
+            uv = g.model.reparametrizeOnSurface(1, c, list(ts), int(up[0]))
+        except Exception:  # noqa: BLE001 - gmsh raises a bare Exception where it cannot: keep gmsh's nodes
+            continue
+        x = np.asarray(g.model.getValue(2, int(up[0]), list(uv)), dtype=float).reshape(-1, 3)
+        old = np.asarray(cx, dtype=float).reshape(-1, 3)
+        i = np.array([where.get(tuple(p), -1) for p in old.tolist()], dtype=np.int64)
+        ok = (i >= 0) & (np.linalg.norm(x - old, axis=1) <= 1e-6 * diag)
+        nodes[i[ok]] = x[ok]
 
 
 def _one_segment_straight_splines(g, size: float) -> None:

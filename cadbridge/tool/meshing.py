@@ -124,7 +124,7 @@ def _mesh_model_brep(model: Model, lines: list, opts: dict) -> tuple[Mesh | None
     for sew in (None, trim_sew_tolerance(model)):  # loop over (at most) two sewing tolerances
         try:
             with brep_source(model, sew_tolerance=sew) as (source, brep):
-                mesh = mesh_cad(source, straight_splines=True, embed_faces=[k for k, _ in lines],
+                mesh = mesh_cad(source, straight_splines=True, exact_curve_nodes=True, embed_faces=[k for k, _ in lines],
                                 face_anchors=brep.anchors, **{**opts, "loop_cuts": ()})
         except (MeshError, ValueError, Standard_Failure) as e:  # ValueError: a trim no cubic follows
             failures.append(f"mesh: the model's B-rep sewn at {_sew_text(sew, model)} could not be meshed ({e})")
