@@ -31,7 +31,8 @@ from cadbridge.cad.model import Model
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.edits import isocurve
 
-__all__ = ["CreaseLine", "crease_lines", "inner_crease_knots", "sliver_side", "straddling_elements", "SLIVER_BAND"]
+__all__ = ["CreaseLine", "crease_lines", "inner_crease_knots", "seam_side", "sliver_side", "straddling_elements",
+           "SLIVER_BAND"]
 
 SLIVER_BAND = 1e-4
 """A face band narrower than this x model size beside a knot line makes it no crease (the
@@ -98,6 +99,20 @@ def inner_crease_knots(surface, band: float, angle: float = 1e-6) -> tuple[np.nd
                  for d, k in (("u", ku), ("v", kv)))
 
 
+def seam_side(pc: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """Corner parameters (S, k) across a closed direction [lo, hi], with each corner that lies
+    on the seam (at lo or hi, within 1e-9 x the range: the projection gives either) moved to
+    the end its element's other corners are nearer to."""
+    tol = 1e-9 * (hi - lo)
+    on = (np.abs(pc - lo) <= tol) | (np.abs(pc - hi) <= tol)
+    if not on.any():
+        return pc
+    n_off = np.maximum(np.count_nonzero(~on, axis=1), 1)
+    mean_off = np.where(on, 0.0, pc).sum(axis=1) / n_off  # the mean of the element's other corners
+    end = np.where(mean_off > 0.5 * (lo + hi), hi, lo)[:, None]
+    return np.where(on & (np.count_nonzero(~on, axis=1) > 0)[:, None], end, pc)
+
+
 def straddling_elements(
     blocks: list[np.ndarray],
     model: Model,
@@ -146,10 +161,13 @@ def straddling_elements(
             s = model.faces[fk].surface
             u0, u1, v0, v1 = s.domain
             ku, kv = inner_crease_knots(s, tol3)
+            closed = dict(zip("uv", s.closed_directions()))
             for d, knots, par, other, rng in (("u", ku, node_u, node_v, u1 - u0), ("v", kv, node_v, node_u, v1 - v0)):
                 if len(knots) == 0:
                     continue
                 pc = par[conn[sel]]  # (S, k)
+                if closed[d]:  # a corner on the seam belongs to the element's side of it
+                    pc = seam_side(pc, *((u0, u1) if d == "u" else (v0, v1)))
                 lo, hi = pc.min(axis=1), pc.max(axis=1)
                 tol = 1e-9 * rng
                 cross = (lo[:, None] < knots[None, :] - tol) & (hi[:, None] > knots[None, :] + tol)

@@ -178,7 +178,34 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
         cp = project_points(cent, model, max_distance=None)
         face[todo], u[todo], v[todo] = cp.face, cp.u, cp.v
         _faces_holding_the_corners(nodes, blocks, starts, todo, cent, pf, model, face, u, v)
+    _seam_means(blocks, model, face, pu, pv, u, v)
     return face, u, v
+
+
+def _seam_means(blocks: list[np.ndarray], model: Model, face: np.ndarray, pu: np.ndarray, pv: np.ndarray,
+                u: np.ndarray, v: np.ndarray) -> None:
+    """On a closed face, the corner mean of an element with a corner on the seam is taken with
+    that corner at the seam end of the element's side (`cadbridge.heal.creases.seam_side`):
+    a corner at v = 0 of an element beside v = 1 would pull its mean across the face and put
+    it on the wrong side of a crease knot line. u, v (E,) updated in place."""
+    from cadbridge.heal.creases import seam_side
+
+    offset = 0
+    for c in blocks:  # loop over blocks, then over the few closed faces
+        ef = face[offset : offset + len(c)]
+        for f in np.unique(ef[ef >= 0]):
+            srf = model.faces[int(f)].surface
+            closed = srf.closed_directions()
+            if not any(closed):
+                continue
+            rows = np.flatnonzero(ef == f)
+            u0, u1, v0, v1 = srf.domain
+            cu, cv = pu[c[rows]], pv[c[rows]]
+            if closed[0]:
+                u[offset + rows] = seam_side(cu, u0, u1).mean(axis=1)
+            if closed[1]:
+                v[offset + rows] = seam_side(cv, v0, v1).mean(axis=1)
+        offset += len(c)
 
 
 def _faces_holding_the_corners(nodes, blocks, starts, todo, cent, pf, model, face, u, v) -> None:
@@ -380,21 +407,73 @@ class _Corners:
     crease: np.ndarray  # (N,) bool, set by the stages: node with several corner normals
 
 
-def _corners_on_other_faces(cx: _Corners, c: np.ndarray, ef: np.ndarray, en: np.ndarray, cn: np.ndarray) -> None:
+def _corners_on_other_faces(cx: _Corners, c: np.ndarray, ef: np.ndarray, en: np.ndarray, cn: np.ndarray,
+                            uc: np.ndarray | None = None, vc: np.ndarray | None = None) -> None:
     """Corners whose element lies on another face than the node's foot point take that face's
     normal at the node where it differs by more than the crease angle. c (E, k) node ids, ef
-    (E,) element faces, en (E, 3) element normals; cn (E, k, 3) corner normals, updated."""
+    (E,) element faces, en (E, 3) element normals; cn (E, k, 3) corner normals, updated.
+    uc, vc (E,): the element centroids' parameters; with them, a foot on a crease knot line
+    or the seam of the element's face takes the normal on the element's side of it
+    (`_one_sided`), not whichever side the projection reports."""
     other = (ef[:, None] != cx.node_face[c]) & (ef[:, None] >= 0)
     if np.any(other):
         ei, ki = np.nonzero(other)
         nid = c[ei, ki]
         fids = ef[ei]
         # all (corner, element face) pairs in one compiled pass (`project_to_surfaces`)
-        nrm = project_to_surfaces(index_for(cx.model).surface_pack(cx.model), fids, cx.nodes[nid]).normal
+        pr = project_to_surfaces(index_for(cx.model).surface_pack(cx.model), fids, cx.nodes[nid])
+        nrm = pr.normal
+        if uc is not None and vc is not None:
+            _one_sided(cx.model, fids, pr.u, pr.v, uc[ei], vc[ei], nrm)
         nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * cx.sign
         sharp = np.einsum("ij,ij->i", nrm, cx.node_n[nid]) < cx.cos_crease
         cn[ei[sharp], ki[sharp]] = nrm[sharp]
         cx.crease[nid[sharp]] = True
+
+
+def _at_poles(s, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Whether feet (u, v) (same shape) lie on a collapsed side of ``s`` (a pole or an apex,
+    `NurbsSurface.collapsed_sides`), within 1e-9 x the parameter range."""
+    u0, u1, v0, v1 = s.domain
+    cu0, cu1, cv0, cv1 = s.collapsed_sides()
+    tu, tv = 1e-9 * (u1 - u0), 1e-9 * (v1 - v0)
+    return ((cu0 & (np.abs(u - u0) <= tu)) | (cu1 & (np.abs(u - u1) <= tu))
+            | (cv0 & (np.abs(v - v0) <= tv)) | (cv1 & (np.abs(v - v1) <= tv)))
+
+
+def _one_sided(model: Model, fids: np.ndarray, u: np.ndarray, v: np.ndarray, uc: np.ndarray, vc: np.ndarray,
+               nrm: np.ndarray) -> None:
+    """Normals (M, 3) at feet (u, v) on faces ``fids`` (M,), made one-sided towards the
+    element centroids (uc, vc) where a foot lies on a crease knot line of its face
+    (`NurbsSurface.crease_knots`) or on its seam (`NurbsSurface.closed_directions`; the foot
+    moved to the seam end nearer the centroid), within 1e-9 x the parameter range. In place."""
+    for f in np.unique(fids):  # loop over the faces, vectorised over their feet
+        s = model.faces[int(f)].surface
+        ku, kv = s.crease_knots()
+        closed = s.closed_directions()
+        if not (len(ku) or len(kv) or any(closed)):
+            continue
+        sel = np.flatnonzero(fids == f)
+        u0, u1, v0, v1 = s.domain
+        pu, pv = u[sel].copy(), v[sel].copy()
+        side = []
+        hit = np.zeros(len(sel), dtype=bool)
+        for p, cen, knots, lo, hi, shut in ((pu, uc[sel], ku, u0, u1, closed[0]), (pv, vc[sel], kv, v0, v1, closed[1])):
+            tol = 1e-9 * (hi - lo)
+            on = np.zeros(len(sel), dtype=bool)
+            for k in knots:  # loop over the (few) crease knots
+                at = np.abs(p - k) <= tol
+                p[at], on = k, on | at
+            if shut:
+                seam = (np.abs(p - lo) <= tol) | (np.abs(p - hi) <= tol)
+                p[seam] = np.where(cen[seam] > 0.5 * (lo + hi), hi, lo)
+                on |= seam
+            side.append(np.where(cen >= p, 1, -1))
+            hit |= on
+        hit &= ~_at_poles(s, u[sel], v[sel])  # a pole or apex has its limit normal (`singular_nodes`)
+        if hit.any():
+            h = sel[hit]
+            nrm[h] = s.normal(pu[hit], pv[hit], side_u=side[0][hit], side_v=side[1][hit])
 
 
 def _corners_on_knot_lines(cx: _Corners, c: np.ndarray, ef: np.ndarray, uc: np.ndarray, vc: np.ndarray,
@@ -414,6 +493,39 @@ def _corners_on_knot_lines(cx: _Corners, c: np.ndarray, ef: np.ndarray, uc: np.n
             sel = fids == f
             nrm[sel] = cx.model.faces[f].surface.normal(cx.knot_u[nid[sel]], cx.knot_v[nid[sel]],
                                                         side_u=side_u[sel], side_v=side_v[sel])
+        nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * cx.sign
+        sharp = np.einsum("ij,ij->i", nrm, cx.node_n[nid]) < cx.cos_crease
+        cn[ei[sharp], ki[sharp]] = nrm[sharp]
+        cx.crease[nid[sharp]] = True
+
+
+def _corners_on_seams(cx: _Corners, c: np.ndarray, ef: np.ndarray, node_u: np.ndarray, node_v: np.ndarray,
+                      en: np.ndarray, cn: np.ndarray) -> None:
+    """Corners at nodes on the seam of a closed face (`NurbsSurface.closed_directions`: the
+    foot at u0 or u1, v0 or v1, the projection giving either) take the normal at the seam end
+    on their element's side (`cadbridge.heal.creases.seam_side`), where it differs from the
+    node normal by more than the crease angle: a seam that is a sharp edge (a tube of
+    polygonal section closed at a corner, OCC17026-2). node_u, node_v (N,) the feet's
+    parameters; arguments otherwise as `_corners_on_other_faces`."""
+    from cadbridge.heal.creases import seam_side
+
+    own = (ef[:, None] == cx.node_face[c]) & (ef[:, None] >= 0)
+    for f in np.unique(ef[ef >= 0]):  # loop over faces with elements, vectorised over them
+        s = cx.model.faces[int(f)].surface
+        closed = s.closed_directions()
+        if not any(closed):
+            continue
+        rows = np.flatnonzero(ef == f)
+        u0, u1, v0, v1 = s.domain
+        pu, pv = node_u[c[rows]], node_v[c[rows]]
+        su = seam_side(pu, u0, u1) if closed[0] else pu
+        sv = seam_side(pv, v0, v1) if closed[1] else pv
+        moved = ((su != pu) | (sv != pv)) & own[rows] & ~_at_poles(s, pu, pv)  # poles: `singular_nodes`
+        if not moved.any():
+            continue
+        ri, ki = np.nonzero(moved)
+        ei, nid = rows[ri], c[rows[ri], ki]
+        nrm = s.normal(su[ri, ki], sv[ri, ki])
         nrm *= np.where(np.einsum("ij,ij->i", nrm, en[ei]) < 0, -1.0, 1.0)[:, None] * cx.sign
         sharp = np.einsum("ij,ij->i", nrm, cx.node_n[nid]) < cx.cos_crease
         cn[ei[sharp], ki[sharp]] = nrm[sharp]
@@ -519,8 +631,9 @@ def cad_normals(
         offset += len(c)
         element_face.append(ef)
         cn = node_n[c]  # (E, k, 3): fancy indexing gives a fresh array (no second copy)
-        _corners_on_other_faces(cx, c, ef, en, cn)
+        _corners_on_other_faces(cx, c, ef, en, cn, uc, vc)
         _corners_on_knot_lines(cx, c, ef, uc, vc, en, cn)
+        _corners_on_seams(cx, c, ef, np.asarray(proj.u), np.asarray(proj.v), en, cn)
         if len(nm):
             _corners_at_non_manifold(cx, c, en, cn)
         _corners_with_their_element(cx, c, en, cn)

@@ -560,6 +560,25 @@ class NurbsSurface:
             self.__dict__["_collapsed"] = hit
         return hit
 
+    def closed_directions(self) -> tuple[bool, bool]:
+        """Whether the surface closes on itself across u (S(u0, v) = S(u1, v)) and across v
+        (S(u, v0) = S(u, v1)): a seam. 17 points along the sides within 1e-10 x the control
+        net's size; a collapsed side (`collapsed_sides`) alone does not close. Cached."""
+        hit = self.__dict__.get("_closed")
+        if hit is None:
+            u0, u1, v0, v1 = self.domain
+            t = np.linspace(0.0, 1.0, 17)
+            uu, vv = u0 + (u1 - u0) * t, v0 + (v1 - v0) * t
+            b = self.bbox()
+            tol = 1e-10 * float(np.linalg.norm(b[1] - b[0]))
+            gap_u = self.evaluate(np.full(17, u0), vv) - self.evaluate(np.full(17, u1), vv)
+            gap_v = self.evaluate(uu, np.full(17, v0)) - self.evaluate(uu, np.full(17, v1))
+            cs = self.collapsed_sides()
+            hit = (bool(np.linalg.norm(gap_u, axis=1).max() <= tol) and not (cs[0] and cs[1]),
+                   bool(np.linalg.norm(gap_v, axis=1).max() <= tol) and not (cs[2] and cs[3]))
+            self.__dict__["_closed"] = hit
+        return hit
+
     def crease_knots(self, angle: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
         """Interior knots across which the surface normal jumps (a crease inside the face).
 
