@@ -43,6 +43,13 @@ IGES export of a cylinder leaves its circles ~1e-5 mm apart)."""
 EDGE_TOLERANCE = 1e-7
 """Tolerance of the built edges and faces, x model size."""
 
+MAX_CHECKED_POLES = 5000
+"""Faces whose pcurves have more poles in all get no `ShapeFix_Face.Perform`, no
+`BRepCheck_Analyzer` and no `ShapeFix_Shape` (their orientation is still fixed): these
+compare pairs of pcurve pieces, and took 52 s each on PRO19800's face (an inverted trim
+through an apex: 34 447 poles). Such a face is meshed as built; the mesher's own checks
+still apply."""
+
 PCURVE_REL_TOL = 1e-8
 """Cubic deviation of a non-NURBS trim piece's pcurve (`MappedCurve`, `InvertedCurve`), x the
 (u, v) domain diagonal: 100x below the soundness tolerance (nodes on the trimmed face within
@@ -55,12 +62,13 @@ class FaceBuild:
     """How one model face became an OCC face.
 
     index   the face's index in ``model.faces``
-    valid   `BRepCheck_Analyzer` finds the OCC face valid
+    valid   `BRepCheck_Analyzer` finds the OCC face valid (None: not checked, its pcurves have
+            more than `MAX_CHECKED_POLES` poles)
     fixes   what OCC's shape healing changed, in words (empty: nothing)
     """
 
     index: int
-    valid: bool
+    valid: bool | None
     fixes: list[str] = field(default_factory=list)
 
 
@@ -89,7 +97,7 @@ class ModelBrep:
         for f in self.faces:
             if f.fixes:
                 out.append(f"face {f.index}: OCC shape healing: {'; '.join(f.fixes)}")
-            if not f.valid:
+            if f.valid is False:
                 out.append(f"face {f.index}: OCC finds the built face invalid (BRepCheck); meshed as it is")
         return out
 
@@ -184,10 +192,12 @@ def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list
         occ = TopoDS_Face()
         builder.MakeFace(occ, surface, tol)
         loops = [trims.outer] + list(trims.inner)
+    poles = 0
     for k, loop in enumerate(loops):
         data = ShapeExtend_WireData()
         for c in loop.curves:
             g2, t0, t1 = occ_pcurve(c, face.surface)
+            poles += g2.NbPoles()
             data.Add(BRepBuilderAPI_MakeEdge(g2, surface, t0, t1).Edge())
         fw = ShapeFix_Wire(data.Wire(), occ, tol)
         name = "outer loop" if (k == 0 and trims is not None and trims.outer is not None) else "hole"
@@ -208,6 +218,8 @@ def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list
     ff = ShapeFix_Face(occ)
     if ff.FixOrientation():  # Perform() alone leaves a clockwise outer loop as it is
         fixes.append("loop orientation turned")
+    if poles > MAX_CHECKED_POLES:
+        return ff.Face(), fixes, None
     ff = ShapeFix_Face(ff.Face())
     ff.Perform()
     for status, what in ((ShapeExtend_DONE3, "missing seam added"), (ShapeExtend_DONE4, "small-area loop removed"),
@@ -266,7 +278,9 @@ def model_brep(model: Model, *, sew_tolerance: float | None = None) -> ModelBrep
         faces.append(sewn)
         # checked again only where the sewing changed the face (the check is the build's
         # costliest step on faces with long approximated trims: 7.7 s on PRO20358-W8)
-        reports.append(FaceBuild(k, BRepCheck_Analyzer(sewn).IsValid() if sew.IsModified(occ) else valid, fixes))
+        if valid is not None and sew.IsModified(occ):
+            valid = BRepCheck_Analyzer(sewn).IsValid()
+        reports.append(FaceBuild(k, valid, fixes))
     compound = TopoDS_Compound()
     b = BRep_Builder()
     b.MakeCompound(compound)

@@ -17,7 +17,10 @@ from cadbridge.common.progress import NoProgress
 from cadbridge.heal.loop_excursions import Excursion
 from cadbridge.mesh.mesh import Mesh
 
-__all__ = ["healed_notes", "mesh_for_tools", "read_cad"]
+__all__ = ["FILE_ROUTE_NOTE", "healed_notes", "mesh_for_tools", "read_cad"]
+
+FILE_ROUTE_NOTE = "mesh: meshed the file as OCC's IGES reader reads it instead"
+"""The note of a mesh made of the file as OCC reads it where the model's B-rep was asked for."""
 
 
 def read_cad(cad: str | Path, progress=None) -> tuple[Model, list[Excursion]]:
@@ -53,6 +56,7 @@ def mesh_for_tools(
     mesher: str = "gmsh",
     progress=None,
     local_sizes=None,
+    route: str = "model",
 ) -> tuple[Mesh, list[str]]:
     """The mesh `convert` builds its tools on, and what was done on the way.
 
@@ -65,6 +69,9 @@ def mesh_for_tools(
     connected part keeps gmsh's orientation), so the mesh written to a file needs no
     ``--orient``. The mesh is named after ``cad``. Options as `cadbridge.mesh.generate.mesh_cad`;
     ``local_sizes`` (points (M, 3), sizes (M,)) is its ``background_sizes``.
+
+    ``route``: "model" (gmsh on the model's B-rep, the file as OCC reads it where that cannot
+    be meshed: the notes then hold `FILE_ROUTE_NOTE`) or "file" (the file as OCC reads it).
 
     Returns (mesh, notes): the notes are the healed excursions and the mesher's notes.
     """
@@ -89,7 +96,7 @@ def mesh_for_tools(
                 length_divisions=length_divisions, curvature_elements=curvature_elements,
                 embed_curves=[c for _, c in lines], mesher=mesher, loop_cuts=excursions,
                 background_sizes=local_sizes)
-    mesh, tried = _mesh_model_brep(model, lines, opts) if mesher == "gmsh" else (None, [])
+    mesh, tried = _mesh_model_brep(model, lines, opts) if mesher == "gmsh" and route == "model" else (None, [])
     if mesh is None:  # QIT (it meshes the file's faces itself), or the B-rep could not be meshed
         with mesh_source(cad, model) as source:  # the file as cadbridge read it (faces re-read by the reader)
             mesh = mesh_cad(source, **opts)
@@ -131,7 +138,7 @@ def _mesh_model_brep(model: Model, lines: list, opts: dict) -> tuple[Mesh | None
             continue
         mesh.notes = failures + brep.notes() + list(mesh.notes)
         return mesh, []
-    failures.append("mesh: meshed the file as OCC's IGES reader reads it instead")
+    failures.append(FILE_ROUTE_NOTE)
     return None, failures
 
 

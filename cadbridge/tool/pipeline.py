@@ -80,23 +80,58 @@ def guarded_mesh(
     through it, so `cadbridge nagata` on the mesh `cadbridge mesh` writes builds the tools
     `convert` builds. ``unchecked_ok``: where no tools can be built on the first mesh (its
     nodes do not project, `ProjectionError`, or `MeshError`), that mesh unchecked instead of
-    the error. Returns a `GuardRefinement` (mesh, tools, notes, rounds, converged)."""
+    the error. gmsh meshes the model's own B-rep (`mesh_for_tools` route "model"); where
+    that gives no sound tool (an error, or guards that still trip after the refinement)
+    and the file as OCC reads it does, that mesh is taken, and its notes say why. Returns a
+    `GuardRefinement` (mesh, tools, notes, rounds, converged)."""
+    from cadbridge.mesh.mesh import MeshError
+    from cadbridge.normals.cad import ProjectionError
+    from cadbridge.tool.meshing import FILE_ROUTE_NOTE
+
+    try:
+        first = _guarded_on("model", cad, model, excursions, build, progress, unchecked_ok, mesh_options)
+    except (MeshError, ProjectionError) as e:
+        first, error = None, e
+    if mesh_options.get("mesher", "gmsh") != "gmsh" or (first is not None and first.converged and first.tools):
+        return first if first is not None else _raise(error)
+    if FILE_ROUTE_NOTE in (first.mesh_notes if first is not None else getattr(error, "mesh_notes", [])):
+        return first if first is not None else _raise(error)  # the B-rep could not be meshed: this was the file
+    why = (first.failure or "the guards still trip") if first is not None else str(error)
+    progress = progress or NoProgress()
+    progress.stage(f"the mesh of the model's B-rep gave no sound tool ({why[:80]}); meshing the file as OCC reads it")
+    try:
+        second = _guarded_on("file", cad, model, excursions, build, progress, unchecked_ok, mesh_options)
+    except (MeshError, ProjectionError):
+        return first if first is not None else _raise(error)
+    if second.converged and second.tools:
+        second.mesh_notes[:0] = [f"mesh: the mesh of the model's B-rep gave no sound tool ({why}); {FILE_ROUTE_NOTE[6:]}"]
+        return second
+    return first if first is not None else second
+
+
+def _raise(error: Exception):
+    raise error
+
+
+def _guarded_on(route: str, cad, model, excursions, build, progress, unchecked_ok: bool, mesh_options: dict):
+    """`guarded_mesh` on one route of `mesh_for_tools` ("model" or "file")."""
     from cadbridge.mesh.mesh import MeshError
     from cadbridge.normals.cad import ProjectionError
     from cadbridge.tool.guard_refinement import GuardRefinement, refine_where_guards_trip
 
-    mesh, notes = mesh_for_tools(cad, model, excursions=excursions, progress=progress, **mesh_options)
+    mesh, notes = mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route, **mesh_options)
     try:
         tools = build(mesh)
-    except (MeshError, ProjectionError):
+    except (MeshError, ProjectionError) as e:
         if not unchecked_ok:
+            e.mesh_notes = notes  # which route the mesh took, for `guarded_mesh`
             raise
         return GuardRefinement(mesh, [], notes)
     if mesh_options.get("mesher", "gmsh") != "gmsh":
         return GuardRefinement(mesh, tools, notes)
     return refine_where_guards_trip(
         mesh, tools, notes, model, progress=progress, build=build,
-        remesh=lambda sizes: mesh_for_tools(cad, model, excursions=excursions, progress=progress,
+        remesh=lambda sizes: mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route,
                                             **{**mesh_options, "curvature_elements": 0}, local_sizes=sizes))
 
 
