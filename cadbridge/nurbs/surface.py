@@ -599,7 +599,7 @@ class NurbsSurface:
                 keep = []
                 for kk in k[(counts >= p) & (k > lo) & (k < hi)]:
                     jump = self.knot_jump("u" if knots is self.knots_u else "v", float(kk), other)
-                    if np.nanmax(jump) > angle:
+                    if np.any(jump > angle):  # NaN (no normal on either side: a degenerate line) is no crease
                         keep.append(kk)
                 out.append(np.array(keep, dtype=float))
             cache[angle] = (out[0], out[1])
