@@ -941,7 +941,9 @@ def _exact_curve_nodes(g, mesh: Mesh, diag: float) -> None:
     moves only where the mesh holds a node at gmsh's position (found by its exact
     coordinates: the mesh drops gmsh's unused nodes), by at most 1e-6 x ``diag``."""
     nodes = mesh.nodes
-    where = {tuple(x): i for i, x in enumerate(nodes.tolist())}  # exact coordinates -> mesh node
+    keys = _row_keys(nodes)  # exact coordinates -> mesh node, by a sorted search
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
     for _, c in g.model.getEntities(1):  # loop over curves, vectorised over their nodes
         _, cx, ts = g.model.mesh.getNodes(1, c, includeBoundary=False, returnParametricCoord=True)
         up, _ = g.model.getAdjacencies(1, c)
@@ -953,9 +955,17 @@ def _exact_curve_nodes(g, mesh: Mesh, diag: float) -> None:
             continue
         x = np.asarray(g.model.getValue(2, int(up[0]), list(uv)), dtype=float).reshape(-1, 3)
         old = np.asarray(cx, dtype=float).reshape(-1, 3)
-        i = np.array([where.get(tuple(p), -1) for p in old.tolist()], dtype=np.int64)
-        ok = (i >= 0) & (np.linalg.norm(x - old, axis=1) <= 1e-6 * diag)
-        nodes[i[ok]] = x[ok]
+        q = _row_keys(old)
+        j = np.minimum(np.searchsorted(sorted_keys, q), len(order) - 1)
+        ok = (sorted_keys[j] == q) & (np.linalg.norm(x - old, axis=1) <= 1e-6 * diag)
+        nodes[order[j[ok]]] = x[ok]
+
+
+def _row_keys(points: np.ndarray) -> np.ndarray:
+    """One opaque key per row of ``points`` (N, 3) equal exactly where the coordinates are
+    bit-identical (a void view of the row's bytes), for sorting and searching, (N,)."""
+    a = np.ascontiguousarray(points, dtype=np.float64)
+    return a.view(np.dtype((np.void, a.dtype.itemsize * a.shape[1]))).ravel()
 
 
 def _one_segment_straight_splines(g, size: float) -> None:

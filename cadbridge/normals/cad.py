@@ -182,29 +182,40 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
     return face, u, v
 
 
+def _closed_face_corners(model: Model, c: np.ndarray, ef: np.ndarray, node_u: np.ndarray, node_v: np.ndarray):
+    """For each closed face (`NurbsSurface.closed_directions`) holding elements of ``c``
+    (E, k) (faces ``ef`` (E,)): (surface, rows (S,) of those elements, corner parameters
+    pu, pv (S, k), and su, sv: the same with each corner on the seam at the end of its
+    element's side, `cadbridge.heal.creases.seam_side`; unchanged across an open direction)."""
+    from cadbridge.heal.creases import seam_side
+
+    for f in np.unique(ef[ef >= 0]):  # loop over the faces with elements, vectorised over those
+        srf = model.faces[int(f)].surface
+        closed = srf.closed_directions()
+        if not any(closed):
+            continue
+        rows = np.flatnonzero(ef == f)
+        u0, u1, v0, v1 = srf.domain
+        pu, pv = node_u[c[rows]], node_v[c[rows]]
+        yield (srf, rows, pu, pv, seam_side(pu, u0, u1) if closed[0] else pu,
+               seam_side(pv, v0, v1) if closed[1] else pv)
+
+
 def _seam_means(blocks: list[np.ndarray], model: Model, face: np.ndarray, pu: np.ndarray, pv: np.ndarray,
                 u: np.ndarray, v: np.ndarray) -> None:
     """On a closed face, the corner mean of an element with a corner on the seam is taken with
     that corner at the seam end of the element's side (`cadbridge.heal.creases.seam_side`):
     a corner at v = 0 of an element beside v = 1 would pull its mean across the face and put
     it on the wrong side of a crease knot line. u, v (E,) updated in place."""
-    from cadbridge.heal.creases import seam_side
-
     offset = 0
     for c in blocks:  # loop over blocks, then over the few closed faces
         ef = face[offset : offset + len(c)]
-        for f in np.unique(ef[ef >= 0]):
-            srf = model.faces[int(f)].surface
+        for srf, rows, _, _, su, sv in _closed_face_corners(model, c, ef, pu, pv):
             closed = srf.closed_directions()
-            if not any(closed):
-                continue
-            rows = np.flatnonzero(ef == f)
-            u0, u1, v0, v1 = srf.domain
-            cu, cv = pu[c[rows]], pv[c[rows]]
             if closed[0]:
-                u[offset + rows] = seam_side(cu, u0, u1).mean(axis=1)
+                u[offset + rows] = su.mean(axis=1)
             if closed[1]:
-                v[offset + rows] = seam_side(cv, v0, v1).mean(axis=1)
+                v[offset + rows] = sv.mean(axis=1)
         offset += len(c)
 
 
@@ -507,19 +518,8 @@ def _corners_on_seams(cx: _Corners, c: np.ndarray, ef: np.ndarray, node_u: np.nd
     node normal by more than the crease angle: a seam that is a sharp edge (a tube of
     polygonal section closed at a corner, OCC17026-2). node_u, node_v (N,) the feet's
     parameters; arguments otherwise as `_corners_on_other_faces`."""
-    from cadbridge.heal.creases import seam_side
-
     own = (ef[:, None] == cx.node_face[c]) & (ef[:, None] >= 0)
-    for f in np.unique(ef[ef >= 0]):  # loop over faces with elements, vectorised over them
-        s = cx.model.faces[int(f)].surface
-        closed = s.closed_directions()
-        if not any(closed):
-            continue
-        rows = np.flatnonzero(ef == f)
-        u0, u1, v0, v1 = s.domain
-        pu, pv = node_u[c[rows]], node_v[c[rows]]
-        su = seam_side(pu, u0, u1) if closed[0] else pu
-        sv = seam_side(pv, v0, v1) if closed[1] else pv
+    for s, rows, pu, pv, su, sv in _closed_face_corners(cx.model, c, ef, node_u, node_v):
         moved = ((su != pu) | (sv != pv)) & own[rows] & ~_at_poles(s, pu, pv)  # poles: `singular_nodes`
         if not moved.any():
             continue
