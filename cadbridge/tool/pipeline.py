@@ -88,29 +88,30 @@ def guarded_mesh(
     from cadbridge.normals.cad import ProjectionError
     from cadbridge.tool.meshing import FILE_ROUTE_NOTE
 
+    gmsh_route = mesh_options.get("mesher", "gmsh") == "gmsh"
+    first = error = None
     try:
         first = _guarded_on("model", cad, model, excursions, build, progress, unchecked_ok, mesh_options)
     except (MeshError, ProjectionError) as e:
-        first, error = None, e
-    if mesh_options.get("mesher", "gmsh") != "gmsh" or (first is not None and first.converged and first.tools):
-        return first if first is not None else _raise(error)
-    if FILE_ROUTE_NOTE in (first.mesh_notes if first is not None else getattr(error, "mesh_notes", [])):
-        return first if first is not None else _raise(error)  # the B-rep could not be meshed: this was the file
-    why = (first.failure or "the guards still trip") if first is not None else str(error)
-    progress = progress or NoProgress()
-    progress.stage(f"the mesh of the model's B-rep gave no sound tool ({why[:80]}); meshing the file as OCC reads it")
+        if not gmsh_route or FILE_ROUTE_NOTE in getattr(e, "mesh_notes", []):
+            raise  # QIT, or the model's B-rep could not be meshed and this was the file already
+        error, why = e, str(e)
+    else:
+        if not gmsh_route or (first.converged and first.tools) or FILE_ROUTE_NOTE in first.mesh_notes:
+            return first
+        why = first.failure or "the guards still trip"
+    (progress or NoProgress()).stage(f"the mesh of the model's B-rep gave no sound tool ({why[:80]}); "
+                                     f"meshing the file as OCC reads it")
     try:
         second = _guarded_on("file", cad, model, excursions, build, progress, unchecked_ok, mesh_options)
     except (MeshError, ProjectionError):
-        return first if first is not None else _raise(error)
+        if first is None:
+            raise error from None
+        return first
     if second.converged and second.tools:
         second.mesh_notes[:0] = [f"mesh: the mesh of the model's B-rep gave no sound tool ({why}); {FILE_ROUTE_NOTE[6:]}"]
         return second
     return first if first is not None else second
-
-
-def _raise(error: Exception):
-    raise error
 
 
 def _guarded_on(route: str, cad, model, excursions, build, progress, unchecked_ok: bool, mesh_options: dict):
