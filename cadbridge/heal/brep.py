@@ -32,6 +32,7 @@ from typing import Iterator
 import numpy as np
 
 from cadbridge.cad.model import Face, Model
+from cadbridge.heal.loop_excursions import default_width
 from cadbridge.nurbs.curve import NurbsCurve
 
 __all__ = ["FaceBuild", "ModelBrep", "model_brep", "brep_source", "trim_sew_tolerance", "SEW_TOLERANCE_MM"]
@@ -164,12 +165,27 @@ def occ_pcurve(c, surface) -> tuple[object, float, float]:
     return Geom2d_BSplineCurve(poles, _array1(c.weights, "real"), k, m, int(c.degree), False), float(t0), float(t1)
 
 
-def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list[str], bool]:
+def _largest_gap(data) -> float:
+    """The largest distance from an edge's last vertex to the next edge's first vertex in the
+    wire data ``data`` (`ShapeExtend_WireData`, in order), model units."""
+    from OCP.BRep import BRep_Tool
+    from OCP.ShapeAnalysis import ShapeAnalysis_Edge
+
+    sae = ShapeAnalysis_Edge()
+    n = data.NbEdges()
+    ends = [(BRep_Tool.Pnt_s(sae.FirstVertex(data.Edge(i))), BRep_Tool.Pnt_s(sae.LastVertex(data.Edge(i))))
+            for i in range(1, n + 1)]
+    return max((ends[i][1].Distance(ends[(i + 1) % n][0]) for i in range(n)), default=0.0)
+
+
+def _face(face: Face, tol: float, resolution: float = 0.0, width: float = 0.0) -> tuple[object, list[str], bool]:
     """The OCC face of one model face, the fixes OCC's healing made on it, and whether
     `BRepCheck_Analyzer` finds it valid. ``tol``: the
     edges' tolerance; consecutive loop pieces closer than ``resolution`` (the file's minimum
     resolution, IGES global parameter 19: points closer are the same point) are joined;
-    a join is reported where it moved an end by more than 1 % of ``resolution``."""
+    a join is reported where it moved an end by more than 1 % of ``resolution``. Where pieces
+    are still apart, those closer than ``width`` (the face's trim tolerance,
+    `cadbridge.heal.loop_excursions.default_width`) are joined too, and reported."""
     from OCP.BRep import BRep_Builder
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeEdge, BRepBuilderAPI_MakeFace
     from OCP.BRepLib import BRepLib
@@ -209,6 +225,14 @@ def _face(face: Face, tol: float, resolution: float = 0.0) -> tuple[object, list
         gap = sa.MaxDistance3d()
         if fw.FixConnected(prec) and gap > max(tol, 0.01 * resolution):
             fixes.append(f"{name}: gaps up to {gap:.3g} closed")
+        if width > prec and fw.Analyzer().CheckConnected(prec):
+            # pieces further apart than the resolution but within the face's trim tolerance (each
+            # piece's ends are only as accurate as that): joined, for an open wire is no edge loop
+            # to gmsh ("Could not fix wire"; PRO20358-X28, bug8363_f45)
+            gap = _largest_gap(fw.WireData())
+            if fw.FixConnected(width):
+                fixes.append(f"{name}: gaps up to {gap:.3g} closed (wider than the file's resolution, within "
+                             f"the face's trim tolerance {width:.3g})")
         if fw.FixDegenerated():
             fixes.append(f"{name}: degenerate edge added (pole or apex)")
         if fw.FixLacking():
@@ -265,7 +289,7 @@ def model_brep(model: Model, *, sew_tolerance: float | None = None) -> ModelBrep
         sew_tolerance = SEW_TOLERANCE_MM / model.units.to_mm
     resolution = float(model.resolution) if model.resolution and np.isfinite(model.resolution) else 0.0
     resolution = min(resolution, 1e-4 * size)  # a resolution the size of the part means nothing
-    built = [_face(f, tol, resolution) for f in model.faces]  # loop over faces: OCC builds one at a time
+    built = [_face(f, tol, resolution, default_width(f, size)) for f in model.faces]  # loop over faces: OCC builds one at a time
     sew = BRepBuilderAPI_Sewing(sew_tolerance)
     for occ, _, _ in built:
         sew.Add(occ)

@@ -126,3 +126,61 @@ def test_trim_cubic_gives_up_at_the_interval_cap():
     with pytest.raises(ValueError, match=f"within {MAX_HERMITE_INTERVALS} intervals"):
         Wiggle().to_nurbs(tol=1e-9)
     assert time.perf_counter() - start < 30  # a limit against the old endless doubling, not a timing
+
+
+def _plate_with_gaps(gap: float):
+    """A 100 x 60 plane face (uv = xy, mm, resolution 0.001) whose four trim lines miss each
+    other by ``gap`` at three corners."""
+    from cadbridge.cad.model import Face, Trim, TrimLoop
+    from cadbridge.nurbs.curve import NurbsCurve
+    from cadbridge.nurbs.surface import NurbsSurface
+
+    def line(p, q):
+        return NurbsCurve(1, [0, 0, 1, 1], [p, q])
+
+    s = NurbsSurface(1, 1, [0, 0, 1, 1], [0, 0, 1, 1], [[[0, 0, 0], [0, 60, 0]], [[100, 0, 0], [100, 60, 0]]])
+    s = NurbsSurface(1, 1, [0, 0, 100, 100], [0, 0, 60, 60], s.control_points)  # u = x, v = y
+    loop = TrimLoop([line((0, 0), (100, 0)), line((100, gap), (100, 60)), line((100 - gap, 60), (0, 60)),
+                     line((0, 60 - gap), (0, 0))])
+    from cadbridge.cad.model import Model
+
+    return Model(faces=[Face(surface=s, de=1, trims=Trim(loop, []))], resolution=1e-3)
+
+
+def test_trim_pieces_apart_within_the_trim_tolerance_make_a_closed_wire():
+    """Class: consecutive trim pieces that miss each other by more than the file's resolution
+    but within the face's trim tolerance (CATIA V4's 122 faces: 0.003 mm at resolution 0.001;
+    bug8363_f45: 0.099 mm). OCC's wire stays open at the resolution and gmsh then stops with
+    "Could not fix wire in surface 1"; joined within the trim tolerance, gmsh meshes the face,
+    and the mesh has the plate's analytic area (6000 mm^2, to the slivers the three joined
+    corners cut: gap x element size / 2 each)."""
+    import gmsh
+
+    model = _plate_with_gaps(0.01)
+    brep = model_brep(model)
+    assert brep.faces[0].valid
+    assert any("gaps up to 0.01 closed" in fix for fix in brep.faces[0].fixes), brep.faces[0].fixes
+    with brep_source(model) as (path, _):
+        gmsh.initialize(readConfigFiles=False)
+        try:
+            gmsh.option.setNumber("General.Terminal", 0)
+            gmsh.option.setNumber("Mesh.MeshSizeMax", 10.0)
+            gmsh.model.occ.importShapes(str(path))
+            gmsh.model.occ.synchronize()
+            gmsh.model.mesh.generate(2)
+            _, xyz, _ = gmsh.model.mesh.getNodes()
+            xyz = np.asarray(xyz).reshape(-1, 3)
+            etypes, _, enodes = gmsh.model.mesh.getElements(2)
+            tri = np.asarray(enodes[list(etypes).index(2)], dtype=np.int64).reshape(-1, 3) - 1
+            a, b, c = xyz[tri[:, 0]], xyz[tri[:, 1]], xyz[tri[:, 2]]
+            area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+        finally:
+            gmsh.finalize()
+    assert area == pytest.approx(6000.0, abs=3 * 0.5 * 0.01 * 10.0)
+
+
+def test_trim_pieces_apart_beyond_the_trim_tolerance_stay_apart():
+    """A gap wider than the face's trim tolerance (1e-3 x size here: 0.117 mm) is a missing
+    piece, not a tolerance: the wire is not closed over it."""
+    brep = model_brep(_plate_with_gaps(1.0))
+    assert not any("closed" in fix for fix in brep.faces[0].fixes), brep.faces[0].fixes
