@@ -1229,12 +1229,13 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
         return best
     pi, ci = np.empty(cnt, dtype=np.int64), np.empty(cnt, dtype=np.int64)
     _box_pairs(pts_c, lo, hi, upper, pi, ci)  # by curve, points ascending within each
-    t = np.empty(len(pi))
+    t = np.empty(len(pi))  # each pair's start, then Newton's end
     cuts = np.flatnonzero(np.diff(ci)) + 1
     for a, b in zip(np.concatenate([[0], cuts]), np.concatenate([cuts, [len(ci)]])):
         ts, xtree = samples[ci[a]][0], samples[ci[a]][3]
         _, k = xtree.query(pts[pi[a:b]])  # the curve's nearest sample starts Newton
         t[a:b] = ts[np.asarray(k)]
+    start = t.copy()
     hit = face.__dict__.get("_cadbridge_trim_pack")
     if hit is None or hit[0] != key:
         hit = face.__dict__["_cadbridge_trim_pack"] = (key, *_pack_curves(curves, samples, size))
@@ -1245,10 +1246,11 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     if len(comp):  # the pairs on NURBS or exactly mapped curves: one compiled call
         k = len(comp)
         ru, rv, rf, rd, rk = np.empty(k), np.empty(k), np.empty((k, 3)), np.empty(k), np.empty(k, dtype=np.bool_)
+        tc = np.ascontiguousarray(t[comp])
         _trim_pairs_kernel(surf._pw, surf.knots_u, surf.knots_v, surf.degree_u, surf.degree_v, surf.rational,
                            u0, u1, v0, v1, *cargs, renum[ci[comp]], np.ascontiguousarray(pts[pi[comp]]),
-                           np.ascontiguousarray(t[comp]), eps1, int(max_iter), ru, rv, rf, rd, rk)
-        uu[comp], vv[comp], foot[comp], dist[comp], ok[comp] = ru, rv, rf, rd, rk
+                           tc, eps1, int(max_iter), ru, rv, rf, rd, rk)
+        uu[comp], vv[comp], foot[comp], dist[comp], ok[comp], t[comp] = ru, rv, rf, rd, rk, tc
     for j in np.unique(ci[~packed[ci]]):  # other curves: the numpy steps
         rows = np.flatnonzero(ci == j)
         curve, q = curves[j], pts[pi[rows]]
@@ -1261,6 +1263,14 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
         off = np.abs(np.einsum("ij,ij->i", r, c1)) / np.maximum(np.linalg.norm(c1, axis=1), 1e-300)
         uu[rows], vv[rows], foot[rows], dist[rows] = u_, v_, d[:, 0, 0], np.linalg.norm(r, axis=1)
         ok[rows] = (off <= 1e3 * eps1) | (tj <= t0) | (tj >= t1)
+        t[rows] = tj
+    for j in np.unique(ci[~ok]):  # Newton's feet that are not orthogonal: a kink of C there?
+        rows = np.flatnonzero((ci == j) & ~ok)
+        tj, hit = _kink_feet(surf, curves[j], pts[pi[rows]], t[rows], start[rows], eps1)
+        rows, tj = rows[hit], tj[hit]
+        u_, v_, _, d = on_surface(curves[j], tj, 0)
+        uu[rows], vv[rows], foot[rows] = u_, v_, d[:, 0, 0]
+        dist[rows], ok[rows] = np.linalg.norm(d[:, 0, 0] - pts[pi[rows]], axis=1), True
     # per point the nearest orthogonal foot; at equal distance the first curve in loop order
     dk = np.where(ok, dist, np.inf)
     pick = np.lexsort((ci, dk, pi))
@@ -1270,6 +1280,51 @@ def project_to_trims(face, points, *, tol: float = 1e-12, max_iter: int = 40):
     best[0][sel], best[1][sel], best[2][sel] = uu[first], vv[first], foot[first]
     best[3][sel], best[4][sel] = dist[first], True
     return best
+
+
+def _kink_feet(surf, curve, q: np.ndarray, t: np.ndarray, start: np.ndarray, eps: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest points of C(t) = S(c(t)) to (M, 3) points q where Newton (from ``start``
+    (M,) to ``t`` (M,)) ended on no orthogonal foot: at a kink of C (a C0 knot of c, or c
+    crossing a C0 knot line of S, as at a crease of a CATIA surface) f(t) = (C - P).C'
+    jumps from negative to positive and has no root for Newton to find, yet the distance
+    has its minimum there. Where f < 0 at t - h and f > 0 at t + h (h growing from 1e-9 to
+    1e-2 of the domain; then the same around the start, up to 1e-1, past the nearest
+    sample's neighbours), bisection on the sign of f narrows that bracket until C moves
+    by at most ``eps`` over it (a local minimum of |C - P| lies inside: |C - P|^2 is
+    continuous and its one-sided slopes are 2 f). Returns (t (M,), found (M,) bool)."""
+    t0, t1 = curve.domain
+    u0, u1, v0, v1 = surf.domain
+    span = t1 - t0
+
+    def f_and_speed(tt: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        c = curve_ders(curve, tt, 1)
+        d = surf.derivatives(np.clip(c[:, 0, 0], u0, u1), np.clip(c[:, 0, 1], v0, v1), order=1)
+        c1 = d[:, 1, 0] * c[:, 1, 0:1] + d[:, 0, 1] * c[:, 1, 1:2]
+        return np.einsum("ij,ij->i", d[:, 0, 0] - pts, c1), np.linalg.norm(c1, axis=1)
+
+    a, b = t.copy(), t.copy()
+    found = np.zeros(len(t), dtype=bool)
+    tries = [(t, h) for h in span * np.logspace(-9, -2, 15)] + [(start, h) for h in span * np.logspace(-9, -1, 17)]
+    for centre, h in tries:  # the smallest bracket around t, then the start, that holds a sign change
+        todo = np.flatnonzero(~found)
+        if not len(todo):
+            break
+        lo, hi = np.maximum(centre[todo] - h, t0), np.minimum(centre[todo] + h, t1)
+        flo, _ = f_and_speed(lo, q[todo])
+        fhi, _ = f_and_speed(hi, q[todo])
+        yes = (flo < 0) & (fhi > 0)
+        a[todo[yes]], b[todo[yes]], found[todo[yes]] = lo[yes], hi[yes], True
+    idx = np.flatnonzero(found)
+    for _ in range(200):  # bisection: one bit of the bracket per step
+        if not len(idx):
+            break
+        m = 0.5 * (a[idx] + b[idx])
+        fm, speed = f_and_speed(m, q[idx])
+        neg = fm < 0
+        a[idx[neg]], b[idx[~neg]] = m[neg], m[~neg]
+        idx = idx[(b[idx] - a[idx]) * speed > eps]
+    return 0.5 * (a + b), found
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

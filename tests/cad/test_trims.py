@@ -322,3 +322,30 @@ def test_project_to_trims_across_the_seam_of_a_closed_hole_curve():
     ref = np.hypot(np.hypot(p[:, 0] - 30, p[:, 1] - 25) - 10, p[:, 2])
     assert ok.all()
     np.testing.assert_allclose(d, ref, atol=1e-9)
+
+
+def test_project_to_trims_at_a_kink_where_the_trim_crosses_a_crease():
+    """A trim line crossing a C0 knot line of its surface (a roof, ridge at u = 0.5: a CATIA
+    crease) has a kink there in model space, where (C - P).C' jumps and Newton finds no
+    root. Points at and beyond the kink (the nearest boundary point is the kink, by the
+    roof's symmetry) get that foot; the reference is the minimum over dense samples of
+    every boundary curve on the surface, and the foot lies at the ridge (u = 0.5)."""
+    s = NurbsSurface(1, 1, [0, 0, 0.5, 1, 1], [0, 0, 1, 1],
+                     [[[0, 0, 0], [0, 1, 0]], [[0.5, 0, 0.3], [0.5, 1, 0.3]], [[1, 0, 0], [1, 1, 0]]])
+    corners = [(0.1, 0.2), (0.9, 0.2), (0.9, 0.8), (0.1, 0.8)]
+    face = Face(surface=s, de=1, trims=Trim(TrimLoop([line(corners[i], corners[(i + 1) % 4]) for i in range(4)]), []))
+    kink = s.evaluate(np.array([0.5]), np.array([0.2]))[0]
+    pts = kink + np.array([[0, 0, 0], [0, -0.05, 0], [0, -0.05, 0.02], [0, -0.2, 0.1], [0, -1e-7, 1e-7]])
+    u, v, foot, dist, ok = project_to_trims(face, pts)
+    assert ok.all()
+    samp = []
+    for c in face.trims.outer.curves:
+        uv = c.evaluate(np.linspace(*c.domain, 80001))
+        samp.append(s.evaluate(uv[:, 0], uv[:, 1]))
+    from scipy.spatial import cKDTree
+
+    dref, _ = cKDTree(np.vstack(samp)).query(pts)
+    assert np.all(dist <= dref + 1e-12)
+    assert np.all(dist >= dref - 1e-5)
+    np.testing.assert_allclose(u, 0.5, atol=1e-9)
+    np.testing.assert_allclose(v, 0.2, atol=1e-12)
