@@ -62,6 +62,12 @@ ERROR_PREFIX = "cadbridge convert: error: "
 UNANTICIPATED = "CADBRIDGE_DEBUG=1 shows the traceback"  # the CLI's hint on errors it did not foresee
 
 
+REFUSE_OR_SOUND = {"occt_bug8363_f45_OpenCASCADE.igs"}
+"""Expected refusals that may instead convert soundly, as issue "Every real CAD file converts"
+accepts for this one (its loop crosses itself in a lobe within the trim tolerance, which
+cadbridge cuts off as it does other such lobes; OCC calls the wire self-intersecting)."""
+
+
 def corpus_files() -> list[Path]:
     """Every IGES file of `DIRS` that exists, directory by directory, sorted by name."""
     files: list[Path] = []
@@ -245,7 +251,9 @@ def _cell(text: str) -> str:
 
 
 def success(run: Run, expected: bool) -> bool:
-    """Converted and sound, or refused as expected."""
+    """Converted and sound, or refused as expected (or converted soundly: `REFUSE_OR_SOUND`)."""
+    if expected and run.file.name in REFUSE_OR_SOUND:
+        return run.status == "refused" or bool(run.sound)
     return run.status == "refused" if expected else run.sound
 
 
@@ -277,7 +285,8 @@ def markdown(runs: list[Run], systems: dict[Path, tuple[str, int | None]], expec
                      f"{n('timeout')} | {sum(success(r, r.file.name in expected) for r in rs)} |")
     lines += [
         "",
-        "success: converted and sound, or refused where the corpus README expects a clear refusal.",
+        "success: converted and sound, or refused where the corpus README expects a clear refusal "
+        f"({', '.join(sorted(REFUSE_OR_SOUND))}: either, as the issue accepts).",
         "",
         "## Runs",
         "",
@@ -292,7 +301,7 @@ def markdown(runs: list[Run], systems: dict[Path, tuple[str, int | None]], expec
         if r.status != "converted" and r.written:
             status += f" (left {len(r.written)} files in the output folder)"
         occ = r.soundness.get("line", "") if r.status == "converted" else ""
-        if exp and r.status != "refused":
+        if exp and r.status != "refused" and not (r.file.name in REFUSE_OR_SOUND and r.sound):
             occ = (occ + "; " if occ else "") + "not refused"
         lines.append(
             f"| {_cell(r.file.parent.name + '/' + r.file.name)} | {_cell(system)} | {_num(faces, 'd')} | "
