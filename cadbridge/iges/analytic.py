@@ -146,6 +146,10 @@ class ParamMap:
     surface: NurbsSurface | None = None  # for fixed surfaces (118, 120, 122)
     pcurve_pre: tuple = (None, None)
     uv_parts: Callable[[tuple, tuple], tuple] = lambda r0, r1: ((0, None), (1, None))
+    turned: Callable[[float], NurbsSurface | None] | None = None
+    """For a full turn (a 120 with TA - SA = 2 pi): delta -> the same surface with its angle
+    origin moved by delta, S'(u, theta) = S(u, theta + delta) (None where that cannot be
+    made exactly); `map_loops` moves the seam off the loops with it."""
 
 
 def _ders(curve: NurbsCurve, t, order: int) -> np.ndarray:
@@ -793,9 +797,46 @@ def revolution_map(surface: NurbsSurface, sa: float, ta: float, gen_affine: tupl
     def uv(nat, r0, r1):
         return np.column_stack([nat[:, 0], _theta_v(nat[:, 1], (sa, ta))])
 
+    turned = None
+    if axis is not None and abs((ta - sa) - TWO_PI) <= 1e-12 * TWO_PI:
+        def turned(delta: float) -> NurbsSurface | None:
+            return _turned_revolution(surface, axis[0], axis[1], (sa, ta), delta)
+
     return ParamMap("revolution", pc, aff, pts, (False, True), None, uv,
                     fixed_range=(None, (sa, ta)), surface=surface, pcurve_pre=pre,
-                    uv_parts=lambda r0, r1: ((0, None), (1, _theta_map((sa, ta)))))
+                    uv_parts=lambda r0, r1: ((0, None), (1, _theta_map((sa, ta)))), turned=turned)
+
+
+def _turned_revolution(surface: NurbsSurface, origin: np.ndarray, direction: np.ndarray, sweep: tuple[float, float],
+                       delta: float) -> NurbsSurface | None:
+    """A full-turn surface of revolution about the line ``origin`` + s ``direction`` with its
+    control points rotated by +-delta about that line (exact: a rotation of the control net
+    is the rotation of the surface), the sign for which S'(u, theta) = S(u, theta + delta)
+    at sample points (a reflecting 124 turns the sense); None where neither sign gives that
+    to 1e-9 x size."""
+    n = np.asarray(direction, dtype=float)
+    n = n / np.linalg.norm(n)
+    o = np.asarray(origin, dtype=float)
+    c = _construct()
+    u0, u1, _, _ = surface.domain
+    uu = np.linspace(u0, u1, 5)
+    th = np.linspace(sweep[0], sweep[1], 7)[:-1]
+    tt = np.tile(th, len(uu))
+    uu = np.repeat(uu, len(th))
+    want = surface.evaluate(uu, c.revolved_angle_to_v(np.mod(tt + delta - sweep[0], TWO_PI) + sweep[0], *sweep))
+    box = surface.bbox()
+    tol = 1e-9 * float(np.linalg.norm(box[1] - box[0]))
+    for sign in (1.0, -1.0):
+        a = sign * delta
+        k = np.array([[0, -n[2], n[1]], [n[2], 0, -n[0]], [-n[1], n[0], 0]])
+        rot = np.eye(3) + np.sin(a) * k + (1 - np.cos(a)) * (k @ k)  # Rodrigues
+        cp = (surface.control_points - o) @ rot.T + o
+        out = NurbsSurface(surface.degree_u, surface.degree_v, surface.knots_u, surface.knots_v, cp,
+                           surface.weights if surface.rational else None)
+        got = out.evaluate(uu, c.revolved_angle_to_v(tt, *sweep))
+        if np.max(np.linalg.norm(got - want, axis=1)) <= tol:
+            return out
+    return None
 
 
 def fixed_map(surface: NurbsSurface, pcurve_affine: tuple[np.ndarray, np.ndarray], kind: str) -> ParamMap:
@@ -896,6 +937,28 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
             ls.append(sh)
         nats.append(ln)
         shifts.append(ls)
+    # a full turn whose seam crosses the first loop: the seam moved off it (the surface turned
+    # by delta about its axis, every angle shifted by -delta), so the loop lies inside [SA, TA]
+    # and its (u, v) image does not jump by a period
+    turned = None
+    if pm.turned is not None and nats:
+        for k in (0, 1):
+            if not (ang[k] and pm.fixed_range is not None and pm.fixed_range[k] is not None):
+                continue
+            a0, a1 = pm.fixed_range[k]
+            allp = np.vstack(nats[0])
+            lo_k, hi_k = float(allp[:, k].min()), float(allp[:, k].max())
+            mid, target = 0.5 * (lo_k + hi_k), 0.5 * (a0 + a1)
+            d = TWO_PI * np.round((target - mid) / TWO_PI)
+            slack = 1e-9 * TWO_PI
+            if lo_k + d >= a0 - slack and hi_k + d <= a1 + slack or hi_k - lo_k >= TWO_PI * (1 - 1e-9):
+                continue  # inside already, or a whole turn: no seam position helps
+            delta = mid + d - target
+            turned = pm.turned(delta)
+            if turned is not None:
+                step = -delta * np.eye(2)[k]
+                nats = [[n + step for n in ln] for ln in nats]
+                shifts = [[s_ + step for s_ in ls] for ls in shifts]
     # loop-level shifts: the first loop into the fixed range, the others next to it
     ranges = [None, None]
     ref_mid = [None, None]
@@ -936,7 +999,7 @@ def map_loops(pm: ParamMap, loops: list[list[tuple]], has_outer: bool, use_pcurv
             raise ValueError("trim loops are degenerate (zero extent)")
         ranges[k] = (a, b)
     r0, r1 = ranges
-    surface = pm.build(r0, r1) if pm.build is not None else pm.surface
+    surface = turned if turned is not None else pm.build(r0, r1) if pm.build is not None else pm.surface
     post = pm.uv_parts(r0, r1)
     out: list[list[tuple[int, NurbsCurve | _TrimCurve, bool]]] = []
     for li, (its, ls) in enumerate(zip(items, shifts)):

@@ -29,6 +29,11 @@ from cadbridge.nurbs.surface import NurbsSurface
 __all__ = ["Builder", "Unsupported", "SURFACE_TYPES", "ANALYTIC_TYPES", "FACE_TYPES", "INTERPRETED_TYPES"]
 
 SURFACE_TYPES = (128, 108, 118, 120, 122)
+FULL_TURN_MAX_GAP = 1e-3
+"""A 120 sweep further from 2 pi (rad) is never read as a full turn (`Builder._full_turn`)."""
+ROUNDED_TURN = 5e-5
+"""A 120 sweep this close to 2 pi (rad) is a full turn with 2 pi printed to 5 digits or more
+(`Builder._full_turn`)."""
 SURFACE_NAMES = {108: "plane", 114: "parametric spline surface", 118: "ruled surface", 120: "surface of revolution",
                  122: "tabulated cylinder", 128: "B-spline surface", 140: "offset surface", 190: "plane surface",
                  192: "right circular cylindrical surface", 194: "right circular conical surface",
@@ -181,6 +186,7 @@ class Builder:
         self.pdelim, self.rdelim = pdelim, rdelim
         self.filename = filename
         self.diagnostics = diagnostics
+        self.resolution: float | None = None  # the file's G19 where the reader knows it (`_full_turn`)
         self._params: dict[int, Params] = {}
         self._cache: dict[tuple, object] = {}
         self._own_end: dict[int, int] = {}  # DE -> index of the first trailing (NV/NP) field
@@ -690,6 +696,7 @@ class Builder:
         elif t == 120:
             a, b, sa, ta = self._revolution_axis(de)
             gen = self.curve(p.pointer(2, "C", allow_zero=False))
+            ta = self._full_turn(de, sa, ta, gen, a, b)
             try:
                 s = _construct().revolved_surface(gen, a, b - a, sa, ta)
             except ValueError as exc:
@@ -706,6 +713,7 @@ class Builder:
                 raise Unsupported(f"offset surface (140) over a {what} ({base}, DE {bde}) is not supported", de, t,
                                   e.line)
             a, b, sa, ta = self._revolution_axis(bde)
+            ta = self._full_turn(bde, sa, ta, self.curve(self.params(bde).pointer(2, "C", allow_zero=False)), a, b)
             try:
                 s = _construct().revolved_surface(gen, a, b - a, sa, ta)
             except ValueError as exc:
@@ -746,6 +754,29 @@ class Builder:
         if not np.any(b - a):
             raise lp.error("axis line of a surface of revolution has zero length", 1, "X1")
         return a, b, sa, ta
+
+    def _full_turn(self, de: int, sa: float, ta: float, gen: NurbsCurve, a: np.ndarray, b: np.ndarray) -> float:
+        """TA of the 120 at ``de``: a sweep TA - SA within `ROUNDED_TURN` rad of 2 pi (2 pi
+        printed to 5 or 6 digits: CATIA V4 writes 6.28318, 5e-6 rad short; 6.2832 is 1.5e-5 over),
+        or short of it by a sliver no wider than the file's resolution (G19) at the
+        generatrix's largest radius (a bound: its control points'), is a full turn: TA is
+        then SA + 2 pi, noted. Left as written, a loop's points in the sliver wrap to the
+        start angle (its (u, v) jumps by a period), and a sweep over 2 pi is refused."""
+        gap = 2 * np.pi - (ta - sa)
+        if gap == 0 or abs(gap) > FULL_TURN_MAX_GAP or gen.dim != 3:
+            return ta
+        axis = (b - a) / np.linalg.norm(b - a)
+        rel = gen.control_points - a
+        radius = float(np.max(np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1)))
+        res = self.resolution if self.resolution and np.isfinite(self.resolution) and self.resolution > 0 else 0.0
+        if abs(gap) > max(ROUNDED_TURN, res / max(radius, 1e-300)):
+            return ta
+        if ("full turn", de) not in self._cache:  # noted once (the surface and its trim map both ask)
+            self._cache["full turn", de] = True
+            self.note(f"surface of revolution: sweep TA - SA = {ta - sa:.9g} read as a full turn (2 pi "
+                      f"{'-' if gap > 0 else '+'} {abs(gap):.3g} rad, {abs(gap) * radius:.3g} at radius {radius:.6g})",
+                      de)
+        return sa + 2 * np.pi
 
     def _offset_generatrix(self, de: int, d: float) -> NurbsCurve | None:
         """Generatrix of the 120 at ``de`` offset by ``d`` along the surface's unit normal
@@ -1222,6 +1253,8 @@ class Builder:
             lxf = self.transform(lp.de)
             if not _is_identity(lxf):
                 a, b = lxf[0] @ a + lxf[1], lxf[0] @ b + lxf[1]
+            if gen.dim == 3:
+                ta = self._full_turn(de, sa, ta, gen, a, b)  # as the surface was built (`_surface`)
             gen_m = gen
             if not _is_identity(xf):  # the 120's own 124 places axis and generatrix like the surface
                 a, b = xf[0] @ a + xf[1], xf[0] @ (b - a) + xf[0] @ a + xf[1]

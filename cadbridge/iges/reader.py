@@ -61,6 +61,7 @@ def _read(text: str, filename: str, holder: list) -> Model:
     entries = parse_directory(secs.directory, filename)
     diagnostics = [Diagnostic(msg, line) for line, msg in secs.notes + g.notes]
     b = Builder(entries, secs.parameter, g.pdelim, g.rdelim, filename, diagnostics)
+    b.resolution = g.resolution
     model = Model(
         units=g.units, resolution=g.resolution, filename=g.string(F_FILE_NAME), author=g.string(F_AUTHOR),
         organization=g.string(F_ORGANIZATION), system=g.string(F_SYSTEM), preprocessor=g.string(F_PREPROCESSOR),
