@@ -894,6 +894,19 @@ def _wound_against_surface(g, mesh: Mesh, s: int) -> bool:
     an element laid over its neighbours is a fold the (u, v) fill repairs."""
     ent = np.asarray(mesh.cell_data["element_entity"])
     x = mesh.nodes
+    # the (u, v) of the surface's own nodes, as gmsh placed them (matched by coordinates: the
+    # same numbers); an element of those nodes only takes their mean, the others (on the
+    # surface's curves, whose (u, v) gmsh keeps on the curve) gmsh's inversion of the
+    # centroid, which costs ~1 ms a point on a long B-spline face (Inventor's spring: 19 s)
+    _, sx, suv = g.model.mesh.getNodes(2, s, includeBoundary=False, returnParametricCoord=True)
+    sx = np.asarray(sx, dtype=float).reshape(-1, 3)
+    suv = np.asarray(suv, dtype=float)
+    node_uv = np.full((len(x), 2), np.nan)
+    if len(sx) and suv.size == 2 * len(sx):
+        from scipy.spatial import cKDTree
+
+        d, i = cKDTree(x).query(sx)
+        node_uv[i[d == 0.0]] = suv.reshape(-1, 2)[d == 0.0]
     dots = []
     first = 0
     for b in mesh.cells:
@@ -904,8 +917,12 @@ def _wound_against_surface(g, mesh: Mesh, s: int) -> bool:
             continue
         c = c[on]
         n = _polygon_normals(x, c)
-        uv = g.model.getParametrization(2, s, x[c].mean(axis=1).ravel().tolist())  # centroids' (u, v)
-        sn = np.asarray(g.model.getNormal(s, list(uv)), dtype=float).reshape(-1, 3)
+        uv = node_uv[c].mean(axis=1)  # (E, 2): NaN where a node is not the surface's own
+        far = np.flatnonzero(np.isnan(uv[:, 0]))
+        if len(far):
+            uv[far] = np.asarray(g.model.getParametrization(2, s, x[c[far]].mean(axis=1).ravel().tolist()),
+                                 dtype=float).reshape(-1, 2)  # centroids' (u, v)
+        sn = np.asarray(g.model.getNormal(s, uv.ravel().tolist()), dtype=float).reshape(-1, 3)
         dots.append(np.einsum("ij,ij->i", n, sn))
     if not dots:
         return False
