@@ -3,7 +3,7 @@
 Runs ``cadbridge convert FILE -o OUT --element quad`` and ``--element tri`` on every IGES file
 of ``../shared/iges_real``, ``../shared/cad_corpus/iges`` and ``iges_samples/*.igs`` (the
 git-ignored production dies ``iges_samples/production_die_*.igs`` are included when they
-have been generated), each run in its own subprocess with a time limit (``--timeout``,
+have been generated) and every STEP file of ``../shared/cad_corpus/step``, each run in its own subprocess with a time limit (``--timeout``,
 default 60 s; the whole process group is killed at the limit), checks each converted
 tool against OpenCASCADE in a second subprocess (``--check-timeout``, default 300 s), and writes
 ``benchmarks/results/corpus.md``: one row per file and mode.
@@ -12,8 +12,9 @@ tool against OpenCASCADE in a second subprocess (``--check-timeout``, default 30
                                 [--out benchmarks/results/corpus.md] [--keep DIR]
 
 Columns:
-  CAD system   the IGES Global section's native system ID (parameter 5), as the file states it
-  faces        the number of faces cadbridge's reader finds (`read_iges`)
+  CAD system   the IGES Global section's native system ID (parameter 5), or the STEP header's
+               originating system (FILE_NAME), as the file states it
+  faces        the number of faces cadbridge's reader finds (`read_iges`, `read_step`)
   expected     "refuse" for the files the corpus README marks "expected: clear refusal"
   status       converted (exit 0) / refused: the error line (exit 2 with a known input error:
                one line, no traceback hint) / failed: the error line (exit 1, an unanticipated
@@ -54,7 +55,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
-DIRS = (SHARED / "iges_real", SHARED / "cad_corpus" / "iges", ROOT / "iges_samples")
+DIRS = (SHARED / "iges_real", SHARED / "cad_corpus" / "iges", ROOT / "iges_samples", SHARED / "cad_corpus" / "step")
+SUFFIXES = (".igs", ".iges", ".stp", ".step")
 CORPUS_README = SHARED / "cad_corpus" / "README.md"
 RESULT = ROOT / "benchmarks" / "results" / "corpus.md"
 MODES = ("quad", "tri")
@@ -73,7 +75,7 @@ def corpus_files() -> list[Path]:
     files: list[Path] = []
     for d in DIRS:
         if d.is_dir():
-            files += sorted(p for p in d.iterdir() if p.suffix.lower() in (".igs", ".iges"))
+            files += sorted(p for p in d.iterdir() if p.suffix.lower() in SUFFIXES)
     return files
 
 
@@ -112,10 +114,28 @@ def _hollerith_fields(text: str, count: int) -> list[str]:
     return out
 
 
+def _step_system(path: Path) -> str:
+    """A STEP file's originating system: FILE_NAME's next-to-last string (its sixth field)."""
+    text = path.read_bytes()[:20000].decode("latin-1")
+    m = re.search(r"FILE_NAME\s*\((.*?)\)\s*;", text, re.S)
+    strings = re.findall(r"'((?:[^']|'')*)'", m.group(1)) if m else []
+    return strings[-2].strip() if len(strings) >= 2 else ""
+
+
 def header(path: Path) -> tuple[str, int | None]:
-    """(native system ID = Global parameter 5, cadbridge's face count; None if it cannot read
-    the file). The system comes from `read_iges`, or from the raw G records when that fails."""
+    """(native system ID = Global parameter 5, or a STEP file's originating system;
+    cadbridge's face count, None if it cannot read the file). The system comes from
+    `read_iges`, or from the raw G records when that fails."""
+    from cadbridge.formats import cad_format
     from cadbridge.iges import read_iges
+
+    if cad_format(path) == "step":
+        from cadbridge.step import read_step
+
+        try:
+            return _step_system(path), len(read_step(path).faces)
+        except Exception:
+            return _step_system(path), None
 
     try:
         model = read_iges(path)

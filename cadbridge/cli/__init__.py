@@ -56,6 +56,7 @@ def _known_errors() -> tuple[type[BaseException], ...]:
                                        NotADirectoryError]
     for mod, name in (
         ("cadbridge.iges", "IgesError"),
+        ("cadbridge.step", "StepError"),
         ("cadbridge.cad.model", "EmptyModelError"),
         ("cadbridge.mesh.mesh", "MeshError"),
         ("cadbridge.normals.cad", "ProjectionError"),

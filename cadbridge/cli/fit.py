@@ -58,10 +58,10 @@ def cmd_fit(args: argparse.Namespace) -> int:
             units = None
             base_name = "given base surface"
             if args.base:
-                from cadbridge.iges import read_iges
+                from cadbridge.formats import read_cad
 
                 progress.stage(f"reading the base {args.base}")
-                base = read_iges(args.base)
+                base = read_cad(args.base)
                 units = base.units
             elif args.base_curves:
                 from cadbridge.fitting.boundary_curves import coons_base, read_boundary_curves

@@ -9,9 +9,9 @@ from cadbridge.common.progress import say
 
 
 def cmd_inspect(args: argparse.Namespace) -> int:
-    from cadbridge.iges import read_iges
+    from cadbridge.formats import read_cad
 
-    model = read_iges(args.cad)
+    model = read_cad(args.cad)
     say(format_inspect(model))
     return EXIT_OK
 

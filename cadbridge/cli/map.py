@@ -114,7 +114,7 @@ def cmd_map(args: argparse.Namespace) -> int:
 
     from cadbridge.common.errors import CheckFailed, UsageError
     from cadbridge.common.progress import Progress, say
-    from cadbridge.iges import read_iges
+    from cadbridge.formats import read_cad
     from cadbridge.normals.cad import ProjectionError
     from cadbridge.tool.outputs import staged_output
     from cadbridge.results.export import write_all
@@ -130,7 +130,7 @@ def cmd_map(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with Progress("cadbridge map") as progress:
         progress.stage(f"reading {args.cad}")
-        model = read_iges(args.cad)
+        model = read_cad(args.cad)
         if not model.faces:
             raise UsageError(f"{args.cad}: no faces to map onto")
         progress.stage(f"reading {results.name}")

@@ -18,11 +18,11 @@ def cmd_mesh(args: argparse.Namespace) -> int:
             return mesh_command(args, progress, say)
     from cadbridge.mesh.io import write_mesh
     from cadbridge.tool.build import tools_from_mesh
-    from cadbridge.tool.meshing import read_cad
+    from cadbridge.tool.meshing import read_healed
     from cadbridge.tool.pipeline import guarded_mesh
 
     with Progress("cadbridge mesh") as progress:  # the mesh `convert` builds its tools on
-        model, excursions = read_cad(args.cad, progress)
+        model, excursions = read_healed(args.cad, progress)
         guarded = guarded_mesh(
             args.cad, model, excursions=excursions, progress=progress, unchecked_ok=True,
             build=lambda m: tools_from_mesh(m, model, progress=progress, orient=True, meshed_per_face=True,

@@ -19,10 +19,10 @@ def cmd_normals(args: argparse.Namespace) -> int:
     if args.method == "cad" and not args.cad:
         raise UsageError("--method cad (the default) needs --cad FILE.igs; or pick an estimator, e.g. --method mwe")
     from cadbridge.tool.build import consistently_oriented, tool_normals
-    from cadbridge.tool.meshing import read_cad
+    from cadbridge.tool.meshing import read_healed
 
     mesh = consistently_oriented(read_mesh(args.mesh), args.orient)
-    model = read_cad(args.cad)[0] if args.cad else None  # as convert and nagata read it
+    model = read_healed(args.cad)[0] if args.cad else None  # as convert and nagata read it
     # the normals stage of convert and nagata (the fold rule applied to CAD normals)
     normals, _, _, _, _, cn = tool_normals(mesh, model, args.method, tolerance=args.tolerance, flip=args.flip,
                                            allow_far=args.allow_far)

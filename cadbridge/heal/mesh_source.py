@@ -113,9 +113,12 @@ def write_mesh_source(cad: str | Path, model: Model, folder: str | Path, smooth:
     their model-space curves (`prefer_model_space`) and those curves smoothed
     (`cadbridge.heal.trim_knots.smooth_short_knots`). ``smooth`` False: the re-read faces only (what
     an independent reference of the CAD should read)."""
+    from cadbridge.formats import cad_format
     from cadbridge.heal.trim_knots import JOIN_SHORTER, has_c0_knots, smooth_short_knots
 
     cad = Path(cad)
+    if cad_format(cad) == "step":
+        return cad  # gmsh reads STEP through OCC as it is; the re-reading and smoothing are IGES text edits
     faces = reread_faces(model)
     shorter = JOIN_SHORTER * model.size() if smooth and model.faces else 0.0
     smooth = shorter > 0 and has_c0_knots(model)

@@ -1,7 +1,7 @@
 """The CAD and mesh stages of the tool chain, shared by `cadbridge convert` and the
 step-by-step commands (`cadbridge mesh`, `normals`, `nagata`), so both make the same tools.
 
-`read_cad`: the model as every tool stage uses it (trim-loop excursions cut out,
+`read_healed`: the model as every tool stage uses it (trim-loop excursions cut out,
 `cadbridge.heal.loop_excursions`). `mesh_for_tools`: the mesh of `convert` (the model itself
 meshed, `cadbridge.heal.brep`; crease and fold lines inside faces as mesh edges; consistent
 orientation).
@@ -17,28 +17,28 @@ from cadbridge.common.progress import NoProgress
 from cadbridge.heal.loop_excursions import Excursion
 from cadbridge.mesh.mesh import Mesh
 
-__all__ = ["FILE_ROUTE_NOTE", "healed_notes", "mesh_for_tools", "read_cad"]
+__all__ = ["FILE_ROUTE_NOTE", "healed_notes", "mesh_for_tools", "read_healed"]
 
 FILE_ROUTE_NOTE = "mesh: meshed the file as OCC's IGES reader reads it instead"
 """The note of a mesh made of the file as OCC reads it where the model's B-rep was asked for."""
 
 
-def read_cad(cad: str | Path, progress=None) -> tuple[Model, list[Excursion]]:
-    """The IGES model of ``cad`` with its trim-loop excursions cut out (in place, before any
+def read_healed(cad: str | Path, progress=None) -> tuple[Model, list[Excursion]]:
+    """The model of ``cad`` (IGES or STEP, `cadbridge.formats.read_cad`) with its trim-loop excursions cut out (in place, before any
     search index or fold line is computed on it), and the excursions cut."""
+    from cadbridge.formats import read_cad
     from cadbridge.heal.loop_excursions import heal_excursions
-    from cadbridge.iges import read_iges
     from cadbridge.iges.trimcheck import check_trim_agreement
 
     (progress or NoProgress()).stage(f"reading {cad}")
-    model = read_iges(str(cad))  # fails early, before anything is meshed or written, on a bad file
+    model = read_cad(cad)  # fails early, before anything is meshed or written, on a bad file
     check_trim_agreement(model)  # a face with two boundaries far apart: refused before meshing
     excursions = heal_excursions(model)  # trim loops that run back beside themselves: cut out
     return model, excursions
 
 
 def healed_notes(excursions: list[Excursion]) -> list[str]:
-    """One report line per excursion cut by `read_cad`."""
+    """One report line per excursion cut by `read_healed`."""
     return [f"trim defect healed: {e}" for e in excursions]
 
 
@@ -60,7 +60,7 @@ def mesh_for_tools(
 ) -> tuple[Mesh, list[str]]:
     """The mesh `convert` builds its tools on, and what was done on the way.
 
-    ``model`` and ``excursions`` come from `read_cad` (``cad``). Crease lines
+    ``model`` and ``excursions`` come from `read_healed` (``cad``). Crease lines
     (`cadbridge.heal.creases.crease_lines`) and fold lines (`cadbridge.heal.folds.folds_for`)
     inside faces become mesh edges; gmsh meshes the model itself (`_mesh_model_brep`), or
     where that cannot be meshed the file as OCC reads it (`cadbridge.heal.mesh_source`),

@@ -18,7 +18,7 @@ from cadbridge.mesh.mesh import Mesh
 from cadbridge.tool.build import (CadProjector, check_tools, measure_tool, NoProgress, ToolQualityError, ToolResult,
                                   tools_from_mesh)
 from cadbridge.tool import outputs
-from cadbridge.tool.meshing import healed_notes, mesh_for_tools, read_cad
+from cadbridge.tool.meshing import healed_notes, mesh_for_tools, read_healed
 from cadbridge.tool.outputs import staged_output, write_tool_outputs
 
 __all__ = ["RunResult", "convert", "guarded_mesh", "nagata_from_mesh"]
@@ -169,7 +169,7 @@ def nagata_from_mesh(
     progress = progress or NoProgress()
     if cad is None and method == "cad":
         raise ValueError("--method cad needs --cad FILE.igs")
-    model, excursions = read_cad(cad, progress) if cad is not None else (None, [])  # as convert reads it
+    model, excursions = read_healed(cad, progress) if cad is not None else (None, [])  # as convert reads it
     progress.stage(f"reading {mesh_path}")
     mesh = read_mesh(mesh_path)
     mesh.name = Path(mesh_path).stem
@@ -237,7 +237,7 @@ def convert(
 
     cad = str(cad)  # a Path as well (the tool file records the source as text)
     progress = progress or NoProgress()
-    model, excursions = read_cad(cad, progress)
+    model, excursions = read_healed(cad, progress)
     if shape_tolerance is not None:  # sized and refined for a Nagata shape tolerance
         from cadbridge.tool.refine import refine_mesh
 

@@ -657,7 +657,7 @@ def refine_mesh(
 
     Returns an `AdaptiveResult` (``met`` False when some elements stay above the tolerance
     at the size floor or after ``max_passes``; the best mesh is still in it)."""
-    from cadbridge.iges import read_iges
+    from cadbridge.formats import read_cad
     from cadbridge.mesh.sizing import MAX_TURN
     from cadbridge.normals.cad import cad_normals
     from cadbridge.tool.build import NoProgress, tools_from_mesh
@@ -667,7 +667,7 @@ def refine_mesh(
         raise ValueError(f"shape tolerance must be a positive number, got {tolerance!r}")
     progress = progress or NoProgress()
     cad = Path(cad)
-    model = model if model is not None else read_iges(cad)
+    model = model if model is not None else read_cad(cad)
     projector = _projector(model, projector)
     sz = _size_law(model, tolerance, min_size, max_size, gradation, progress)
     user_check_grid = check_grid

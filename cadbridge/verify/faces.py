@@ -310,9 +310,9 @@ def compare_models(
 
 
 def _verify_here(path: str, kwargs: dict) -> VerifyReport:
-    from cadbridge.iges import read_iges  # the reader under test
+    from cadbridge.formats import read_cad  # the reader under test (IGES or STEP)
 
-    model = read_iges(path)
+    model = read_cad(path)
     return compare_models(model, occ_read(path), path=path, **kwargs)
 
 

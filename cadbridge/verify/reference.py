@@ -56,7 +56,8 @@ class OccFace:
 
 
 def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> TopoDS_Shape:
-    """Read an IGES file with IGESControl_Reader and return OneShape() (all roots).
+    """Read an IGES file with IGESControl_Reader and return OneShape() (all roots); a STEP
+    file with STEPControl_Reader (lengths in mm).
 
     ``keep_continuity`` sets read.iges.bspline.continuity = 0, so OCC does not split C0
     B-spline surfaces into C1 pieces (its default, 1, does).
@@ -64,6 +65,10 @@ def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> 
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise OccReadError(f"{path}: no such file")
+    from cadbridge.formats import cad_format
+
+    if cad_format(path) == "step":
+        return _occ_read_step(path)
     reader = IGESControl_Reader()  # registers the read.iges.* statics
     old = Interface_Static.IVal_s("read.iges.bspline.continuity")
     try:
@@ -82,8 +87,25 @@ def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> 
     return shape
 
 
+def _occ_read_step(path: str) -> TopoDS_Shape:
+    """A STEP file's shape as OCC's STEPControl_Reader transfers it (all roots), in mm."""
+    from OCP.STEPControl import STEPControl_Reader
+
+    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
+    reader = STEPControl_Reader()
+    status = reader.ReadFile(path)
+    if status != IFSelect_RetDone:
+        raise OccReadError(f"{path}: OpenCASCADE could not read the file (IFSelect status {status})")
+    if reader.TransferRoots() == 0:
+        raise OccReadError(f"{path}: OpenCASCADE transferred no root entity")
+    shape = reader.OneShape()
+    if shape.IsNull():
+        raise OccReadError(f"{path}: OpenCASCADE produced an empty shape")
+    return shape
+
+
 def occ_read(path: str | os.PathLike, *, keep_continuity: bool = True) -> list[OccFace]:
-    """All faces of an IGES file as OCC reads them, in TopExp_Explorer order."""
+    """All faces of an IGES or STEP file as OCC reads them, in TopExp_Explorer order."""
     shape = occ_read_shape(path, keep_continuity=keep_continuity)
     faces: list[OccFace] = []
     exp = TopExp_Explorer(shape, TopAbs_FACE)

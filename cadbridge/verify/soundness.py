@@ -259,11 +259,11 @@ def _tool_arrays(tools, to_mm: float):
 def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], *, max_samples: int = 2000
                    ) -> SoundnessReport:
     """Checks (a), (b), (c) of the module docstring for the tool files ``convert`` wrote from ``cad``."""
+    from cadbridge.formats import read_cad
     from cadbridge.heal.mesh_source import mesh_source
-    from cadbridge.iges import read_iges
     from cadbridge.io.toolfile import read_toolfile
 
-    model = read_iges(cad)
+    model = read_cad(cad)
     with mesh_source(cad, model) as src:
         faces = occ_read(src)
     to_mm = float(model.units.to_mm)

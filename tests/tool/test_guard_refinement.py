@@ -28,7 +28,7 @@ pytest.importorskip("OCP")
 
 from cadbridge.tool.build import GuardTrips, ToolQualityError, check_tools, tools_from_mesh  # noqa: E402
 from cadbridge.tool.guard_refinement import GuardRefinement, refine_where_guards_trip, turn_curvature  # noqa: E402
-from cadbridge.tool.meshing import mesh_for_tools, read_cad  # noqa: E402
+from cadbridge.tool.meshing import mesh_for_tools, read_healed  # noqa: E402
 from tests.helpers.tight_turns import hairpin_iges, hairpin_surface  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -45,7 +45,7 @@ def turn_file(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def first_tools(turn_file):
     """The tools of the first mesh `convert` makes (quad), before any refinement."""
-    model, excursions = read_cad(turn_file)
+    model, excursions = read_healed(turn_file)
     mesh, _ = mesh_for_tools(turn_file, model, excursions=excursions, element="quad")
     return model, tools_from_mesh(mesh, model, orient=True, meshed_per_face=True, measure=False)
 

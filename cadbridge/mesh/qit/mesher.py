@@ -1463,7 +1463,9 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
     QIT's edge vertices (``qit_mesh(..., fallback=True)``, named in the progress output)."""
     from pathlib import Path
 
-    from cadbridge.iges import IgesError, read_iges
+    from cadbridge.formats import read_cad
+    from cadbridge.iges import IgesError
+    from cadbridge.step import StepError
 
     path = Path(path)
     if element != "tri":
@@ -1473,8 +1475,8 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
     if not path.is_file():
         raise MeshError(f"{path}: no such file")
     try:
-        model = read_iges(path)
-    except IgesError as exc:
+        model = read_cad(path)
+    except (IgesError, StepError) as exc:
         raise MeshError(str(exc)) from exc
     if embed_curves:
         raise MeshError(f"{path}: {len(embed_curves)} crease lines inside faces (C0 knots) must become mesh edges; "

@@ -1,0 +1,393 @@
+"""STEP (ISO 10303-21: AP203, AP214, AP242) -> `Model`, through OpenCASCADE.
+
+OCC reads and transfers the file (`STEPCAFControl_Reader`: the product structure with its
+names and colours; lengths converted to mm as the file's representation context says,
+conversion-based units included). Every face becomes a cadbridge `Face`:
+
+- its surface as an exact NURBS: `BRepBuilderAPI_NurbsConvert`, face by face, turns planes,
+  cylinders, cones, spheres, tori, revolutions and extrusions into B-splines exactly and
+  rewrites the face's pcurves into the B-spline's parameters (a rational arc is not
+  parametrised by its angle, so the pcurves must move with the surface); offset surfaces are
+  approximated there. A face on a B-spline already is taken as it is.
+  Periodic B-splines are cut to the face's (u, v) box (`Geom_BSplineSurface.Segment`: the
+  same parameters, clamped knots), which also moves a seam the face straddles off the face;
+- its trims from the face's pcurves (`BRep_Tool.CurveOnSurface`, which picks each side of a
+  seam edge), as 2D NURBS, loop by loop in the wire's order (`BRepTools_WireExplorer`), the
+  outer wire first (`BRepTools.OuterWire`);
+- a face OCC holds reversed gets its surface's u reversed (pcurves mirrored with it), so the
+  model's normal S_u x S_v is the face's outward normal, as in IGES;
+- its name is its product's (the assembly instance's where the product has none), its
+  colour the face's or else its shape's.
+
+The model's ``trim_delta`` of a face is its largest edge tolerance (OCC's bound on how far
+the edges' 3D curves and pcurves disagree): the STEP counterpart of IGES's 2D/3D trim delta.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cadbridge.cad.model import Diagnostic, Face, Model, Trim, TrimLoop, Units
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.surface import NurbsSurface
+from cadbridge.step.errors import StepError
+
+__all__ = ["is_step", "read_step"]
+
+MAGIC = b"ISO-10303-21;"
+
+
+def is_step(path: str | Path) -> bool:
+    """Whether the file at ``path`` starts (after blanks) with the ISO 10303-21 header."""
+    with open(path, "rb") as fh:
+        head = fh.read(4096).lstrip(b"\xef\xbb\xbf \t\r\n")
+    return head.upper().startswith(MAGIC)
+
+
+def _knots(knots, mults) -> np.ndarray:
+    """Full knot vector of an OCC (knots, multiplicities) pair (TColStd arrays)."""
+    k = [knots.Value(i) for i in range(knots.Lower(), knots.Upper() + 1)]
+    m = [mults.Value(i) for i in range(mults.Lower(), mults.Upper() + 1)]
+    return np.repeat(np.asarray(k, dtype=float), np.asarray(m, dtype=int))
+
+
+def nurbs_surface(s, shift: tuple[float, float] = (0.0, 0.0)) -> NurbsSurface:
+    """cadbridge's NURBS of a non-periodic `Geom_BSplineSurface` ``s`` (same parameters, its
+    knots moved by ``shift`` (u, v))."""
+    nu, nv = s.NbUPoles(), s.NbVPoles()
+    cp = np.empty((nu, nv, 3))
+    w = np.ones((nu, nv))
+    for i in range(nu):  # loop over poles: OCC hands them out one at a time
+        for j in range(nv):
+            p = s.Pole(i + 1, j + 1)
+            cp[i, j] = (p.X(), p.Y(), p.Z())
+            w[i, j] = s.Weight(i + 1, j + 1)
+    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal
+
+    ku, mu = TColStd_Array1OfReal(1, s.NbUKnots()), TColStd_Array1OfInteger(1, s.NbUKnots())
+    kv, mv = TColStd_Array1OfReal(1, s.NbVKnots()), TColStd_Array1OfInteger(1, s.NbVKnots())
+    s.UKnots(ku)
+    s.UMultiplicities(mu)
+    s.VKnots(kv)
+    s.VMultiplicities(mv)
+    rational = s.IsURational() or s.IsVRational()
+    return NurbsSurface(s.UDegree(), s.VDegree(), _knots(ku, mu) + shift[0], _knots(kv, mv) + shift[1], cp,
+                        w if rational else None)
+
+
+def nurbs_curve2d(c) -> NurbsCurve:
+    """cadbridge's 2D NURBS of a non-periodic `Geom2d_BSplineCurve` ``c``."""
+    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal
+
+    n = c.NbPoles()
+    cp = np.array([(c.Pole(i).X(), c.Pole(i).Y()) for i in range(1, n + 1)])
+    w = np.array([c.Weight(i) for i in range(1, n + 1)])
+    k, m = TColStd_Array1OfReal(1, c.NbKnots()), TColStd_Array1OfInteger(1, c.NbKnots())
+    c.Knots(k)
+    c.Multiplicities(m)
+    return NurbsCurve(c.Degree(), _knots(k, m), cp, w if c.IsRational() else None)
+
+
+def _reversed_u(s: NurbsSurface) -> NurbsSurface:
+    """The same surface with u reversed: S'(u, v) = S(a + b - u, v) on the same u range [a, b]."""
+    a, b = s.knots_u[0], s.knots_u[-1]
+    w = s.weights[::-1] if s.rational else None
+    return NurbsSurface(s.degree_u, s.degree_v, (a + b) - s.knots_u[::-1], s.knots_v, s.control_points[::-1], w)
+
+
+def _mirrored_u(c: NurbsCurve, a: float, b: float) -> NurbsCurve:
+    """Pcurve ``c`` for the surface with u reversed on [a, b]: (u, v) -> (a + b - u, v)."""
+    cp = c.control_points.copy()
+    cp[:, 0] = (a + b) - cp[:, 0]
+    return NurbsCurve(c.degree, c.knots, cp, c.weights if c.rational else None)
+
+
+def _reversed_curve(c: NurbsCurve) -> NurbsCurve:
+    """The same curve traversed backwards."""
+    a, b = c.knots[0], c.knots[-1]
+    return NurbsCurve(c.degree, (a + b) - c.knots[::-1], c.control_points[::-1], c.weights[::-1] if c.rational else None)
+
+
+def _bspline_surface(face):
+    """The face's surface as a non-periodic `Geom_BSplineSurface` with the face's parameters
+    (location applied; the face is already NURBS-converted): a periodic direction is cut to
+    one period from the face's first parameter (`Segment`; that moves a seam the face
+    straddles off it; where OCC shifts the cut by whole periods, the knots are shifted back,
+    which changes no point), a bounded one to the face's (u, v) box where that leaves knots
+    OCC accepts (the model's size is then the faces', not their surfaces'). Returns the
+    surface and the (u, v) shift of its knots to apply."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepTools import BRepTools
+    from OCP.Geom import Geom_BSplineSurface
+
+    surf = BRep_Tool.Surface_s(face)  # OCP hands out the most derived type
+    if not isinstance(surf, Geom_BSplineSurface):
+        raise StepError(f"a face's surface is a {type(surf).__name__}, which NURBS conversion left as it is")
+    s = surf.Copy()
+    u0, u1, v0, v1 = BRepTools.UVBounds_s(face)
+    shift = [0.0, 0.0]
+    was = (s.IsUPeriodic(), s.IsVPeriodic())
+    box = ((u0, u1), (v0, v1))
+    # periodic directions first: cutting the other one (`Segment`) clamps both
+    for k in [i for i in (0, 1) if was[i]] + [i for i in (0, 1) if not was[i]]:
+        lo, hi = box[k]
+        periodic = s.IsUPeriodic() if k == 0 else s.IsVPeriodic()
+        a0, a1, b0, b1 = s.Bounds()
+        first, last = (a0, a1) if k == 0 else (b0, b1)
+        if periodic:
+            per = s.UPeriod() if k == 0 else s.VPeriod()
+            n = np.floor((lo - first) / per + 1e-9)
+            if hi <= last + n * per + 1e-9 * per:  # the face lies in one period of the surface's
+                (s.SetUNotPeriodic if k == 0 else s.SetVNotPeriodic)()
+                shift[k] = n * per
+                continue
+            # it straddles the seam: the period's origin moved to the face's first parameter (a
+            # knot inserted there, made the origin: the same surface), then clamped
+            at = first + np.mod(lo - first, per)
+            if k == 0:
+                s.InsertUKnot(at, 1, 1e-12 * per)
+                idx = int(np.argmin([abs(s.UKnot(i) - at) for i in range(1, s.NbUKnots() + 1)])) + 1
+                s.SetUOrigin(idx)
+                s.SetUNotPeriodic()
+            else:
+                s.InsertVKnot(at, 1, 1e-12 * per)
+                idx = int(np.argmin([abs(s.VKnot(i) - at) for i in range(1, s.NbVKnots() + 1)])) + 1
+                s.SetVOrigin(idx)
+                s.SetVNotPeriodic()
+            got = s.Bounds()[2 * k]
+            turns = (lo - got) / per
+            shift[k] = round(turns) * per if abs(turns - round(turns)) < 1e-6 else 0.0
+            continue
+        else:
+            lo, hi = max(lo, first), min(hi, last)
+            if not hi - lo > 1e-9 * (last - first) or (lo <= first and hi >= last):
+                continue  # the whole range already (or a face box OCC's bounds do not hold)
+        trial = s.Copy()
+        try:
+            if k == 0:
+                trial.Segment(lo, hi, b0, b1)
+            else:
+                trial.Segment(a0, a1, lo, hi)
+        except Exception:  # noqa: BLE001 - OCP's Standard_* exceptions share no Python base but Exception
+            if periodic:
+                raise StepError("OCC cannot cut a periodic surface at the face's seam") from None
+            continue
+        s = trial
+        if periodic and (s.IsUPeriodic() if k == 0 else s.IsVPeriodic()):
+            (s.SetUNotPeriodic if k == 0 else s.SetVNotPeriodic)()
+        got = s.Bounds()[2 * k]
+        if periodic and abs(got - lo) > 1e-12 * max(1.0, abs(lo)):
+            turns = (got - lo) / per
+            if abs(turns - round(turns)) < 1e-9:
+                shift[k] = -(got - lo)  # OCC cut whole periods away: the same points, moved back
+    return s, tuple(shift)
+
+
+def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, float]:
+    """The trim loops of ``face`` (outer first) from its pcurves, and its largest edge tolerance."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
+    from OCP.Geom2d import Geom2d_TrimmedCurve
+    from OCP.Geom2dConvert import Geom2dConvert
+    from OCP.TopAbs import TopAbs_REVERSED, TopAbs_WIRE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    outer = BRepTools.OuterWire_s(face)
+    wires = [outer] if not outer.IsNull() else []
+    ex = TopExp_Explorer(face, TopAbs_WIRE)
+    while ex.More():
+        w = TopoDS.Wire_s(ex.Current())
+        if outer.IsNull() or not w.IsSame(outer):
+            wires.append(w)
+        ex.Next()
+    loops: list[TrimLoop] = []
+    tol = 0.0
+    for w in wires:
+        curves = []
+        we = BRepTools_WireExplorer(w, face)
+        while we.More():
+            e = we.Current()
+            tol = max(tol, BRep_Tool.Tolerance_s(e))
+            first, last = BRep_Tool.Range_s(e, face)
+            c2 = BRep_Tool.CurveOnSurface_s(e, face, first, last)
+            if c2 is None or last - first <= 0:
+                we.Next()
+                continue
+            if not c2.IsPeriodic():  # a range a hair outside the curve's own (edge tolerance)
+                first, last = max(first, c2.FirstParameter()), min(last, c2.LastParameter())
+                if not last > first:
+                    we.Next()
+                    continue
+            bs = Geom2dConvert.CurveToBSplineCurve_s(Geom2d_TrimmedCurve(c2, first, last))
+            if bs.IsPeriodic():
+                bs.SetNotPeriodic()
+            c = nurbs_curve2d(bs)
+            if e.Orientation() == TopAbs_REVERSED:
+                c = _reversed_curve(c)
+            if flip is not None:
+                c = _mirrored_u(c, *flip)
+            curves.append(c)
+            we.Next()
+        if curves:
+            loops.append(TrimLoop(curves))
+    if not loops:
+        return None, tol
+    return Trim(loops[0], loops[1:]), tol
+
+
+def _leaves(shape_tool, label, location, name: str, out: list) -> None:
+    """(shape placed, product name) of every simple shape under ``label`` (assemblies walked,
+    instance locations composed)."""
+    from OCP.TDF import TDF_Label, TDF_LabelSequence
+    from OCP.TopLoc import TopLoc_Location
+
+    if shape_tool.IsReference_s(label):
+        ref = TDF_Label()
+        shape_tool.GetReferredShape_s(label, ref)
+        loc = location.Multiplied(shape_tool.GetLocation_s(label))
+        _leaves(shape_tool, ref, loc, _label_name(ref) or _label_name(label) or name, out)
+        return
+    if shape_tool.IsAssembly_s(label):
+        comps = TDF_LabelSequence()
+        shape_tool.GetComponents_s(label, comps)
+        for i in range(1, comps.Length() + 1):  # loop over the assembly's components
+            _leaves(shape_tool, comps.Value(i), location, name, out)
+        return
+    shape = shape_tool.GetShape_s(label)
+    if shape.IsNull():
+        return
+    out.append((shape.Moved(location) if not location.IsIdentity() else shape, _label_name(label) or name))
+    _ = TopLoc_Location  # noqa: F841 - imported for the type of ``location``
+
+
+def _label_name(label) -> str:
+    from OCP.TDataStd import TDataStd_Name
+
+    attr = TDataStd_Name()
+    if label.FindAttribute(TDataStd_Name.GetID_s(), attr):
+        return str(attr.Get().ToExtString()).strip()
+    return ""
+
+
+def _color(color_tool, shapes) -> tuple[float, float, float] | None:
+    """The first surface (or generic) colour set on one of ``shapes``, RGB 0..1."""
+    from OCP.Quantity import Quantity_Color
+    from OCP.XCAFDoc import XCAFDoc_ColorGen, XCAFDoc_ColorSurf
+
+    col = Quantity_Color()
+    for sh in shapes:
+        for kind in (XCAFDoc_ColorSurf, XCAFDoc_ColorGen):
+            try:
+                if color_tool.GetColor(sh, kind, col):
+                    return (col.Red(), col.Green(), col.Blue())
+            except Exception:  # noqa: BLE001 - a shape the colour table does not know
+                return None
+    return None
+
+
+def _nurbs_face(src):
+    """``src`` with its surface a B-spline and its pcurves in that B-spline's parameters:
+    a B-spline face as it is (OCC's conversion of one rewrites its seam's second pcurve
+    wrongly: K1 from I-DEAS), others through `BRepBuilderAPI_NurbsConvert`, or where that
+    fails (an extrusion whose knots it cannot space: K1 from MicroStation) through
+    `ShapeCustom.ConvertToBSpline` (extrusions, revolutions, offsets, planes) first."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+    from OCP.Geom import Geom_BSplineSurface
+    from OCP.ShapeCustom import ShapeCustom
+    from OCP.TopoDS import TopoDS
+
+    if isinstance(BRep_Tool.Surface_s(src), Geom_BSplineSurface):
+        return src
+    try:
+        return TopoDS.Face_s(BRepBuilderAPI_NurbsConvert(src, True).Shape())
+    except Exception as e:  # noqa: BLE001 - OCP's Standard_* exceptions share no Python base but Exception
+        first = e
+    try:
+        out = TopoDS.Face_s(ShapeCustom.ConvertToBSpline_s(src, True, True, True, True))
+        if isinstance(BRep_Tool.Surface_s(out), Geom_BSplineSurface):
+            return out
+        return TopoDS.Face_s(BRepBuilderAPI_NurbsConvert(out, True).Shape())
+    except Exception:  # noqa: BLE001 - as above
+        raise StepError(f"OCC cannot convert its {type(BRep_Tool.Surface_s(src)).__name__} to a B-spline "
+                        f"({first})") from None
+
+
+def read_step(path: str | Path, progress=None) -> Model:
+    """The `Model` of the STEP file at ``path`` (module docstring), in mm. Raises `StepError`
+    (exit 2 in the CLI) where OCC cannot read the file or it holds no B-rep face
+    (tessellated only, external references only)."""
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_NurbsConvert
+    from OCP.Geom import Geom_BSplineSurface
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPCAFControl import STEPCAFControl_Reader
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDF import TDF_LabelSequence
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_REVERSED
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.TopoDS import TopoDS
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+
+    path = Path(path)
+    name = path.name
+    if progress is not None:
+        progress.stage(f"reading {path} (STEP, through OpenCASCADE)")
+    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
+    reader = STEPCAFControl_Reader()
+    reader.SetNameMode(True)
+    reader.SetColorMode(True)
+    if reader.ReadFile(str(path)) != IFSelect_RetDone:
+        raise StepError(f"{name}: OpenCASCADE cannot read this STEP file")
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlXCAF"))
+    if not reader.Transfer(doc):
+        raise StepError(f"{name}: OpenCASCADE transfers no shape from this STEP file")
+    shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    color_tool = XCAFDoc_DocumentTool.ColorTool_s(doc.Main())
+    free = TDF_LabelSequence()
+    shape_tool.GetFreeShapes(free)
+    leaves: list = []
+    for i in range(1, free.Length() + 1):  # loop over the top-level products
+        _leaves(shape_tool, free.Value(i), TopLoc_Location(), "", leaves)
+    faces: list[Face] = []
+    notes: list[Diagnostic] = []
+    bare = 0
+    for k, (shape, product) in enumerate(leaves):  # loop over the placed simple shapes
+        ex = TopExp_Explorer(shape, TopAbs_FACE)
+        while ex.More():  # loop over the shape's faces, in OCC's order
+            src = TopoDS.Face_s(ex.Current())
+            ex.Next()
+            from OCP.BRep import BRep_Tool
+
+            if BRep_Tool.Surface_s(src) is None:
+                bare += 1
+                continue
+            try:
+                face = _nurbs_face(src)
+                s, shift = _bspline_surface(face)
+            except StepError as e:
+                notes.append(Diagnostic(f"face skipped: {e}", de=len(faces) + bare + 1))
+                continue
+            surface = nurbs_surface(s, shift)
+            flip = None
+            if src.Orientation() == TopAbs_REVERSED:
+                flip = (float(surface.knots_u[0]), float(surface.knots_u[-1]))
+                surface = _reversed_u(surface)
+            trims, tol = _face_trims(face, flip)
+            f = Face(surface=surface, de=len(faces) + 1, name=product or f"{path.stem}_{k + 1}",
+                     color=_color(color_tool, [src, shape]), trims=trims, entity_type=0, surface_type=0)
+            f.trim_delta = tol
+            faces.append(f)
+    model = Model(faces=faces, units=Units(2, "MM", 1.0), resolution=None, filename=name, source=str(path),
+                  diagnostics=notes, entity_counts={})
+    if not faces:
+        if bare:
+            raise StepError(f"{name}: {bare} faces without a surface (tessellated only): no B-rep surface to convert")
+        raise StepError(f"{name}: no B-rep face in this file (a product structure whose parts are external "
+                        f"files, or curves and points only): nothing to convert")
+    return model

@@ -1,0 +1,134 @@
+"""`cadbridge.step.read_step` and `cadbridge.formats.read_cad`: STEP files into the same `Model`.
+
+References:
+- OCC's own reading of the same file (`STEPControl_Reader`): the faces cadbridge builds from
+  its model (`cadbridge.heal.brep.model_brep`: our NURBS surfaces and our (u, v) trims) have
+  OCC's trimmed areas, face by face (`BRepGProp`, adaptive); `cadbridge.verify` finds every
+  face's surface on OCC's to 1e-9 x size with normals within 1e-9 rad;
+- the same part written in mm and in inch (OCC's STEP writer, ``write.step.unit``): cadbridge
+  reads both in mm, with the same bounding box;
+- the corpus README's expected refusals (tessellated only, external references only): exit 2
+  with one line, nothing written.
+The generated part (cadquery): a plate with filleted corners and a hole (planes, cylinders:
+analytic faces that `BRepBuilderAPI_NurbsConvert` turns into B-splines with their pcurves),
+its bottom edges rounded (tori), and a spherical dome.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("OCP")
+cq = pytest.importorskip("cadquery")
+
+from tests.helpers.occ import area, faces  # noqa: E402
+
+from cadbridge.formats import cad_format, read_cad  # noqa: E402
+from cadbridge.heal.brep import model_brep  # noqa: E402
+from cadbridge.step import StepError, is_step, read_step  # noqa: E402
+from cadbridge.verify.reference import occ_read_shape as read_shape  # noqa: E402 - OCC's STEPControl_Reader
+
+ROOT = Path(__file__).resolve().parents[2]
+CORPUS = ROOT.parent / "shared" / "cad_corpus" / "step"
+
+
+def _part():
+    plate = (cq.Workplane("XY").box(60, 40, 8).edges("|Z").fillet(6).faces(">Z").workplane().hole(10)
+             .faces("<Z").edges("%CIRCLE").fillet(1.0))
+    dome = cq.Workplane("XY").workplane(offset=4).center(15, 0).sphere(8).intersect(
+        cq.Workplane("XY").workplane(offset=4).center(15, 0).box(30, 30, 20, centered=(True, True, False)))
+    return plate.union(dome).val()
+
+
+def _write(shape, path: Path, unit: str = "MM") -> Path:
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPControl import STEPControl_AsIs, STEPControl_Writer
+
+    w = STEPControl_Writer()
+    Interface_Static.SetCVal_s("write.step.unit", unit)
+    try:
+        w.Transfer(shape.wrapped, STEPControl_AsIs)
+        assert w.Write(str(path)) == IFSelect_RetDone
+    finally:
+        Interface_Static.SetCVal_s("write.step.unit", "MM")
+    return path
+
+
+@pytest.fixture(scope="module")
+def part_files(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("step")
+    shape = _part()
+    return {"mm": _write(shape, d / "part_mm.step"), "inch": _write(shape, d / "part_inch.stp", "IN")}
+
+
+def test_faces_have_occs_trimmed_areas(part_files):
+    path = part_files["mm"]
+    model = read_step(path)
+    theirs = faces(read_shape(path))
+    assert len(model.faces) == len(theirs) > 8
+    built = model_brep(model)
+    mine = np.array([area(f, 1e-9) for f in faces(built.shape)])
+    ref = np.array([area(f, 1e-9) for f in theirs])
+    # one product, one solid: cadbridge keeps OCC's face order. The pcurves of the tori, which
+    # OCC's NURBS conversion approximates (the surfaces are exact), move areas by 2e-7
+    np.testing.assert_allclose(mine, ref, rtol=1e-6)
+
+
+def test_verify_finds_every_face_on_occs(part_files):
+    from cadbridge.verify.faces import verify
+
+    report = verify(part_files["mm"], isolate=False)
+    assert report.faces and all(f.passed for f in report.faces), [f for f in report.faces if not f.passed][:2]
+    assert max(f.pos_dev for f in report.faces) <= 1e-9
+    assert max(f.ang_dev for f in report.faces) <= 1e-9
+
+
+def test_inch_file_reads_in_mm(part_files):
+    """The part written in inch reads in mm: its faces have the mm file's areas (mm^2)."""
+    mm, inch = read_step(part_files["mm"]), read_step(part_files["inch"])
+    assert inch.units.to_mm == 1.0 and len(inch.faces) == len(mm.faces)
+    a = np.array([area(f, 1e-9) for f in faces(model_brep(mm).shape)])
+    b = np.array([area(f, 1e-9) for f in faces(model_brep(inch).shape)])
+    np.testing.assert_allclose(b, a, rtol=1e-7)
+    np.testing.assert_allclose(inch.bbox(), mm.bbox(), atol=1e-9 * mm.size())
+
+
+def test_format_is_told_by_content(part_files, tmp_path):
+    step_as_igs = tmp_path / "really_step.igs"
+    step_as_igs.write_bytes(part_files["mm"].read_bytes())
+    assert is_step(step_as_igs) and cad_format(step_as_igs) == "step"
+    assert len(read_cad(step_as_igs).faces) == len(read_step(part_files["mm"]).faces)
+    iges = ROOT / "iges_samples" / "trimmed_hole.igs"
+    assert cad_format(iges) == "iges" and read_cad(iges).faces
+
+
+def test_convert_step_is_sound(part_files, tmp_path):
+    """`cadbridge convert part.step` exits 0 and its tool is sound against OCC's shape."""
+    from cadbridge.verify.soundness import tool_soundness
+
+    out = tmp_path / "out"
+    res = subprocess.run([sys.executable, "-m", "cadbridge", "-q", "convert", str(part_files["mm"]), "-o", str(out),
+                          "--element", "tri"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr[-400:]
+    report = tool_soundness(part_files["mm"], sorted(out.glob("*.nagata")))
+    assert report.sound, report.line()
+
+
+@pytest.mark.skipif(not CORPUS.is_dir(), reason="shared/cad_corpus not present")
+@pytest.mark.parametrize(("name", "why"), [("nist_ftc_08_asme1_ap242-2.stp", "tessellated only"),
+                                           ("trj4_xr1-pe-214.stp", "external files")])
+def test_refusals(name: str, why: str, tmp_path):
+    with pytest.raises(StepError, match=why):
+        read_step(CORPUS / name)
+    out = tmp_path / "out"
+    res = subprocess.run([sys.executable, "-m", "cadbridge", "convert", str(CORPUS / name), "-o", str(out)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=300)
+    lines = [ln for ln in res.stderr.splitlines() if not ln.startswith("cadbridge convert [")]
+    assert res.returncode == 2 and len(lines) == 1 and why in lines[0] and "CADBRIDGE_DEBUG" not in lines[0], lines
+    assert not out.exists()
