@@ -1,11 +1,12 @@
-"""cadbridge: IGES/NURBS CAD to Nagata-patch tool files for sheet metal forming simulation.
+"""cadbridge: IGES/STEP NURBS CAD to Nagata-patch tool files for sheet metal forming simulation.
 
-The product in one call: ``convert("die.igs", "out/")`` (mesh, exact normals, Nagata
+The product in one call: ``convert("die.igs", "out/")`` (or ``"die.stp"``) (mesh, exact normals, Nagata
 patches, tool files and report; ``nagata_from_mesh`` from a mesh of your own), and beside
 it ``map_results`` (simulation results on the exact CAD), ``fit_points`` (a NURBS surface
 from points), ``read_toolfile`` / ``write_toolfile``.
 
-The chain underneath (ARCHITECTURE.md): ``read_iges`` -> ``Model`` of exact NURBS faces; a
+The chain underneath (ARCHITECTURE.md): ``read_cad`` (IGES or STEP, by content; ``read_iges``,
+``read_step``) -> ``Model`` of exact NURBS faces; a
 mesh (``mesh_cad`` with gmsh, or ``read_mesh``); ``project_points`` / ``cad_normals`` for
 exact node normals (or ``estimate_normals``); ``NagataMesh`` patches.
 """
@@ -50,8 +51,11 @@ __all__ = [
     "write_toolfile",
     "estimate_normals",
     "project_points",
+    "StepError",
+    "read_cad",
     "read_iges",
     "read_iges_string",
+    "read_step",
     "read_mesh",
     "write_iges",
     "write_mesh",
@@ -69,6 +73,9 @@ _LAZY = {
     "nagata_from_mesh": "cadbridge.tool.pipeline",
     "read_toolfile": "cadbridge.io.toolfile",
     "write_toolfile": "cadbridge.io.toolfile",
+    "read_cad": "cadbridge.formats.read",
+    "read_step": "cadbridge.step.reader",
+    "StepError": "cadbridge.step.errors",
 }
 
 

@@ -1,5 +1,6 @@
-"""Every IGES file of the OCCT corpus (../shared/cad_corpus/iges; skipped when absent) through
-`cadbridge convert`, in quad and tri mode (issue "Every real CAD file converts").
+"""Every IGES and STEP file of the OCCT corpus (../shared/cad_corpus/iges and step; skipped
+when absent) through `cadbridge convert`, in quad and tri mode (issues "Every real CAD file
+converts" and "STEP input").
 
 Reference, per file and mode: ``cadbridge -q convert FILE -o OUT --element MODE`` run as a
 subprocess exits 0 and its tool files are sound against OpenCASCADE
@@ -10,8 +11,8 @@ files the corpus README marks "expected: clear refusal" must instead exit 2 with
 stderr (the CLI's known-error line, not its "unanticipated error" form) and write nothing.
 `benchmarks/corpus.py` makes the same measurement into benchmarks/results/corpus.md.
 
-The default run converts a fast subset: two small files that convert today and one expected
-refusal. The whole corpus is slow-marked (``-m slow``), one case per file and mode. Many
+The default run converts a fast subset: three small files that convert today (two IGES, one
+STEP) and one expected refusal. The whole corpus is slow-marked (``-m slow``), one case per file and mode. Many
 files fail today. They are not skipped: `KNOWN_FAILURES` lists each failing (file, mode) with
 its current failure line (from benchmarks/results/corpus.md), and those cases are marked
 ``xfail(strict=True)`` with that line as the reason. A fix turns the case into XPASS, which
@@ -30,6 +31,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 CORPUS = ROOT.parent / "shared" / "cad_corpus" / "iges"
+CORPUS_STEP = CORPUS.parent / "step"
 MODES = ("quad", "tri")
 TIMEOUT = 600  # s per convert: a limit against hangs, far above any file's time today
 
@@ -49,7 +51,7 @@ _BENCH = _benchmark()
 EXPECTED_REFUSALS = _BENCH.expected_refusals()
 REFUSE_OR_SOUND = _BENCH.REFUSE_OR_SOUND  # the issue's acceptance: refused, or converted soundly
 
-FAST = ["occt_PRO20358-W11_CATIAV4.igs", "occt_PRO20359-L15_CATIAV4.igs"]
+FAST = ["occt_PRO20358-W11_CATIAV4.igs", "occt_PRO20359-L15_CATIAV4.igs", "occ23010.step"]
 FAST_REFUSAL = "occt_Disc_HPME.igs"
 
 # (file, mode): the current failure line, as benchmarks/results/corpus.md gives it (2026-12-06,
@@ -101,7 +103,7 @@ def check_file(path: Path, mode: str, tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("name", FAST)
 def test_fast_subset_converts_soundly(name: str, tmp_path: Path):
-    check_file(CORPUS / name, "quad", tmp_path)
+    check_file((CORPUS_STEP if name.endswith((".stp", ".step")) else CORPUS) / name, "quad", tmp_path)
 
 
 def test_fast_subset_expected_refusal(tmp_path: Path):
@@ -109,8 +111,16 @@ def test_fast_subset_expected_refusal(tmp_path: Path):
     check_file(CORPUS / FAST_REFUSAL, "quad", tmp_path)
 
 
-def _cases() -> list:
+def _corpus_files() -> list[Path]:
+    """The corpus' IGES files, then its STEP files."""
     files = sorted(CORPUS.glob("*.igs")) if CORPUS.is_dir() else []
+    if CORPUS_STEP.is_dir():
+        files += sorted(p for p in CORPUS_STEP.iterdir() if p.suffix.lower() in (".stp", ".step"))
+    return files
+
+
+def _cases() -> list:
+    files = _corpus_files()
     cases = []
     for p in files:
         for mode in MODES:
@@ -128,6 +138,6 @@ def test_corpus_file_converts_soundly(path: Path, mode: str, tmp_path: Path):
 
 def test_known_failures_name_corpus_files():
     """The table lists only files and modes that exist (a renamed file must not leave a stale row)."""
-    names = {p.name for p in CORPUS.glob("*.igs")}
+    names = {p.name for p in _corpus_files()}
     assert {f for f, _ in KNOWN_FAILURES} <= names
     assert {m for _, m in KNOWN_FAILURES} <= set(MODES)
