@@ -106,6 +106,25 @@ def prefer_model_space(text: str, faces: list[int]) -> tuple[str, list[int]]:
     return "\n".join(lines), changed
 
 
+def _occ_step_brep(cad: Path, folder: str | Path) -> Path:
+    """OCC's reading of the STEP file ``cad`` (`STEPControl_Reader`, all roots, mm) written as
+    an OCC ``.brep`` into ``folder``: what gmsh meshes for "the file as OCC reads it" (gmsh's
+    own STEP import finds no surface in some files OCC reads, e.g. NIST's CTC-05)."""
+    from OCP.BRepTools import BRepTools
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPControl import STEPControl_Reader
+
+    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
+    reader = STEPControl_Reader()
+    if reader.ReadFile(str(cad)) != IFSelect_RetDone or reader.TransferRoots() == 0:
+        return cad  # gmsh's own import then says what is wrong
+    out = Path(folder) / f"{cad.stem}.brep"
+    if not BRepTools.Write_s(reader.OneShape(), str(out)):
+        raise OSError(f"could not write OCC's reading of {cad.name} to {out}")
+    return out
+
+
 def write_mesh_source(cad: str | Path, model: Model, folder: str | Path, smooth: bool = True) -> Path:
     """The file the mesher should read for ``cad`` as ``model`` says: ``cad`` itself unless the
     reader re-read faces or (``smooth``) a trim curve has short C0 pieces, else a copy written
@@ -118,7 +137,7 @@ def write_mesh_source(cad: str | Path, model: Model, folder: str | Path, smooth:
 
     cad = Path(cad)
     if cad_format(cad) == "step":
-        return cad  # gmsh reads STEP through OCC as it is; the re-reading and smoothing are IGES text edits
+        return _occ_step_brep(cad, folder)
     faces = reread_faces(model)
     shorter = JOIN_SHORTER * model.size() if smooth and model.faces else 0.0
     smooth = shorter > 0 and has_c0_knots(model)

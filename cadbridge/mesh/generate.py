@@ -99,7 +99,9 @@ def _curve_shape(gmsh, c: int) -> tuple[str, float, float]:
     ts = np.linspace(lo[0], hi[0], 7)
     k = np.abs(np.asarray(gmsh.model.getCurvature(1, c, ts), dtype=float))
     length = float(gmsh.model.occ.getMass(1, c))
-    if np.all(k * max(length, 1e-300) < 1e-9):
+    with np.errstate(over="ignore", invalid="ignore"):  # gmsh gives ~1e308 on degenerate curves
+        straight = bool(np.all(k * max(length, 1e-300) < 1e-9))
+    if straight:
         return "line", math.inf, length
     km = float(k.mean())
     if km > 0 and float(k.max() - k.min()) <= 1e-6 * km:

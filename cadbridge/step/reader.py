@@ -138,14 +138,17 @@ def _bspline_surface(face):
         first, last = (a0, a1) if k == 0 else (b0, b1)
         if periodic:
             per = s.UPeriod() if k == 0 else s.VPeriod()
+            gap = per - (hi - lo)
             n = np.floor((lo - first) / per + 1e-9)
-            if hi <= last + n * per + 1e-9 * per:  # the face lies in one period of the surface's
+            if gap <= 1e-9 * per and hi <= last + n * per + 1e-9 * per:  # a closed face, seam and all
                 (s.SetUNotPeriodic if k == 0 else s.SetVNotPeriodic)()
                 shift[k] = n * per
                 continue
-            # it straddles the seam: the period's origin moved to the face's first parameter (a
-            # knot inserted there, made the origin: the same surface), then clamped
-            at = first + np.mod(lo - first, per)
+            # the period's origin moved to the middle of the gap the face leaves (a knot
+            # inserted there, made the origin: the same surface), then clamped: the seam lies
+            # off the face, and no node on the face's border has a twin a period away
+            start = lo - 0.5 * max(gap, 0.0)
+            at = first + np.mod(start - first, per)
             if k == 0:
                 s.InsertUKnot(at, 1, 1e-12 * per)
                 idx = int(np.argmin([abs(s.UKnot(i) - at) for i in range(1, s.NbUKnots() + 1)])) + 1
@@ -157,7 +160,7 @@ def _bspline_surface(face):
                 s.SetVOrigin(idx)
                 s.SetVNotPeriodic()
             got = s.Bounds()[2 * k]
-            turns = (lo - got) / per
+            turns = (start - got) / per
             shift[k] = round(turns) * per if abs(turns - round(turns)) < 1e-6 else 0.0
             continue
         else:

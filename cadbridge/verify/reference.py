@@ -69,6 +69,15 @@ def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> 
 
     if cad_format(path) == "step":
         return _occ_read_step(path)
+    if path.lower().endswith(".brep"):  # OCC's own format: OCC's reading written out (`mesh_source` for STEP)
+        from OCP.BRep import BRep_Builder
+        from OCP.BRepTools import BRepTools
+        from OCP.TopoDS import TopoDS_Shape as _Shape
+
+        shape = _Shape()
+        if not BRepTools.Read_s(shape, path, BRep_Builder()) or shape.IsNull():
+            raise OccReadError(f"{path}: OpenCASCADE could not read the .brep file")
+        return shape
     reader = IGESControl_Reader()  # registers the read.iges.* statics
     old = Interface_Static.IVal_s("read.iges.bspline.continuity")
     try:

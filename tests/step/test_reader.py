@@ -132,3 +132,19 @@ def test_refusals(name: str, why: str, tmp_path):
     lines = [ln for ln in res.stderr.splitlines() if not ln.startswith("cadbridge convert [")]
     assert res.returncode == 2 and len(lines) == 1 and why in lines[0] and "CADBRIDGE_DEBUG" not in lines[0], lines
     assert not out.exists()
+
+
+def test_file_route_meshes_occs_reading(part_files):
+    """The fallback route ("the file as OCC reads it") of a STEP file meshes OCC's reading
+    written as a .brep (gmsh's own STEP import finds no surface in some files): its nodes lie
+    on OCC's shape (`BRepExtrema_DistShapeShape`), to 1e-6 x size."""
+    from tests.helpers.occ import distance
+
+    from cadbridge.tool.meshing import mesh_for_tools, read_healed
+
+    model, excursions = read_healed(part_files["mm"])
+    mesh, _ = mesh_for_tools(part_files["mm"], model, excursions=excursions, element="tri", route="file")
+    assert mesh.n_elements > 0
+    shape = read_shape(part_files["mm"])
+    pick = np.linspace(0, len(mesh.nodes) - 1, 40).astype(int)
+    assert max(distance(mesh.nodes[i], shape) for i in pick) <= 1e-6 * model.size()
