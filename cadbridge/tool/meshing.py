@@ -28,11 +28,13 @@ def read_healed(cad: str | Path, progress=None) -> tuple[Model, list[Excursion]]
     search index or fold line is computed on it), and the excursions cut."""
     from cadbridge.formats import read_cad
     from cadbridge.heal.loop_excursions import heal_excursions
+    from cadbridge.heal.winding_loops import close_winding_loops
     from cadbridge.iges.trimcheck import check_trim_agreement
 
     (progress or NoProgress()).stage(f"reading {cad}")
     model = read_cad(cad)  # fails early, before anything is meshed or written, on a bad file
     check_trim_agreement(model)  # a face with two boundaries far apart: refused before meshing
+    close_winding_loops(model)  # loops round a closed surface: closed on the side they bound
     excursions = heal_excursions(model)  # trim loops that run back beside themselves: cut out
     return model, excursions
 

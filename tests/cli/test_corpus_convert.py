@@ -64,10 +64,6 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
     # trims; the file's two disagree by 0.004 mm, 4x the soundness tolerance (docs/one_geometry.md)
     ('occt_OCC131-1_ANSA9.igs', 'quad'): 'converted (nodes off the CAD: 8.04e-06 x size (tolerance 3e-06))',
     ('occt_OCC131-1_ANSA9.igs', 'tri'): 'converted (nodes off the CAD: 8.04e-06 x size (tolerance 3e-06))',
-    ('occt_PRO19800_CATIAV4.igs', 'quad'):
-        'failed: exit 1: 473 of 492 mesh nodes are further than 0.00267 from the CAD (or could not be projected): node 467 at (-1237.97, -231.15, -82.2164) projection failed, node 427 at (-1238.03, -231.198, -82.1623) projection failed, node 431 at (-1237.9, -231.102, -82.2717) projection failed, node 434 at (-1237.71, -231.071, -82.3917) projection failed, node 327 at (-1238.18, -231.353, -82.056) projection failed, node 163 at (-1237.8, -231.188, -82.3015) projection failed, node 325 at (-1238.13, -231.269, -82.0921) projection failed, node 461 at (-1237.35, -230.936, -82.6449) projection failed, node 462 at (-1237.43, -231.031, -82.5588) projection failed, node 456 at (-1237.73, -231.358, -82.3073) projection failed',
-    ('occt_PRO19800_CATIAV4.igs', 'tri'):
-        'failed: exit 1: 275 of 288 mesh nodes are further than 0.00267 from the CAD (or could not be projected): node 77 at (-1237.96, -231.219, -82.199) projection failed, node 79 at (-1237.61, -231.089, -82.4405) projection failed, node 72 at (-1237.83, -231.063, -82.3257) projection failed, node 83 at (-1237.54, -231.387, -82.4082) projection failed, node 258 at (-1238.07, -231.239, -82.1296) projection failed, node 259 at (-1238.19, -231.295, -82.0499) projection failed, node 144 at (-1233.6, -232.748, -84.5237) distance 5.08425, node 136 at (-1233.66, -231.063, -84.6979) distance 5.00779, node 210 at (-1233.27, -231.88, -84.7653) distance 4.92362, node 135 at (-1233.46, -230.273, -85.0545) distance 4.89163',
 }
 
 
