@@ -729,6 +729,32 @@ def project_points(
             u[t], v[t], foot[t], dist[t] = np.nan, np.nan, np.nan, np.nan
             normal[t] = np.nan
             status[t] = FAILED
+    named = face.copy()  # the face each FAILED point failed on; else its nearest sample's face
+    if len(cp1):
+        named[named < 0] = f0[named < 0]
+    _retry_failed(model, pts, named, u, v, foot, dist, normal, status, tol)
+    face[status != FAILED] = named[status != FAILED]
     if max_distance is not None:
         status[(status != FAILED) & (dist > max_distance)] = BEYOND_TOLERANCE
     return Projection(face, u, v, foot, dist, normal, status, candidates)
+
+
+def _retry_failed(model: Model, pts, face, u, v, foot, dist, normal, status, tol: float) -> None:
+    """Points FAILED on a named face (``face``; the nearest sample's where no face gave a
+    foot): that face projected again by `project_to_surface`,
+    whose restarts widen to 64 grid samples (the compiled pairs restart from 4: beside a
+    pole, where many samples sit at one point, all four start Newton in the collapsed corner
+    and it stalls: PRO19800's apex). A foot inside the face's trims is taken (CONVERGED);
+    the arrays are updated in place."""
+    from cadbridge.nurbs.project import project_to_surface
+
+    bad = np.flatnonzero((status == FAILED) & (face >= 0))
+    for fk in np.unique(face[bad]):  # loop over the (few) faces that failed
+        rows = bad[face[bad] == fk]
+        f = model.faces[int(fk)]
+        r = project_to_surface(f.surface, pts[rows], tol=tol)
+        ok = r.status != FAILED
+        ok[ok] = f.contains(r.u[ok], r.v[ok])
+        take = rows[ok]
+        u[take], v[take], foot[take], dist[take], normal[take] = r.u[ok], r.v[ok], r.foot[ok], r.distance[ok], r.normal[ok]
+        status[take] = CONVERGED
