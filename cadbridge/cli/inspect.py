@@ -47,7 +47,9 @@ def format_inspect(model) -> str:
     lines.append(f"{'units':<14}{model.units.name} (flag {model.units.flag}, 1 unit = {model.units.to_mm:g} mm)")
     if model.resolution is not None:
         lines.append(f"{'resolution':<14}{model.resolution:g}")
-    lines.append("entities")
+    step = (model.preprocessor or "").startswith("STEP")
+    if not step:
+        lines.append("entities")
     for et in sorted(model.entity_counts):
         lines.append(f"  {et:>4}  {ENTITY_NAMES.get(et, 'other'):<36}{model.entity_counts[et]:>6}")
     lines.append(f"{'faces':<14}{len(model.faces)}")
@@ -60,8 +62,13 @@ def format_inspect(model) -> str:
         have = [i for i, d in enumerate(deltas) if d is not None]
         if have:
             w = max(have, key=lambda i: deltas[i])
-            lines.append(f"{'trim delta':<14}max {deltas[w]:.3g} {model.units.name} ({deltas[w] / model.size():.3g} x size) "
-                         f"on face {w} (DE {model.faces[w].de}); {len(have)} of {len(deltas)} faces have 2D and 3D trims")
+            if step:  # a STEP face's trim delta is its largest edge tolerance (`cadbridge.step.reader`)
+                lines.append(f"{'trim delta':<14}max {deltas[w]:.3g} {model.units.name} ({deltas[w] / model.size():.3g} x "
+                             f"size) on face {w}: the largest edge tolerance OCC's reading gives")
+            else:
+                lines.append(f"{'trim delta':<14}max {deltas[w]:.3g} {model.units.name} ({deltas[w] / model.size():.3g} x "
+                             f"size) on face {w} (DE {model.faces[w].de}); {len(have)} of {len(deltas)} faces have 2D and 3D "
+                             f"trims")
         from cadbridge.heal.loop_excursions import find_excursions
 
         crossings: list[str] = []

@@ -39,6 +39,21 @@ __all__ = ["is_step", "read_step"]
 MAGIC = b"ISO-10303-21;"
 
 
+PREPROCESSOR = "STEP (ISO 10303-21), read through OpenCASCADE"
+"""`Model.preprocessor` of a model read from STEP: how `cadbridge inspect` tells the format."""
+
+
+def _originating_system(path: Path) -> str:
+    """The header's FILE_NAME originating system (its next-to-last string), or ""."""
+    import re
+
+    with open(path, "rb") as fh:
+        text = fh.read(20000).decode("latin-1")
+    m = re.search(r"FILE_NAME\s*\((.*?)\)\s*;", text, re.S)
+    strings = re.findall(r"'((?:[^']|'')*)'", m.group(1)) if m else []
+    return strings[-2].strip() if len(strings) >= 2 else ""
+
+
 def is_step(path: str | Path) -> bool:
     """Whether the file at ``path`` starts (after blanks) with the ISO 10303-21 header."""
     with open(path, "rb") as fh:
@@ -387,7 +402,7 @@ def read_step(path: str | Path, progress=None) -> Model:
             f.trim_delta = tol
             faces.append(f)
     model = Model(faces=faces, units=Units(2, "MM", 1.0), resolution=None, filename=name, source=str(path),
-                  diagnostics=notes, entity_counts={})
+                  diagnostics=notes, entity_counts={}, system=_originating_system(path), preprocessor=PREPROCESSOR)
     if not faces:
         if bare:
             raise StepError(f"{name}: {bare} faces without a surface (tessellated only): no B-rep surface to convert")

@@ -148,3 +148,13 @@ def test_file_route_meshes_occs_reading(part_files):
     shape = read_shape(part_files["mm"])
     pick = np.linspace(0, len(mesh.nodes) - 1, 40).astype(int)
     assert max(distance(mesh.nodes[i], shape) for i in pick) <= 1e-6 * model.size()
+
+
+def test_inspect_names_the_format(part_files):
+    """`cadbridge inspect` on STEP: the format, no IGES entity table, the trim tolerance as
+    the largest edge tolerance of OCC's reading (which it is: `BRep_Tool.Tolerance`)."""
+    from cadbridge.cli.inspect import format_inspect
+
+    text = format_inspect(read_step(part_files["mm"]))
+    assert "read through OpenCASCADE" in text and "\nentities" not in text
+    assert "largest edge tolerance" in text
