@@ -39,6 +39,8 @@ __all__ = ["is_step", "read_step"]
 MAGIC = b"ISO-10303-21;"
 
 
+MAX_DELTA_REL = 1e-3
+"""A face's trim tolerance (its largest edge tolerance) is at most this x the model size."""
 PREPROCESSOR = "STEP (ISO 10303-21), read through OpenCASCADE"
 """`Model.preprocessor` of a model read from STEP: how `cadbridge inspect` tells the format."""
 
@@ -403,6 +405,13 @@ def read_step(path: str | Path, progress=None) -> Model:
             faces.append(f)
     model = Model(faces=faces, units=Units(2, "MM", 1.0), resolution=None, filename=name, source=str(path),
                   diagnostics=notes, entity_counts={}, system=_originating_system(path), preprocessor=PREPROCESSOR)
+    if faces:  # an edge tolerance beyond 1e-3 x size is a defect of OCC's reading, not the trims' accuracy
+        cap = MAX_DELTA_REL * model.size()
+        wide = [f for f in faces if f.trim_delta is not None and f.trim_delta > cap]
+        for f in wide:
+            notes.append(Diagnostic(f"face {f.de} ({f.name}): OCC's reading gives an edge tolerance of "
+                                    f"{f.trim_delta:.3g}; its trim tolerance is taken as {cap:.3g} (1e-3 x size)", de=f.de))
+            f.trim_delta = cap
     if not faces:
         if bare:
             raise StepError(f"{name}: {bare} faces without a surface (tessellated only): no B-rep surface to convert")
