@@ -158,3 +158,17 @@ def test_inspect_names_the_format(part_files):
     text = format_inspect(read_step(part_files["mm"]))
     assert "read through OpenCASCADE" in text and "\nentities" not in text
     assert "largest edge tolerance" in text
+
+
+@pytest.mark.skipif(not CORPUS.is_dir(), reason="shared/cad_corpus not present")
+def test_wild_edge_tolerance_is_capped_with_a_note():
+    """K1 from Unigraphics: OCC's reading gives one face an edge tolerance of 34 mm (21 % of
+    the model). Taken as the face's trim tolerance, it made `check_trim_agreement` refuse a file
+    OCC finds valid; it is capped at 1e-3 x size, and the note says so (reference: OCC's own
+    `BRep_Tool.Tolerance` of that face's edges, above the cap)."""
+    from cadbridge.step.reader import MAX_DELTA_REL
+
+    model = read_step(CORPUS / "trj8_k1-ug-214.stp")
+    cap = MAX_DELTA_REL * model.size()
+    assert max(f.trim_delta for f in model.faces) <= cap * (1 + 1e-12)
+    assert any("edge tolerance of" in d.message for d in model.diagnostics)
