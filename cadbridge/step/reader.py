@@ -90,8 +90,16 @@ def nurbs_surface(s, shift: tuple[float, float] = (0.0, 0.0)) -> NurbsSurface:
     s.VKnots(kv)
     s.VMultiplicities(mv)
     rational = s.IsURational() or s.IsVRational()
-    return NurbsSurface(s.UDegree(), s.VDegree(), _knots(ku, mu) + shift[0], _knots(kv, mv) + shift[1], cp,
-                        w if rational else None)
+    out = NurbsSurface(s.UDegree(), s.VDegree(), _knots(ku, mu) + shift[0], _knots(kv, mv) + shift[1], cp,
+                       w if rational else None)
+    p, q = out.degree_u, out.degree_v
+    clamped = all(np.all(k[: d + 1] == k[0]) and np.all(k[-d - 1:] == k[-1])
+                  for k, d in ((out.knots_u, p), (out.knots_v, q)))
+    if not clamped:  # OCC's unclamped non-periodic knots (NurbsConvert's cylinders): the same surface, clamped
+        from cadbridge.nurbs.edits import restrict_surface
+
+        out = restrict_surface(out, out.domain)
+    return out
 
 
 def nurbs_curve2d(c) -> NurbsCurve:

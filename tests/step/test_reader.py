@@ -72,6 +72,10 @@ def test_faces_have_occs_trimmed_areas(part_files):
     model = read_step(path)
     theirs = faces(read_shape(path))
     assert len(model.faces) == len(theirs) > 8
+    for f in model.faces:  # clamped knots (OCC's NURBS conversion of a cylinder gives unclamped ones)
+        s = f.surface
+        for k, d in ((s.knots_u, s.degree_u), (s.knots_v, s.degree_v)):
+            assert np.all(k[: d + 1] == k[0]) and np.all(k[-d - 1:] == k[-1])
     built = model_brep(model)
     mine = np.array([area(f, 1e-9) for f in faces(built.shape)])
     ref = np.array([area(f, 1e-9) for f in theirs])
