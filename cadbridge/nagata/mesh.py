@@ -43,6 +43,10 @@ from cadbridge.nagata.patch import (
     unit,
 )
 
+SAME_NORMAL = 1e-12
+"""Corner normals (unit) whose components differ by no more are one normal: round-off, e.g.
+a smooth seam's normal evaluated at u0 and at u1, never a crease."""
+
 
 class Grid(NamedTuple):
     """Uniform parametric sample of every patch (elements in global order)."""
@@ -296,7 +300,9 @@ class NagataMesh:
         ne = len(topo["edges"])
         first = topo["first_inst"]  # (Ne,) first instance of each edge
         diff = np.maximum(np.abs(n_lo - n_lo[first[eid]]).max(1), np.abs(n_hi - n_hi[first[eid]]).max(1))
-        crease = np.bincount(eid, weights=(diff > 0).astype(float), minlength=ne) > 0
+        # normals that differ by round-off only are one normal (a smooth seam evaluated from its
+        # two sides: 1e-17 apart; taken as a crease, the edge read as half a crease, a straddle)
+        crease = np.bincount(eid, weights=(diff > SAME_NORMAL).astype(float), minlength=ne) > 0
         lo, hi = topo["edges"][:, 0], topo["edges"][:, 1]
         c_edge = edge_coefficient(x[lo], x[hi], n_lo[first], n_hi[first], self.eps)
         ce = np.flatnonzero(crease)
@@ -319,8 +325,8 @@ class NagataMesh:
             n1[row, col] = n_hi[order]
             mask[row, col] = True
             d = x[hi[ce]] - x[lo[ce]]
-            multi0 = np.any(mask & (np.abs(n0 - n0[:, :1]).max(axis=2) > 0), axis=1)
-            multi1 = np.any(mask & (np.abs(n1 - n1[:, :1]).max(axis=2) > 0), axis=1)
+            multi0 = np.any(mask & (np.abs(n0 - n0[:, :1]).max(axis=2) > SAME_NORMAL), axis=1)
+            multi1 = np.any(mask & (np.abs(n1 - n1[:, :1]).max(axis=2) > SAME_NORMAL), axis=1)
             full = multi0 & multi1
             if np.any(full):  # a crease edge: one curve orthogonal to every normal (eqs. 19-33)
                 f = np.flatnonzero(full)
