@@ -64,20 +64,13 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
     # trims; the file's two disagree by 0.004 mm, 4x the soundness tolerance (docs/one_geometry.md)
     ('occt_OCC131-1_ANSA9.igs', 'quad'): 'converted (nodes off the CAD: 8.04e-06 x size (tolerance 3e-06))',
     ('occt_OCC131-1_ANSA9.igs', 'tri'): 'converted (nodes off the CAD: 8.04e-06 x size (tolerance 3e-06))',
-    # STEP (benchmarks/results/corpus.md, 2026-12-06 06:53, 4dfeff0): the straddle guard between faces
-    # of solids, nodes off the CAD near converted analytic faces, gmsh on periodic faces
-    ('bug24595_281390.stp', 'quad'):
-        'failed: exit 1: f4aw1200awx38e240_gtm: mesh straddles a crease: elements 139, 549 (1-based, 2 in all) have corners on both sides of a crease line or sharp edge, and no normal can make a patch fold ins',
-    ('bug24595_281390.stp', 'tri'):
-        'failed: exit 1: f4aw1200awx38e240_gtm: mesh straddles a crease: elements 37, 38, 1191, 1227 (1-based, 4 in all) have corners on both sides of a crease line or sharp edge, and no normal can make a patc',
+    # STEP (benchmarks/results/corpus.md, 2026-12-06 06:53, 4dfeff0; bug24595, bug32596 and K1 from I-DEAS
+    # convert soundly since the round-off normals fix, checked by hand): nodes off the CAD near converted
+    # analytic faces, gmsh on periodic faces, the straddle guard on the fuselage
     ('bug28366_fuselage.stp', 'quad'):
         'timeout',
     ('bug28366_fuselage.stp', 'tri'):
         'failed: exit 1: prodname: mesh straddles a crease: elements 1106, 1108, 1118, 1159, 1294, 1296, 1338, 1342, 1484, 1496 (and 6 more) (1-based, 16 in all) have corners on both sides of a crease line or ',
-    ('bug32596_abc_0_13.step', 'quad'):
-        'failed: exit 1: Part 1: mesh straddles a crease: elements 4822, 4848, 9192, 9201, 9237, 9242, 9734, 9895, 10126, 10129 (and 10 more) (1-based, 20 in all) have corners on both sides of a crease line or',
-    ('bug32596_abc_0_13.step', 'tri'):
-        'failed: exit 1: Part 1: mesh straddles a crease: elements 6316, 6338, 12047, 12058, 12986, 12995, 13247, 13258, 13506, 13515 (and 8 more) (1-based, 18 in all) have corners on both sides of a crease li',
     ('ec_exhaust-A.stp', 'quad'):
         'failed: exit 1: 5 of 7183 mesh nodes are further than 0.265 from the CAD (or could not be projected): node 4531 at (-1298.01, 381.65, -165.693) distance 5.87329, node 3790 at (-1298.01, 380.95, -99.30',
     ('ec_exhaust-A.stp', 'tri'):
@@ -106,10 +99,6 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
         'refused: /tmp/cadbridge-mesh-uq9fcgdy/trj6_b1-ec-214.brep: gmsh failed: Impossible to mesh periodic surface 7; meshing gmsh surface 7 (Cone) in its (u, v) did not work either: gmsh surface 7 (Cone): i',
     ('trj6_b1-ec-214.stp', 'tri'):
         'failed: exit 1: solid: mesh straddles a crease: elements 253, 290, 890, 913, 1177, 1178, 1310, 1311, 1468, 1480 (1-based, 10 in all) have corners on both sides of a crease line or sharp edge, and no n',
-    ('trj6_k1-id-203.stp', 'quad'):
-        'failed: exit 1: key: mesh straddles a crease: elements 2050, 2052 (1-based, 2 in all) have corners on both sides of a crease line or sharp edge, and no normal can make a patch fold inside an element; ',
-    ('trj6_k1-id-203.stp', 'tri'):
-        'failed: exit 1: key: mesh straddles a crease: elements 3019, 3028 (1-based, 2 in all) have corners on both sides of a crease line or sharp edge, and no normal can make a patch fold inside an element; ',
     ('trj6_k1-md-214.stp', 'quad'):
         'failed: exit 1: 41 of 3301 mesh nodes are further than 0.0356 from the CAD (or could not be projected): node 467 at (98.4511, 12.9037, 1.32684) distance 3.40432, node 2654 at (95.0313, 26.1446, 1.4352',
     ('trj6_k1-md-214.stp', 'tri'):
