@@ -263,7 +263,15 @@ def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, fl
             loops.append(TrimLoop(curves))
     if not loops:
         return None, tol
-    return Trim(loops[0], loops[1:]), tol
+    # the outer loop: the one whose (u, v) box is largest. BRepTools.OuterWire can name a hole
+    # (K1 from CATIA V5: a planar ring whose inner wire came first)
+    def box_area(lp: TrimLoop) -> float:
+        pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 33)) for c in lp.curves])
+        ext = pts.max(axis=0) - pts.min(axis=0)
+        return float(ext[0] * ext[1])
+
+    k = int(np.argmax([box_area(lp) for lp in loops]))
+    return Trim(loops[k], loops[:k] + loops[k + 1:]), tol
 
 
 def _leaves(shape_tool, label, location, name: str, out: list) -> None:

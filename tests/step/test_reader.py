@@ -176,3 +176,30 @@ def test_wild_edge_tolerance_is_capped_with_a_note():
     cap = MAX_DELTA_REL * model.size()
     assert max(f.trim_delta for f in model.faces) <= cap * (1 + 1e-12)
     assert any("edge tolerance of" in d.message for d in model.diagnostics)
+
+
+def _box(loop):
+    pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 65)) for c in loop.curves])
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+@pytest.mark.parametrize("which", ["generated", "trj8_k1-ct-214.stp"])
+def test_outer_loop_encloses_the_holes(which, part_files):
+    """Every face's outer trim loop holds its holes: each hole's (u, v) box lies inside the
+    outer loop's (reference: the boxes of the exact curves, densely sampled). OCC's
+    `BRepTools.OuterWire` named the inner wire of a planar ring of K1 from CATIA V5 (face 13)."""
+    if which == "generated":
+        path = part_files["mm"]
+    else:
+        path = CORPUS / which
+        if not path.is_file():
+            pytest.skip("shared/cad_corpus not present")
+    model = read_step(path)
+    holed = [f for f in model.faces if f.trims is not None and f.trims.inner]
+    assert holed
+    for f in holed:
+        lo, hi = _box(f.trims.outer)
+        for h in f.trims.inner:
+            a, b = _box(h)
+            tol = 1e-9 * float(np.linalg.norm(hi - lo))
+            assert np.all(a >= lo - tol) and np.all(b <= hi + tol), (f.de, lo, hi, a, b)
