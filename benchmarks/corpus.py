@@ -114,14 +114,6 @@ def _hollerith_fields(text: str, count: int) -> list[str]:
     return out
 
 
-def _step_system(path: Path) -> str:
-    """A STEP file's originating system: FILE_NAME's next-to-last string (its sixth field)."""
-    text = path.read_bytes()[:20000].decode("latin-1")
-    m = re.search(r"FILE_NAME\s*\((.*?)\)\s*;", text, re.S)
-    strings = re.findall(r"'((?:[^']|'')*)'", m.group(1)) if m else []
-    return strings[-2].strip() if len(strings) >= 2 else ""
-
-
 def header(path: Path) -> tuple[str, int | None]:
     """(native system ID = Global parameter 5, or a STEP file's originating system;
     cadbridge's face count, None if it cannot read the file). The system comes from
@@ -130,12 +122,12 @@ def header(path: Path) -> tuple[str, int | None]:
     from cadbridge.iges import read_iges
 
     if cad_format(path) == "step":
-        from cadbridge.step import read_step
+        from cadbridge.step import originating_system, read_step
 
         try:
-            return _step_system(path), len(read_step(path).faces)
+            return originating_system(path), len(read_step(path).faces)
         except Exception:
-            return _step_system(path), None
+            return originating_system(path), None
 
     try:
         model = read_iges(path)

@@ -107,20 +107,18 @@ def prefer_model_space(text: str, faces: list[int]) -> tuple[str, list[int]]:
 
 
 def _occ_step_brep(cad: Path, folder: str | Path) -> Path:
-    """OCC's reading of the STEP file ``cad`` (`STEPControl_Reader`, all roots, mm) written as
-    an OCC ``.brep`` into ``folder``: what gmsh meshes for "the file as OCC reads it" (gmsh's
-    own STEP import finds no surface in some files OCC reads, e.g. NIST's CTC-05)."""
+    """OCC's reading of the STEP file ``cad`` (`cadbridge.step.occ_step_shape`) written as an
+    OCC ``.brep`` into ``folder``: what gmsh meshes for "the file as OCC reads it" (gmsh's own
+    STEP import finds no surface in some files OCC reads, e.g. NIST's CTC-05)."""
     from OCP.BRepTools import BRepTools
-    from OCP.IFSelect import IFSelect_RetDone
-    from OCP.Interface import Interface_Static
-    from OCP.STEPControl import STEPControl_Reader
 
-    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
-    reader = STEPControl_Reader()
-    if reader.ReadFile(str(cad)) != IFSelect_RetDone or reader.TransferRoots() == 0:
+    from cadbridge.step.reader import occ_step_shape
+
+    shape = occ_step_shape(cad)
+    if shape is None:
         return cad  # gmsh's own import then says what is wrong
     out = Path(folder) / f"{cad.stem}.brep"
-    if not BRepTools.Write_s(reader.OneShape(), str(out)):
+    if not BRepTools.Write_s(shape, str(out)):
         raise OSError(f"could not write OCC's reading of {cad.name} to {out}")
     return out
 

@@ -31,10 +31,12 @@ import numpy as np
 
 from cadbridge.cad.model import Diagnostic, Face, Model, Trim, TrimLoop, Units
 from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.edits import reverse_curve, surface_from_homogeneous
+from cadbridge.nurbs.knots import reverse
 from cadbridge.nurbs.surface import NurbsSurface
 from cadbridge.step.errors import StepError
 
-__all__ = ["is_step", "read_step"]
+__all__ = ["is_step", "occ_step_shape", "originating_system", "read_step"]
 
 MAGIC = b"ISO-10303-21;"
 
@@ -45,7 +47,7 @@ PREPROCESSOR = "STEP (ISO 10303-21), read through OpenCASCADE"
 """`Model.preprocessor` of a model read from STEP: how `cadbridge inspect` tells the format."""
 
 
-def _originating_system(path: Path) -> str:
+def originating_system(path: str | Path) -> str:
     """The header's FILE_NAME originating system (its next-to-last string), or ""."""
     import re
 
@@ -54,6 +56,22 @@ def _originating_system(path: Path) -> str:
     m = re.search(r"FILE_NAME\s*\((.*?)\)\s*;", text, re.S)
     strings = re.findall(r"'((?:[^']|'')*)'", m.group(1)) if m else []
     return strings[-2].strip() if len(strings) >= 2 else ""
+
+
+def occ_step_shape(path: str | Path):
+    """OCC's own reading of the STEP file at ``path``: `STEPControl_Reader`, all roots, lengths
+    in mm (`OneShape`); None where OCC cannot read or transfer it. The reference of
+    `cadbridge verify` and the "file as OCC reads it" of the mesher's fallback route."""
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.Interface import Interface_Static
+    from OCP.STEPControl import STEPControl_Reader
+
+    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
+    reader = STEPControl_Reader()
+    if reader.ReadFile(str(path)) != IFSelect_RetDone or reader.TransferRoots() == 0:
+        return None
+    shape = reader.OneShape()
+    return None if shape.IsNull() else shape
 
 
 def is_step(path: str | Path) -> bool:
@@ -117,9 +135,8 @@ def nurbs_curve2d(c) -> NurbsCurve:
 
 def _reversed_u(s: NurbsSurface) -> NurbsSurface:
     """The same surface with u reversed: S'(u, v) = S(a + b - u, v) on the same u range [a, b]."""
-    a, b = s.knots_u[0], s.knots_u[-1]
-    w = s.weights[::-1] if s.rational else None
-    return NurbsSurface(s.degree_u, s.degree_v, (a + b) - s.knots_u[::-1], s.knots_v, s.control_points[::-1], w)
+    kn, cw = reverse(s.knots_u, s.degree_u, s._pw, axis=0)
+    return surface_from_homogeneous(s.degree_u, s.degree_v, kn, s.knots_v, cw)
 
 
 def _mirrored_u(c: NurbsCurve, a: float, b: float) -> NurbsCurve:
@@ -127,12 +144,6 @@ def _mirrored_u(c: NurbsCurve, a: float, b: float) -> NurbsCurve:
     cp = c.control_points.copy()
     cp[:, 0] = (a + b) - cp[:, 0]
     return NurbsCurve(c.degree, c.knots, cp, c.weights if c.rational else None)
-
-
-def _reversed_curve(c: NurbsCurve) -> NurbsCurve:
-    """The same curve traversed backwards."""
-    a, b = c.knots[0], c.knots[-1]
-    return NurbsCurve(c.degree, (a + b) - c.knots[::-1], c.control_points[::-1], c.weights[::-1] if c.rational else None)
 
 
 def _bspline_surface(face):
@@ -188,10 +199,9 @@ def _bspline_surface(face):
             turns = (start - got) / per
             shift[k] = round(turns) * per if abs(turns - round(turns)) < 1e-6 else 0.0
             continue
-        else:
-            lo, hi = max(lo, first), min(hi, last)
-            if not hi - lo > 1e-9 * (last - first) or (lo <= first and hi >= last):
-                continue  # the whole range already (or a face box OCC's bounds do not hold)
+        lo, hi = max(lo, first), min(hi, last)
+        if not hi - lo > 1e-9 * (last - first) or (lo <= first and hi >= last):
+            continue  # the whole range already (or a face box OCC's bounds do not hold)
         trial = s.Copy()
         try:
             if k == 0:
@@ -199,17 +209,8 @@ def _bspline_surface(face):
             else:
                 trial.Segment(a0, a1, lo, hi)
         except Exception:  # noqa: BLE001 - OCP's Standard_* exceptions share no Python base but Exception
-            if periodic:
-                raise StepError("OCC cannot cut a periodic surface at the face's seam") from None
-            continue
+            continue  # knots OCC will not cut there: the whole surface (its box is then the model's)
         s = trial
-        if periodic and (s.IsUPeriodic() if k == 0 else s.IsVPeriodic()):
-            (s.SetUNotPeriodic if k == 0 else s.SetVNotPeriodic)()
-        got = s.Bounds()[2 * k]
-        if periodic and abs(got - lo) > 1e-12 * max(1.0, abs(lo)):
-            turns = (got - lo) / per
-            if abs(turns - round(turns)) < 1e-9:
-                shift[k] = -(got - lo)  # OCC cut whole periods away: the same points, moved back
     return s, tuple(shift)
 
 
@@ -254,7 +255,7 @@ def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, fl
                 bs.SetNotPeriodic()
             c = nurbs_curve2d(bs)
             if e.Orientation() == TopAbs_REVERSED:
-                c = _reversed_curve(c)
+                c = reverse_curve(c)
             if flip is not None:
                 c = _mirrored_u(c, *flip)
             curves.append(c)
@@ -278,7 +279,6 @@ def _leaves(shape_tool, label, location, name: str, out: list) -> None:
     """(shape placed, product name) of every simple shape under ``label`` (assemblies walked,
     instance locations composed)."""
     from OCP.TDF import TDF_Label, TDF_LabelSequence
-    from OCP.TopLoc import TopLoc_Location
 
     if shape_tool.IsReference_s(label):
         ref = TDF_Label()
@@ -296,7 +296,6 @@ def _leaves(shape_tool, label, location, name: str, out: list) -> None:
     if shape.IsNull():
         return
     out.append((shape.Moved(location) if not location.IsIdentity() else shape, _label_name(label) or name))
-    _ = TopLoc_Location  # noqa: F841 - imported for the type of ``location``
 
 
 def _label_name(label) -> str:
@@ -420,7 +419,7 @@ def read_step(path: str | Path, progress=None) -> Model:
             f.trim_delta = tol
             faces.append(f)
     model = Model(faces=faces, units=Units(2, "MM", 1.0), resolution=None, filename=name, source=str(path),
-                  diagnostics=notes, entity_counts={}, system=_originating_system(path), preprocessor=PREPROCESSOR)
+                  diagnostics=notes, entity_counts={}, system=originating_system(path), preprocessor=PREPROCESSOR)
     if faces:  # an edge tolerance beyond 1e-3 x size is a defect of OCC's reading, not the trims' accuracy
         cap = MAX_DELTA_REL * model.size()
         wide = [f for f in faces if f.trim_delta is not None and f.trim_delta > cap]

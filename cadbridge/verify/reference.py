@@ -98,18 +98,11 @@ def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> 
 
 def _occ_read_step(path: str) -> TopoDS_Shape:
     """A STEP file's shape as OCC's STEPControl_Reader transfers it (all roots), in mm."""
-    from OCP.STEPControl import STEPControl_Reader
+    from cadbridge.step.reader import occ_step_shape
 
-    Interface_Static.SetCVal_s("xstep.cascade.unit", "MM")
-    reader = STEPControl_Reader()
-    status = reader.ReadFile(path)
-    if status != IFSelect_RetDone:
-        raise OccReadError(f"{path}: OpenCASCADE could not read the file (IFSelect status {status})")
-    if reader.TransferRoots() == 0:
-        raise OccReadError(f"{path}: OpenCASCADE transferred no root entity")
-    shape = reader.OneShape()
-    if shape.IsNull():
-        raise OccReadError(f"{path}: OpenCASCADE produced an empty shape")
+    shape = occ_step_shape(path)
+    if shape is None:
+        raise OccReadError(f"{path}: OpenCASCADE could not read or transfer the file, or produced an empty shape")
     return shape
 
 
