@@ -369,17 +369,35 @@ def _global_check(
 _EDGES = ((0, 0, 1), (0, -1, -2), (1, 0, 1), (1, -1, -2))  # (axis, edge row, next row): u0, u1, v0, v1
 
 
+COLLAPSED_REL = 1e-2
+"""A domain edge whose samples span less than this fraction of the next grid ring's span is
+treated as a pole by the Newton restarts (`pole_starts`): a strip that runs out at a corner
+(t4mec's fillet patch: its u = 1 edge spans 0.002 mm where the next ring spans 10 mm) has
+all its nearest samples on that edge, and Newton from them stalls or slides to the wrong
+edge as on a true pole."""
+
+
 def pole_edges(samples: SurfaceSamples) -> tuple[bool, bool, bool, bool]:
-    """Which domain edges u0, u1, v0, v1 are poles: all their samples within 1e-9 x size."""
+    """Which domain edges u0, u1, v0, v1 are poles, or collapsed to a near-point: all their
+    samples within 1e-9 x size, or spanning less than `COLLAPSED_REL` x the next grid ring."""
     g = samples.points.reshape(len(samples.us), len(samples.vs), 3)
     out = []
-    for axis, e, _ in _EDGES:
+    for axis, e, r in _EDGES:
         if g.shape[axis] < 2 or g.shape[1 - axis] < 2:
             out.append(False)
             continue
-        edge = g[e] if axis == 0 else g[:, e]
-        out.append(float(np.ptp(edge, axis=0).max()) <= 1e-9 * samples.size)
+        edge, ring = (g[e], g[r]) if axis == 0 else (g[:, e], g[:, r])
+        span = float(np.ptp(edge, axis=0).max())
+        out.append(span <= 1e-9 * samples.size or span < COLLAPSED_REL * float(np.ptp(ring, axis=0).max()))
     return tuple(out)
+
+
+def on_pole_sample(samples: SurfaceSamples, idx: np.ndarray) -> np.ndarray:
+    """(K,) bool: whether grid samples ``idx`` (K,) lie on a pole or collapsed edge (`pole_edges`)."""
+    iu, iv = np.divmod(np.asarray(idx, dtype=np.int64), len(samples.vs))
+    pe = pole_edges(samples)
+    return ((pe[0] & (iu == 0)) | (pe[1] & (iu == len(samples.us) - 1))
+            | (pe[2] & (iv == 0)) | (pe[3] & (iv == len(samples.vs) - 1)))
 
 
 def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray, v: np.ndarray,
@@ -407,7 +425,10 @@ def pole_starts(samples: SurfaceSamples, domain, pts: np.ndarray, u: np.ndarray,
         if not pole:
             continue
         t_edge = (u0, u1)[e] if axis == 0 else (v0, v1)[e]
-        on = np.abs((u if axis == 0 else v) - t_edge) <= eps[axis]
+        t_ring = (us if axis == 0 else vs)[r]
+        # a foot on the pole, or in its first grid cell (a collapsed edge: the foot of a point
+        # beside it lands near the edge, on a neighbouring edge)
+        on = np.abs((u if axis == 0 else v) - t_edge) <= max(eps[axis], abs(t_ring - t_edge))
         on = np.flatnonzero(on if stalled is None else on | stalled)
         if not len(on):
             continue
@@ -432,8 +453,13 @@ def _edge_check(
     the edge (the edge sample is then the nearest sample and the discrete local-minimum test
     of `_global_check` cannot see the interior one). Updates ``res`` in place where nearer."""
     rows = np.nonzero(res.status == ON_BOUNDARY)[0]
-    # a foot that FAILED (Newton stalled) on a pole gets the pole restarts as well
-    pole_rows = np.nonzero((res.status == ON_BOUNDARY) | (res.status == FAILED))[0]
+    # a foot that FAILED (Newton stalled) on a pole gets the pole restarts as well, and so
+    # does a point off the surface whose nearest sample lies on a pole or collapsed edge
+    # (from there Newton may settle in a local minimum anywhere)
+    near_pole = np.zeros(len(pts), dtype=bool)
+    if any(pole_edges(samples)):
+        near_pole = on_pole_sample(samples, samples.tree.query(pts)[1]) & ~(res.distance <= 1e-10 * samples.size)
+    pole_rows = np.nonzero((res.status == ON_BOUNDARY) | (res.status == FAILED) | near_pole)[0]
     if pole_rows.size == 0:
         return
     u0, u1, v0, v1 = surface.domain
@@ -470,7 +496,7 @@ def _edge_check(
         starts_v.append(uv[:, 1])
         owner.append(rows[rr])
     pu, pv, pi = pole_starts(samples, surface.domain, pts[pole_rows], res.u[pole_rows], res.v[pole_rows],
-                             res.status[pole_rows] == FAILED)
+                             (res.status[pole_rows] == FAILED) | near_pole[pole_rows])
     starts_u.append(pu)
     starts_v.append(pv)
     owner.append(pole_rows[pi])

@@ -39,6 +39,7 @@ from cadbridge.nurbs.project import (
     ON_BOUNDARY,
     SurfaceProjection,
     nearest_of_pieces,
+    on_pole_sample,
     pole_edges,
     pole_starts,
     smooth_pieces,
@@ -522,8 +523,16 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
     # edge check: feet clamped to a domain edge restart half / one cell inside and from the
     # nearby samples within sqrt(d^2 + (2h)^2)
     rows = np.flatnonzero((res.status == ON_BOUNDARY) & (res.distance > _ON_SURFACE * pack.size[sid]))
-    # a foot that FAILED (Newton stalled) on a pole gets the pole restarts as well
-    prows = np.union1d(rows, np.flatnonzero(res.status == FAILED))
+    # a foot that FAILED (Newton stalled) on a pole gets the pole restarts as well, and so
+    # does a point off the surface whose nearest sample lies on a pole or collapsed edge
+    near_pole = np.zeros(n, dtype=bool)
+    hp = np.flatnonzero(pack.has_pole[sid] & ~(res.distance <= _ON_SURFACE * pack.size[sid]))
+    if len(hp):
+        gi = pack.nearest_samples(sid[hp], p[hp], 1)[1][:, 0]
+        for s_ in np.unique(sid[hp]):  # loop over the (few) surfaces with a pole
+            sel = sid[hp] == s_
+            near_pole[hp[sel]] = on_pole_sample(pack.samples[s_], gi[sel] - pack.s_off[s_])
+    prows = np.union1d(rows, np.flatnonzero((res.status == FAILED) | near_pole))
     if len(prows):
         su = np.empty((2, len(rows)))
         sv = np.empty((2, len(rows)))
@@ -548,7 +557,7 @@ def _sorted_pairs(pack: SurfacePack, sid: np.ndarray, p: np.ndarray, tol: float,
         for s_ in polar[pack.has_pole[polar]]:  # feet on a pole: restarts carrying the point's azimuth
             r = prows[sid[prows] == s_]
             pu, pv, pi = pole_starts(pack.samples[s_], pack.surfaces[s_].domain, p[r], res.u[r], res.v[r],
-                                     res.status[r] == FAILED)
+                                     (res.status[r] == FAILED) | near_pole[r])
             if len(pi):
                 starts_u.append(pu)
                 starts_v.append(pv)
