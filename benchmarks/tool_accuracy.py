@@ -339,7 +339,7 @@ class OccReference:
             lo, hi = [], []
             for i in range(1, self._face_index.Extent() + 1):
                 b = Bnd_Box()
-                BRepBndLib.Add_s(self._face_index.FindKey(i), b, False)
+                BRepBndLib.AddOptimal_s(self._face_index.FindKey(i), b, False, True)  # exact: see verify.reference.occ_read
                 x0, y0, z0, x1, y1, z1 = b.Get()
                 lo.append((x0, y0, z0))
                 hi.append((x1, y1, z1))

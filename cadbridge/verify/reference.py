@@ -118,7 +118,11 @@ def occ_read(path: str | os.PathLike, *, keep_continuity: bool = True) -> list[O
         if not loc.IsIdentity():
             surf = surf.Transformed(loc.Transformation())
         box = Bnd_Box()
-        BRepBndLib.Add_s(face, box, False)
+        # the exact box of the face's geometry: OCC's quick box (`BRepBndLib.Add` without a
+        # triangulation) can miss most of a face (K1 from SolidDesigner and from CATIA V5:
+        # torus fillets boxed as a flat disc at x = 50.8), and the nearest-face searches
+        # prune by these boxes
+        BRepBndLib.AddOptimal_s(face, box, False, True)
         xmin, ymin, zmin, xmax, ymax, zmax = box.Get()
         faces.append(
             OccFace(
