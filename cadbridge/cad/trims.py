@@ -101,7 +101,7 @@ _NO_MAP.setflags(write=False)
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _arc_map_one(x, start_in, sweep, start_out, n):  # pragma: no cover - compiled
-    """`cadbridge.iges.analytic.ArcMap` at one x: (f, f', f''), the same steps (n: its
+    """`cadbridge.cad.analytic.ArcMap` at one x: (f, f', f''), the same steps (n: its
     `arc_segments`)."""
     two_pi = 2.0 * np.pi
     d = sweep / n

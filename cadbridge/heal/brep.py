@@ -8,7 +8,7 @@ is built from the model itself, so mesher and projector see one geometry:
 * each `Face` becomes one `TopoDS_Face` on a `Geom_BSplineSurface` with the poles, weights
   and knots of its `NurbsSurface` (so a node's (u, v) in gmsh is its (u, v) on the model);
 * its trim loops become wires of edges built from the loops' parameter-space curves (pieces
-  that are not NURBS -- `cadbridge.iges.analytic.MappedCurve` / ``InvertedCurve`` over analytic
+  that are not NURBS -- `cadbridge.cad.analytic.MappedCurve` / ``InvertedCurve`` over analytic
   surfaces -- through their cubic within `PCURVE_REL_TOL`); untrimmed faces are bounded by their surface's domain;
 * OCC's shape healing mends what the file leaves open: `ShapeFix_Wire` (order, gaps,
   degenerate edges at poles and apexes, lacking edges), ``BRepLib.BuildCurves3d`` (the 3D

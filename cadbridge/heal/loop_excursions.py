@@ -263,7 +263,7 @@ def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
 def _restricted(c, t0: float, t1: float):
     """``c`` on the domain [t0, t1] (the same exact curve, fewer of it): a `NurbsCurve`, or a
     trim curve mapped exactly from an analytic surface's parametrisation
-    (`cadbridge.iges.analytic.MappedCurve` &c., whose domain is its base curve's)."""
+    (`cadbridge.cad.analytic.MappedCurve` &c., whose domain is its base curve's)."""
     if isinstance(c, NurbsCurve):
         return NurbsCurve(c.degree, c.knots, c.control_points, c.weights, domain=(t0, t1))
     out = copy.copy(c)

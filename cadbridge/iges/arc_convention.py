@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cadbridge.iges.analytic import ArcMap, MappedLoops, ParamMap, map_loops
+from cadbridge.cad.analytic import ArcMap, MappedLoops, ParamMap, map_loops
 from cadbridge.nurbs.curve import NurbsCurve
 
 __all__ = ["ArcRepair", "arc_start_map", "close_at_poles", "repair_arc_start"]

@@ -14,7 +14,7 @@ from contextlib import contextmanager
 import numpy as np
 
 from cadbridge.iges.directory import DirectoryEntry
-from cadbridge.iges.analytic import (ArcMap, Frame, MappedLoops, ParamMap, cylinder_map, fixed_map,
+from cadbridge.cad.analytic import (ArcMap, Frame, MappedLoops, ParamMap, cylinder_map, fixed_map,
                                      invert_edges, map_loops, plane_map, revolution_map, sphere_map,
                                      torus_map)
 from cadbridge.iges.trimcheck import DeltaBatch, loop_deltas

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cadbridge.iges.analytic import SurfaceInvertedCurve, evaluate_inverted
+from cadbridge.cad.analytic import SurfaceInvertedCurve, evaluate_inverted
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.curve_pack import PackedCurves
 

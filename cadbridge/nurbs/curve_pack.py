@@ -3,7 +3,7 @@
 `PackedCurves` holds the curves' degrees, knots and homogeneous control points end to end;
 `eval_packed` evaluates point and derivatives (Piegl & Tiller A4.2 for the rational ones) of
 curve ``ci[k]`` at ``t[k]`` for all k at once. The trim checks of the IGES reader
-(`cadbridge.iges.trimcheck`, `cadbridge.iges.analytic`) sample whole files' curves this way.
+(`cadbridge.iges.trimcheck`, `cadbridge.cad.analytic`) sample whole files' curves this way.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Compiled kernels of point inversion shared by `project_to_surface`, `project_to_surfaces`,
-the trim and edge-foot searches (`cadbridge.cad.trims`, `cadbridge.iges.edgefeet`) and the
+the trim and edge-foot searches (`cadbridge.cad.trims`, `cadbridge.cad.edgefeet`) and the
 fitting's foot correction (`cadbridge.nurbs.fit`).
 
 - `ders2_one`: S and its derivatives of total order <= 2 at one (u, v) (basis function

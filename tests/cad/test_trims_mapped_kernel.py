@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from cadbridge.iges import read_iges
-from cadbridge.iges.analytic import MappedCurve
+from cadbridge.cad.analytic import MappedCurve
 from cadbridge.cad.model import Face, Trim, TrimLoop
 from cadbridge.cad.trims import LoopBoundary, curve_ders, project_to_trims
 

@@ -101,7 +101,7 @@ def test_trim_cubic_gives_up_at_the_interval_cap():
     instead of bisecting without end."""
     import time
 
-    from cadbridge.iges.analytic import MAX_HERMITE_INTERVALS, _TrimCurve
+    from cadbridge.cad.analytic import MAX_HERMITE_INTERVALS, _TrimCurve
     from cadbridge.nurbs.curve import NurbsCurve
 
     class Wiggle(_TrimCurve):  # (t, 1e-3 sin(1e7 t)): smooth, but 1e6 waves on [0, 1]

@@ -209,7 +209,7 @@ def test_restricted_mapped_trim_curve_is_the_same_curve():
     the same parameters (the restriction changes the domain only); the U-shape's analytic
     tools have such curves."""
     from cadbridge.iges import read_iges
-    from cadbridge.iges.analytic import MappedCurve
+    from cadbridge.cad.analytic import MappedCurve
     from cadbridge.heal.loop_excursions import _restricted
 
     model = read_iges(Path(__file__).resolve().parents[2] / "iges_samples" / "ushape_tools_analytic.igs")

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cadbridge.iges import IgesError, read_iges, read_iges_string
-from cadbridge.iges.analytic import ax2_x_direction
+from cadbridge.cad.analytic import ax2_x_direction
 
 pytest.importorskip("OCP")
 from cadbridge.verify.reference import occ_inside, occ_project, occ_read  # noqa: E402
@@ -210,7 +210,7 @@ def test_mapped_trim_curve_derivative_at_its_ends() -> None:
     the derivative at each end of a mapped curve is its one-sided limit, as a central finite
     difference just inside shows (reference: the curve's own points). Before, x - start_in
     rounding past the sweep made the end look clipped (f' = 0), and Newton stalled there."""
-    from cadbridge.iges.analytic import MappedCurve
+    from cadbridge.cad.analytic import MappedCurve
 
     model = read_iges(SAMPLES / "ushape_tools_analytic.igs")
     curves = [c for f in model.faces if f.trims and f.trims.outer for c in f.trims.outer.curves

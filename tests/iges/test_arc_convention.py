@@ -271,7 +271,7 @@ def test_model_space_only_cap_inverted_exactly(tmp_path):
     # (InvertedCurve); reference: the analytic quarter sphere, and central differences for the
     # pieces' derivatives (the coverage DE 351 of the SolidWorks file gave before it was read
     # from its parameter-space curves)
-    from cadbridge.iges.analytic import InvertedCurve
+    from cadbridge.cad.analytic import InvertedCurve
 
     p = tmp_path / "cap.igs"
     p.write_text(sphere_cap_file("start", pcurves=False))

@@ -1,4 +1,4 @@
-"""`iges.analytic.ArcMap` at the ends of its angle range.
+"""`cad.analytic.ArcMap` at the ends of its angle range.
 
 Reference: the closed form itself at the range's ends (f(start_in) = start_out, f(start_in +
 sweep) = start_out + sweep, the arc parameter of a rational quadratic arc) and modularity
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cadbridge.iges.analytic import ArcMap
+from cadbridge.cad.analytic import ArcMap
 
 TWO_PI = 2.0 * np.pi
 

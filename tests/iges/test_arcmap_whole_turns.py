@@ -1,5 +1,5 @@
 """120 faces whose generatrix pcurves give the arc's angles one turn away from the arc's own
-range (`cadbridge.iges.analytic.ArcMap` shifts such angles by whole turns instead of clipping).
+range (`cadbridge.cad.analytic.ArcMap` shifts such angles by whole turns instead of clipping).
 
 The analytic production die's bead ends BED01060, BED01068, BED01079, BED01087: surfaces of
 revolution of a 100 arc of angles -1.23..0 rad whose trim pcurves run at s = 5.05..6.28 rad.

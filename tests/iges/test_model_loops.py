@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cadbridge.iges.analytic import SurfaceInvertedCurve, invert_edges
+from cadbridge.cad.analytic import SurfaceInvertedCurve, invert_edges
 from cadbridge.iges.entities import reverse_curve
 from cadbridge.cad.model import Trim, TrimLoop
 from cadbridge.nurbs import construct

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from cadbridge.iges import read_iges
-from cadbridge.iges.analytic import ArcMap, InvertedCurve, MappedCurve
+from cadbridge.cad.analytic import ArcMap, InvertedCurve, MappedCurve
 from cadbridge.iges.trimcheck import loop_deltas
 from cadbridge.nurbs.curve_pack import PackedCurves
 from cadbridge.nurbs import construct
@@ -346,7 +346,7 @@ def test_sample_many_equals_sample_chain_per_curve():
     """The batched phase-1 sampling (one packed evaluation, one vectorised unwrap for all
     curves) gives each curve the parameters and unwrapped angles of sample_chain on it alone
     (reference: NurbsCurve.sample_parameters, NurbsCurve.evaluate and np.unwrap)."""
-    from cadbridge.iges.analytic import _sample_many, sample_chain
+    from cadbridge.cad.analytic import _sample_many, sample_chain
 
     rng = np.random.default_rng(0)
     cs = [NurbsCurve(3, [0, 0, 0, 0, 0.4, 1, 1, 1, 1], rng.normal(size=(5, 2)) * 8, rng.random(5) + 0.5)

@@ -170,7 +170,7 @@ def _ppi(h_a, slope, length):
 def _edge_derivs(surface, curve: NurbsCurve, t: np.ndarray) -> np.ndarray:
     """C = S(c(t)) and its first three t-derivatives (chain rule), (N, 4, 3).
 
-    Trim curves of analytic IGES entities (`cadbridge.iges.analytic` mapped / inverted
+    Trim curves of analytic IGES entities (`cadbridge.cad.analytic` mapped / inverted
     curves) give derivatives up to order 2 only: their third derivative is taken as 0, which
     touches only C''' and so only the dC-mesh error estimate (A.4), never a length or a
     position."""

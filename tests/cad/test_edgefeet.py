@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import cadbridge.iges.edgefeet as ef
+import cadbridge.cad.edgefeet as ef
 from cadbridge.nurbs.curve_pack import PackedCurves
 from cadbridge.nurbs import construct
 from cadbridge.nurbs.project import FAILED, project_to_surface

@@ -1,4 +1,8 @@
-"""Trim curves over surfaces whose IGES parametrisation is not our NURBS parametrisation.
+"""Trim curves over surfaces whose file parametrisation is not our NURBS parametrisation.
+
+Written for IGES (below); the STEP reader uses the same maps for OCC's elementary surfaces
+(`cadbridge.step.analytic`: OCC's (u, v) of a plane, cylinder, cone, sphere or torus is an
+affine image of the natural coordinates, its ``pcurve_affine``).
 
 For a 128 the trim curves of a 142/141/508 are in the NURBS (u, v) itself. For every other
 base surface (108, 118, 120, 122 and the IGES 5.3 analytic surfaces 190-198) a trim curve
@@ -1229,7 +1233,7 @@ def invert_edges(surface: NurbsSurface, pieces: list[NurbsCurve], rel_gap: float
     diagonal (along a degenerate edge of S: a pole), the straight (u, v) line between the two
     is inserted (it maps to that one point). Returns the (u, v) pieces. Raises ValueError
     when a piece cannot be projected or the loop winds around a closed direction."""
-    from cadbridge.iges.edgefeet import edge_feet
+    from cadbridge.cad.edgefeet import edge_feet
     from cadbridge.nurbs.curve_pack import PackedCurves
     from cadbridge.nurbs.project import surface_samples
 
