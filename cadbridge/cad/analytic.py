@@ -371,6 +371,12 @@ class _TrimCurve:
             tol = rel_tol * max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
         t = self.sample_parameters(2)  # every knot (and ArcMap break) is an interval end
         gap = 1e-13 * max(float(t[-1] - t[0]), 1e-300)  # a jump of the curve itself: bridged this narrowly
+        # a break that falls on a knot within round-off (an OCC pcurve's knot at a seam angle:
+        # K1 from MicroStation) is one interval end, not an interval of 1e-16 (OCC refuses the knots)
+        keep = np.r_[True, np.diff(t) > gap]
+        end = t[-1]
+        t = t[keep]
+        t[-1] = end
         s = np.array([0.25, 0.5, 0.75])
         for _ in range(60):  # 1e-13 of the domain is reached from one interval in 44 halvings
             a, b = t[:-1], t[1:]

@@ -4,18 +4,21 @@ OCC reads and transfers the file (`STEPCAFControl_Reader`: the product structure
 names and colours; lengths converted to mm as the file's representation context says,
 conversion-based units included). Every face becomes a cadbridge `Face`:
 
-- its surface as an exact NURBS: `BRepBuilderAPI_NurbsConvert`, face by face, turns planes,
-  cylinders, cones, spheres, tori, revolutions and extrusions into B-splines exactly and
-  rewrites the face's pcurves into the B-spline's parameters (a rational arc is not
-  parametrised by its angle, so the pcurves must move with the surface); offset surfaces are
-  approximated there. A face on a B-spline already is taken as it is.
-  Periodic B-splines are cut to the face's (u, v) box (`Geom_BSplineSurface.Segment`: the
-  same parameters, clamped knots), which also moves a seam the face straddles off the face;
+- a face on a plane, cylinder, cone, sphere, torus or an extrusion of a circle or an ellipse:
+  its surface built exactly over its loops and its pcurves mapped exactly onto it
+  (`cadbridge.step.analytic`: OCC's (u, v) there is an affine image of the natural coordinates
+  the IGES reader uses for 190-198), oriented as the face;
+- any other face: its surface as an exact NURBS through `BRepBuilderAPI_NurbsConvert`, face by
+  face (revolutions and other extrusions convert exactly; the face's pcurves are rewritten
+  into the B-spline's parameters by approximation; offset surfaces are approximated), or
+  taken as it is on a B-spline. Periodic B-splines are cut to the face's (u, v) box
+  (`Geom_BSplineSurface.Segment`: the same parameters, clamped knots), which also moves a
+  seam the face straddles off the face;
 - its trims from the face's pcurves (`BRep_Tool.CurveOnSurface`, which picks each side of a
   seam edge), as 2D NURBS, loop by loop in the wire's order (`BRepTools_WireExplorer`), the
-  outer wire first (`BRepTools.OuterWire`);
-- a face OCC holds reversed gets its surface's u reversed (pcurves mirrored with it), so the
-  model's normal S_u x S_v is the face's outward normal, as in IGES;
+  outer loop first (the one with the largest (u, v) box: `BRepTools.OuterWire` can name a hole);
+- a converted face OCC holds reversed gets its surface's u reversed (pcurves mirrored with
+  it), so the model's normal S_u x S_v is the face's outward normal, as in IGES;
 - its name is its product's (the assembly instance's where the product has none), its
   colour the face's or else its shape's.
 
@@ -34,6 +37,7 @@ from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.edits import reverse_curve, surface_from_homogeneous
 from cadbridge.nurbs.knots import reverse
 from cadbridge.nurbs.surface import NurbsSurface
+from cadbridge.step.analytic import ELEMENTARY, elementary_face
 from cadbridge.step.errors import StepError
 
 __all__ = ["is_step", "occ_step_shape", "originating_system", "read_step"]
@@ -214,8 +218,10 @@ def _bspline_surface(face):
     return s, tuple(shift)
 
 
-def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, float]:
-    """The trim loops of ``face`` (outer first) from its pcurves, and its largest edge tolerance."""
+def _face_loops(face, flip: tuple[float, float] | None) -> tuple[list[list[NurbsCurve]], float]:
+    """The trim loops of ``face`` from its pcurves (each a list of 2D NURBS in the face's
+    (u, v), mirrored in u on [a, b] where ``flip`` = (a, b)), outer first, and its largest edge
+    tolerance."""
     from OCP.BRep import BRep_Tool
     from OCP.BRepTools import BRepTools, BRepTools_WireExplorer
     from OCP.Geom2d import Geom2d_TrimmedCurve
@@ -232,7 +238,7 @@ def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, fl
         if outer.IsNull() or not w.IsSame(outer):
             wires.append(w)
         ex.Next()
-    loops: list[TrimLoop] = []
+    loops: list[list[NurbsCurve]] = []
     tol = 0.0
     for w in wires:
         curves = []
@@ -261,18 +267,27 @@ def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, fl
             curves.append(c)
             we.Next()
         if curves:
-            loops.append(TrimLoop(curves))
+            loops.append(curves)
     if not loops:
-        return None, tol
+        return [], tol
+
     # the outer loop: the one whose (u, v) box is largest. BRepTools.OuterWire can name a hole
     # (K1 from CATIA V5: a planar ring whose inner wire came first)
-    def box_area(lp: TrimLoop) -> float:
-        pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 33)) for c in lp.curves])
+    def box_area(lp: list[NurbsCurve]) -> float:
+        pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 33)) for c in lp])
         ext = pts.max(axis=0) - pts.min(axis=0)
         return float(ext[0] * ext[1])
 
     k = int(np.argmax([box_area(lp) for lp in loops]))
-    return Trim(loops[k], loops[:k] + loops[k + 1:]), tol
+    return [loops[k]] + loops[:k] + loops[k + 1:], tol
+
+
+def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, float]:
+    """The `Trim` of ``face`` (`_face_loops`) and its largest edge tolerance."""
+    loops, tol = _face_loops(face, flip)
+    if not loops:
+        return None, tol
+    return Trim(TrimLoop(loops[0]), [TrimLoop(lp) for lp in loops[1:]]), tol
 
 
 def _leaves(shape_tool, label, location, name: str, out: list) -> None:
@@ -351,6 +366,33 @@ def _nurbs_face(src):
                         f"({first})") from None
 
 
+def _elementary(src, notes: list, de: int):
+    """(surface, trim, edge tolerance) of a face on a plane, cylinder, cone, sphere or torus
+    through the exact maps of `cadbridge.step.analytic`, or None for other faces and where its
+    loops cannot be mapped (then noted: OCC's NURBS conversion takes the face)."""
+    from OCP.BRep import BRep_Tool
+    from OCP.TopAbs import TopAbs_REVERSED
+
+    surf = BRep_Tool.Surface_s(src)  # located
+    basis = surf
+    while type(basis).__name__ == "Geom_RectangularTrimmedSurface":
+        basis = basis.BasisSurface()
+    if type(basis).__name__ not in ELEMENTARY:
+        return None
+    loops, tol = _face_loops(src, None)
+    if not loops:
+        return None
+    try:
+        got = elementary_face(basis, src.Orientation() == TopAbs_REVERSED, loops)
+    except ValueError as e:
+        notes.append(Diagnostic(f"{type(basis).__name__[4:]} face: its pcurves cannot be mapped exactly ({e}); "
+                                f"OCC's NURBS conversion used", de=de))
+        return None
+    if got is None:  # an extrusion of another curve
+        return None
+    return got[0], got[1], tol
+
+
 def read_step(path: str | Path, progress=None) -> Model:
     """The `Model` of the STEP file at ``path`` (module docstring), in mm. Raises `StepError`
     (exit 2 in the CLI) where OCC cannot read the file or it holds no B-rep face
@@ -402,18 +444,22 @@ def read_step(path: str | Path, progress=None) -> Model:
             if BRep_Tool.Surface_s(src) is None:
                 bare += 1
                 continue
-            try:
-                face = _nurbs_face(src)
-                s, shift = _bspline_surface(face)
-            except StepError as e:
-                notes.append(Diagnostic(f"face skipped: {e}", de=len(faces) + bare + 1))
-                continue
-            surface = nurbs_surface(s, shift)
-            flip = None
-            if src.Orientation() == TopAbs_REVERSED:
-                flip = (float(surface.knots_u[0]), float(surface.knots_u[-1]))
-                surface = _reversed_u(surface)
-            trims, tol = _face_trims(face, flip)
+            got = _elementary(src, notes, len(faces) + bare + 1)
+            if got is not None:
+                surface, trims, tol = got
+            else:
+                try:
+                    face = _nurbs_face(src)
+                    s, shift = _bspline_surface(face)
+                except StepError as e:
+                    notes.append(Diagnostic(f"face skipped: {e}", de=len(faces) + bare + 1))
+                    continue
+                surface = nurbs_surface(s, shift)
+                flip = None
+                if src.Orientation() == TopAbs_REVERSED:
+                    flip = (float(surface.knots_u[0]), float(surface.knots_u[-1]))
+                    surface = _reversed_u(surface)
+                trims, tol = _face_trims(face, flip)
             f = Face(surface=surface, de=len(faces) + 1, name=product or f"{path.stem}_{k + 1}",
                      color=_color(color_tool, [src, shape]), trims=trims, entity_type=0, surface_type=0)
             f.trim_delta = tol

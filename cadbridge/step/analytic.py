@@ -1,0 +1,167 @@
+"""OCC's elementary faces (plane, cylinder, cone, sphere, torus) as exact NURBS faces.
+
+OCC's (u, v) on these surfaces is an affine image of the natural coordinates of
+`cadbridge.cad.analytic` (lengths and true angles in the surface's frame):
+
+    gp_Pln        P = O + u X + v Y                                natural (x, y) = (u, v)
+    gp_Cylinder   P = O + R (cos u X + sin u Y) + v A              natural (h, theta) = (v, u)
+    gp_Cone       P = O + (R + v sin a)(cos u X + sin u Y) + v cos a A
+                                                                   natural (h, theta) = (v cos a, u)
+    gp_Sphere     P = O + R cos v (cos u X + sin u Y) + R sin v A  natural (phi, theta) = (v, u)
+    gp_Torus      P = O + (R + r cos v)(cos u X + sin u Y) + r sin v A
+                                                                   natural (phi, theta) = (v, u)
+    extrusion of a circle or ellipse (centre C, radii a, b, frame X, Y), direction D:
+                  P = C + a cos u X + b sin u Y + v D              natural (h, theta) = (v, u)
+
+The extrusion is the unit cylinder (radius 1 about z) under the affine map x -> [aX | bY | D] x + C:
+NURBS are affine-invariant, so the cylinder's exact NURBS and angle maps serve it unchanged, and its
+S_u x S_v is OCC's C'(u) x D (both are the cofactor image of the unit cylinder's). OCC's conversion
+of such a face whose loop crosses the curve's seam (u = 0) converts one side only and leaves
+pcurves outside the B-spline (K1 from MicroStation: an elliptic fillet 1.37 rad across it).
+
+(X, Y, A) of the surface's gp_Ax3, which may be left-handed (Y = -(A x X)): the natural frame
+is then (O, -A, X), whose Y is OCC's, with h and phi negated. So the face's pcurves map
+exactly onto the NURBS that `cadbridge.cad.analytic` builds over the loops' extent (`map_loops`:
+`MappedCurve` pieces, the closed-form angle <-> rational-arc parameter relation), as the IGES
+reader does for 190-198. This replaces OCC's NURBS conversion of such faces
+(`BRepBuilderAPI_NurbsConvert`), which rewrites every pcurve by approximation and fails
+outright on some closed faces (K1 from MicroStation: a full cylinder whose pcurves overshoot the
+period by one ulp, "Knots interval values too close").
+
+Orientation: the revolved NURBS's S_u x S_v points away from the axis and the plane's along its
+frame axis; where the face's outward normal (OCC's natural normal, reversed for a REVERSED
+face) points the other way, the revolved surface is transposed (u and v swapped) and the
+plane's frame turned over.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from math import cos, sin, tan
+
+import numpy as np
+
+from cadbridge.cad.analytic import (Frame, ParamMap, _affine, _apply_affine, cylinder_map, map_loops, plane_map,
+                                    sphere_map, torus_map)
+from cadbridge.cad.model import Trim, TrimLoop
+from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.surface import NurbsSurface
+
+__all__ = ["ELEMENTARY", "elementary_face"]
+
+ELEMENTARY = ("Geom_Plane", "Geom_CylindricalSurface", "Geom_ConicalSurface", "Geom_SphericalSurface",
+              "Geom_ToroidalSurface", "Geom_SurfaceOfLinearExtrusion")
+"""The OCC surface types read here (an extrusion only of a circle or an ellipse); every other
+surface goes through OCC's NURBS conversion."""
+
+
+def _vec(d) -> np.ndarray:
+    return np.array([d.X(), d.Y(), d.Z()], dtype=float)
+
+
+def _transposed_surface(s: NurbsSurface) -> NurbsSurface:
+    """The same surface with u and v swapped (its normal S_u x S_v reversed)."""
+    w = None if s.weights is None else np.asarray(s.weights).T
+    u0, u1, v0, v1 = s.domain
+    return NurbsSurface(s.degree_v, s.degree_u, s.knots_v, s.knots_u, np.asarray(s.control_points).transpose(1, 0, 2),
+                        w, (v0, v1, u0, u1))
+
+
+def _transposed(pm: ParamMap) -> ParamMap:
+    """``pm`` with the built NURBS's u and v swapped."""
+    build, uv_fn, parts = pm.build, pm.uv_fn, pm.uv_parts
+    return dataclasses.replace(
+        pm, build=lambda r0, r1: _transposed_surface(build(r0, r1)),
+        uv_fn=lambda nat, r0, r1: uv_fn(nat, r0, r1)[:, ::-1],
+        uv_parts=lambda r0, r1: tuple(reversed(parts(r0, r1))), uv_identity=False)
+
+
+def _with_pcurves(pm: ParamMap, m) -> ParamMap:
+    """``pm`` reading pcurves in OCC's (u, v): natural = m @ (u, v)."""
+    aff = _affine(m, np.zeros(2))
+    return dataclasses.replace(pm, pcurve_fn=lambda st: _apply_affine(aff, np.asarray(st, dtype=float)),
+                               pcurve_affine=aff, pcurve_pre=(None, None))
+
+
+def _mapped(pm: ParamMap, m: np.ndarray, c: np.ndarray) -> ParamMap:
+    """``pm`` with the built NURBS moved by the affine map x -> m @ x + c (exact)."""
+    build = pm.build
+
+    def moved(r0, r1):
+        s = build(r0, r1)
+        return NurbsSurface(s.degree_u, s.degree_v, s.knots_u, s.knots_v, np.asarray(s.control_points) @ m.T + c,
+                            s.weights, s.domain)
+
+    return dataclasses.replace(pm, build=moved)
+
+
+def _extrusion_map(surface, reversed_face: bool) -> ParamMap | None:
+    """The `ParamMap` of a `Geom_SurfaceOfLinearExtrusion` of a circle or ellipse (module
+    docstring), or None for other basis curves."""
+    curve = surface.BasisCurve()
+    while type(curve).__name__ == "Geom_TrimmedCurve":
+        curve = curve.BasisCurve()
+    kind = type(curve).__name__
+    if kind == "Geom_Circle":
+        a = b = curve.Radius()
+    elif kind == "Geom_Ellipse":
+        a, b = curve.MajorRadius(), curve.MinorRadius()
+    else:
+        return None
+    ax = curve.Position()
+    m = np.column_stack([a * _vec(ax.XDirection()), b * _vec(ax.YDirection()), _vec(surface.Direction())])
+    if not abs(np.linalg.det(m)) > 1e-12 * a * b:
+        return None  # extruded along the curve's own plane: no surface
+    unit = Frame(np.zeros(3), np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
+    pm = _with_pcurves(cylinder_map(unit, 1.0), [[0.0, 1.0], [1.0, 0.0]])
+    pm = dataclasses.replace(_mapped(pm, m, _vec(ax.Location())), points_fn=None)
+    return _transposed(pm) if reversed_face else pm
+
+
+def param_map(surface, reversed_face: bool) -> ParamMap | None:
+    """The `ParamMap` of OCC surface ``surface`` (located, one of `ELEMENTARY`) for a face on
+    it, oriented as the face (``reversed_face``: OCC's REVERSED), or None for other types."""
+    kind = type(surface).__name__
+    if kind not in ELEMENTARY:
+        return None
+    if kind == "Geom_SurfaceOfLinearExtrusion":
+        return _extrusion_map(surface, reversed_face)
+    ax = surface.Position()
+    o, a, x = _vec(ax.Location()), _vec(ax.Direction()), _vec(ax.XDirection())
+    direct = bool(ax.Direct())
+    if kind == "Geom_Plane":
+        normal = (a if direct else -a) * (-1.0 if reversed_face else 1.0)  # the face's outward normal
+        # X kept; Y = normal x X is OCC's Y, or its opposite on a reversed face
+        return _with_pcurves(plane_map(Frame(o, normal, x)), [[1.0, 0.0], [0.0, -1.0 if reversed_face else 1.0]])
+    sign = 1.0 if direct else -1.0  # natural h and phi along A, or along -A in a left-handed frame
+    frame = Frame(o, a * sign, x)
+    if kind == "Geom_CylindricalSurface":
+        pm = _with_pcurves(cylinder_map(frame, surface.Radius()), [[0.0, sign], [1.0, 0.0]])
+    elif kind == "Geom_ConicalSurface":
+        alpha = surface.SemiAngle()
+        pm = _with_pcurves(cylinder_map(frame, surface.RefRadius(), sign * tan(alpha), "cone"),
+                           [[0.0, sign * cos(alpha)], [1.0, 0.0]])
+    elif kind == "Geom_SphericalSurface":
+        pm = _with_pcurves(sphere_map(frame, surface.Radius()), [[0.0, sign], [1.0, 0.0]])
+    else:
+        pm = _with_pcurves(torus_map(frame, surface.MajorRadius(), surface.MinorRadius()), [[0.0, sign], [1.0, 0.0]])
+    outward = direct != reversed_face  # OCC's natural normal points away from the axis iff its frame is direct
+    return pm if outward else _transposed(pm)
+
+
+def elementary_face(surface, reversed_face: bool, loops: list[list[NurbsCurve]]) -> tuple[NurbsSurface, Trim] | None:
+    """(NURBS surface, trim) of a face on an elementary OCC surface, or None for other types.
+
+    surface: the face's located surface (a `Geom_RectangularTrimmedSurface` is read through to
+    its basis: the face's loops bound it); reversed_face: the face's orientation is REVERSED;
+    loops: the face's trim loops, outer first, each a list of pcurves (2D `NurbsCurve`) in
+    OCC's (u, v), in loop order and direction. Raises ValueError where the loops cannot be
+    mapped (`map_loops`)."""
+    while type(surface).__name__ == "Geom_RectangularTrimmedSurface":
+        surface = surface.BasisSurface()
+    pm = param_map(surface, reversed_face)
+    if pm is None:
+        return None
+    res = map_loops(pm, [[([c], None) for c in loop] for loop in loops], True, True)  # each piece its own edge
+    tl = [TrimLoop([c for _, c, _ in lp]) for lp in res.loops]
+    return res.surface, Trim(tl[0], tl[1:])
