@@ -96,9 +96,13 @@ class FaceInfo:
 def _curve_shape(gmsh, c: int) -> tuple[str, float, float]:
     """('line' | 'arc' | 'curve', radius or inf, length) of curve c."""
     lo, hi = gmsh.model.getParametrizationBounds(1, c)
+    length = float(gmsh.model.occ.getMass(1, c))
+    with np.errstate(over="ignore", invalid="ignore"):
+        span = hi[0] - lo[0]
+    if not np.isfinite(span):  # a degenerate edge (a pole's): gmsh bounds it by +-1e308, no curve to sample
+        return "curve", math.nan, length
     ts = np.linspace(lo[0], hi[0], 7)
     k = np.abs(np.asarray(gmsh.model.getCurvature(1, c, ts), dtype=float))
-    length = float(gmsh.model.occ.getMass(1, c))
     with np.errstate(over="ignore", invalid="ignore"):  # gmsh gives ~1e308 on degenerate curves
         straight = bool(np.all(k * max(length, 1e-300) < 1e-9))
     if straight:

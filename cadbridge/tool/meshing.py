@@ -19,7 +19,7 @@ from cadbridge.mesh.mesh import Mesh
 
 __all__ = ["FILE_ROUTE_NOTE", "healed_notes", "mesh_for_tools", "read_healed"]
 
-FILE_ROUTE_NOTE = "mesh: meshed the file as OCC's IGES reader reads it instead"
+FILE_ROUTE_NOTE = "mesh: meshed the file as OCC reads it instead"
 """The note of a mesh made of the file as OCC reads it where the model's B-rep was asked for."""
 
 
