@@ -13,6 +13,14 @@ OCC's (u, v) on these surfaces is an affine image of the natural coordinates of
     extrusion of a circle or ellipse (centre C, radii a, b, frame X, Y), direction D:
                   P = C + a cos u X + b sin u Y + v D              natural (h, theta) = (v, u)
 
+    revolution of a non-periodic B-spline curve C(v) about the axis (O, A):
+                  P = Rot(A, u) C(v)                               natural (s, theta) = (v, -u)
+
+The revolution is `cadbridge.cad.analytic`'s 120 map over a full turn (SA = 0, TA = 2 pi) with
+the generatrix's own NURBS, revolved about -A (theta = -u): its S_s x S_theta is then OCC's
+S_u x S_v; a reversed face is revolved about A (theta = u). Its seam is moved off a loop that
+crosses it as for a 120 (`ParamMap.turned`).
+
 The extrusion is the unit cylinder (radius 1 about z) under the affine map x -> [aX | bY | D] x + C:
 NURBS are affine-invariant, so the cylinder's exact NURBS and angle maps serve it unchanged, and its
 S_u x S_v is OCC's C'(u) x D (both are the cofactor image of the unit cylinder's). OCC's conversion
@@ -50,9 +58,9 @@ from cadbridge.nurbs.surface import NurbsSurface
 __all__ = ["ELEMENTARY", "elementary_face"]
 
 ELEMENTARY = ("Geom_Plane", "Geom_CylindricalSurface", "Geom_ConicalSurface", "Geom_SphericalSurface",
-              "Geom_ToroidalSurface", "Geom_SurfaceOfLinearExtrusion")
-"""The OCC surface types read here (an extrusion only of a circle or an ellipse); every other
-surface goes through OCC's NURBS conversion."""
+              "Geom_ToroidalSurface", "Geom_SurfaceOfLinearExtrusion", "Geom_SurfaceOfRevolution")
+"""The OCC surface types read here (an extrusion only of a circle or an ellipse, a revolution
+only of a non-periodic B-spline curve); every other surface goes through OCC's NURBS conversion."""
 
 
 def _vec(d) -> np.ndarray:
@@ -118,14 +126,53 @@ def _extrusion_map(surface, reversed_face: bool) -> ParamMap | None:
     return _transposed(pm) if reversed_face else pm
 
 
-def param_map(surface, reversed_face: bool) -> ParamMap | None:
+def _bspline_curve(c) -> NurbsCurve | None:
+    """cadbridge's NURBS of a non-periodic `Geom_BSplineCurve` (a `Geom_TrimmedCurve` of one
+    read through), with the same parameter; None for other curves."""
+    while type(c).__name__ == "Geom_TrimmedCurve":
+        c = c.BasisCurve()
+    if type(c).__name__ != "Geom_BSplineCurve" or c.IsPeriodic():
+        return None
+    n = c.NbPoles()
+    cp = np.array([[c.Pole(i).X(), c.Pole(i).Y(), c.Pole(i).Z()] for i in range(1, n + 1)])
+    w = np.array([c.Weight(i) for i in range(1, n + 1)]) if c.IsRational() else None
+    knots = np.repeat([c.Knot(i) for i in range(1, c.NbKnots() + 1)],
+                      [c.Multiplicity(i) for i in range(1, c.NbKnots() + 1)])
+    return NurbsCurve(c.Degree(), knots, cp, w)
+
+
+def _revolution_map(surface, reversed_face: bool, u_range: tuple[float, float]) -> ParamMap | None:
+    """The `ParamMap` of a `Geom_SurfaceOfRevolution` of a non-periodic B-spline curve (module
+    docstring), or None for other generatrices. ``u_range``: OCC's angles the face's loops
+    span; the NURBS is revolved over that range only (a full turn where they span one)."""
+    from cadbridge.cad.analytic import revolution_map
+    from cadbridge.nurbs.construct import revolved_surface
+
+    gen = _bspline_curve(surface.BasisCurve())
+    if gen is None:
+        return None
+    ax = surface.Axis()
+    o, a = _vec(ax.Location()), _vec(ax.Direction())
+    axis = a if reversed_face else -a
+    lo, hi = u_range if reversed_face else (-u_range[1], -u_range[0])  # theta = u, or -u about -A
+    if hi - lo >= 2 * np.pi * (1 - 1e-9):
+        lo, hi = 0.0, 2 * np.pi
+    s = revolved_surface(gen, o, axis, lo, hi)
+    pm = revolution_map(s, lo, hi, None, None, (o, axis), gen)
+    return _with_pcurves(pm, [[0.0, 1.0], [1.0 if reversed_face else -1.0, 0.0]])
+
+
+def param_map(surface, reversed_face: bool, u_range: tuple[float, float] = (0.0, 2 * np.pi)) -> ParamMap | None:
     """The `ParamMap` of OCC surface ``surface`` (located, one of `ELEMENTARY`) for a face on
-    it, oriented as the face (``reversed_face``: OCC's REVERSED), or None for other types."""
+    it, oriented as the face (``reversed_face``: OCC's REVERSED), or None for other types.
+    ``u_range``: OCC's u the face's loops span (a revolution is built over it)."""
     kind = type(surface).__name__
     if kind not in ELEMENTARY:
         return None
     if kind == "Geom_SurfaceOfLinearExtrusion":
         return _extrusion_map(surface, reversed_face)
+    if kind == "Geom_SurfaceOfRevolution":
+        return _revolution_map(surface, reversed_face, u_range)
     ax = surface.Position()
     o, a, x = _vec(ax.Location()), _vec(ax.Direction()), _vec(ax.XDirection())
     direct = bool(ax.Direct())
@@ -159,7 +206,8 @@ def elementary_face(surface, reversed_face: bool, loops: list[list[NurbsCurve]])
     mapped (`map_loops`)."""
     while type(surface).__name__ == "Geom_RectangularTrimmedSurface":
         surface = surface.BasisSurface()
-    pm = param_map(surface, reversed_face)
+    pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 65)) for loop in loops for c in loop])
+    pm = param_map(surface, reversed_face, (float(pts[:, 0].min()), float(pts[:, 0].max())))
     if pm is None:
         return None
     res = map_loops(pm, [[([c], None) for c in loop] for loop in loops], True, True)  # each piece its own edge

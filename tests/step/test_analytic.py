@@ -21,12 +21,13 @@ pytest.importorskip("OCP")
 
 from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace  # noqa: E402
 from OCP.BRepGProp import BRepGProp  # noqa: E402
-from OCP.Geom import (Geom_ConicalSurface, Geom_CylindricalSurface, Geom_Ellipse, Geom_Circle,  # noqa: E402
-                      Geom_Plane, Geom_SphericalSurface, Geom_SurfaceOfLinearExtrusion, Geom_ToroidalSurface)
+from OCP.Geom import (Geom_BSplineCurve, Geom_Circle, Geom_ConicalSurface, Geom_CylindricalSurface,  # noqa: E402
+                      Geom_Ellipse, Geom_Plane, Geom_SphericalSurface, Geom_SurfaceOfLinearExtrusion,
+                      Geom_SurfaceOfRevolution, Geom_ToroidalSurface)
 from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf  # noqa: E402
 from OCP.GeomLProp import GeomLProp_SLProps  # noqa: E402
 from OCP.GProp import GProp_GProps  # noqa: E402
-from OCP.gp import gp_Ax2, gp_Ax3, gp_Dir, gp_Pnt, gp_Vec  # noqa: E402
+from OCP.gp import gp_Ax1, gp_Ax2, gp_Ax3, gp_Dir, gp_Pnt, gp_Vec  # noqa: E402
 from OCP.TopAbs import TopAbs_REVERSED  # noqa: E402
 from OCP.TopoDS import TopoDS  # noqa: E402
 
@@ -60,12 +61,35 @@ def _surface(kind: str, direct: bool):
     if kind == "elliptic extrusion across the seam":
         curve = Geom_Ellipse(gp_Ax2(gp_Pnt(1.0, 2.0, 0.0), gp_Dir(0, 0, 1), gp_Dir(1, 0, 0)), 6.0, 2.5)
         return Geom_SurfaceOfLinearExtrusion(curve, gp_Dir(d)), (-1.3657, 4.5073, -1.9, 8.4)
+    if kind.startswith("revolution"):
+        axis = gp_Ax1(gp_Pnt(0.5, -1.0, 0.0), gp_Dir(0.1, 0.2, 1.0))
+        box = (-1.0, 2.5, 0.0, 1.0) if kind.endswith("seam") else (0.0, 2 * math.pi, 0.1, 0.9)
+        return Geom_SurfaceOfRevolution(_generatrix(), axis), box
     curve = Geom_Circle(gp_Ax2(gp_Pnt(1.0, 2.0, 0.0), gp_Dir(0, 0, 1), gp_Dir(1, 0, 0)), 3.0)
     return Geom_SurfaceOfLinearExtrusion(curve, gp_Dir(d)), (0.5, 5.0, 0.0, 6.0)
 
 
+def _generatrix():
+    """A rational cubic B-spline curve in the plane through the revolution axis, off it."""
+    from OCP.TColgp import TColgp_Array1OfPnt
+    from OCP.TColStd import TColStd_Array1OfInteger, TColStd_Array1OfReal
+
+    pts = [(6.0, -1.0, -3.0), (8.0, -0.5, 0.0), (5.0, 0.0, 2.0), (7.0, 0.5, 4.0), (9.0, 1.0, 6.0)]
+    poles = TColgp_Array1OfPnt(1, len(pts))
+    for i, p in enumerate(pts):
+        poles.SetValue(i + 1, gp_Pnt(*p))
+    weights = TColStd_Array1OfReal(1, len(pts))
+    for i, w in enumerate([1.0, 0.8, 1.3, 0.9, 1.0]):
+        weights.SetValue(i + 1, w)
+    knots, mults = TColStd_Array1OfReal(1, 3), TColStd_Array1OfInteger(1, 3)
+    for i, (k, m) in enumerate([(0.0, 4), (0.4, 1), (1.0, 4)]):
+        knots.SetValue(i + 1, k)
+        mults.SetValue(i + 1, m)
+    return Geom_BSplineCurve(poles, weights, knots, mults, 3)
+
+
 KINDS = ["plane", "cylinder", "cylinder full turn", "cone", "sphere", "torus", "elliptic extrusion across the seam",
-         "oblique circular extrusion"]
+         "oblique circular extrusion", "revolution across the seam", "revolution full turn"]
 
 
 def _occ_area(face) -> float:
@@ -91,13 +115,32 @@ def _extrusion_area(surf, box) -> float:
     return quad(f, u0, u1, epsabs=1e-13, epsrel=1e-13, limit=200)[0] * (v1 - v0)
 
 
+def _revolution_area(surf, box) -> float:
+    from scipy.integrate import quad
+
+    c, ax = surf.BasisCurve(), surf.Axis()
+    o = np.array([ax.Location().X(), ax.Location().Y(), ax.Location().Z()])
+    a = np.array([ax.Direction().X(), ax.Direction().Y(), ax.Direction().Z()])
+
+    def f(v: float) -> float:
+        p, d1 = gp_Pnt(), gp_Vec()
+        c.D1(v, p, d1)
+        r = np.array([p.X(), p.Y(), p.Z()]) - o
+        rho = r - (r @ a) * a  # off the axis
+        t = np.cross(a, rho) / np.linalg.norm(rho)  # the direction of rotation
+        d = np.array([d1.X(), d1.Y(), d1.Z()])
+        return float(np.linalg.norm(rho) * np.linalg.norm(d - (d @ t) * t))  # |S_u x S_v| = r |C' across t|
+
+    u0, u1, v0, v1 = box
+    return (u1 - u0) * quad(f, v0, v1, epsabs=1e-13, epsrel=1e-13, limit=200, points=[0.4])[0]
+
+
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("direct", [True, False], ids=["right-handed", "left-handed"])
 @pytest.mark.parametrize("reverse", [False, True], ids=["forward", "reversed"])
 def test_elementary_face_is_occs(kind: str, direct: bool, reverse: bool) -> None:
-    if "extrusion" in kind:
-        if not direct:
-            pytest.skip("an extrusion has no frame of its own")
+    if ("extrusion" in kind or "revolution" in kind) and not direct:
+        pytest.skip("an extrusion or a revolution has no frame of its own")
     surf, (u0, u1, v0, v1) = _surface(kind, direct)
     occ = BRepBuilderAPI_MakeFace(surf, u0, u1, v0, v1, 1e-9).Face()
     if reverse:
@@ -137,6 +180,8 @@ def test_elementary_face_is_occs(kind: str, direct: bool, reverse: bool) -> None
     rebuilt, _, _ = _face(face, 1e-7 * size)
     if "extrusion" in kind:  # OCC's area of the extrusion face itself is off (2.6e-7, and 0.19 % across the
         ref = _extrusion_area(surf, (u0, u1, v0, v1))  # seam): the analytic integral instead
+    elif "revolution" in kind:  # (u1 - u0) x the integral of r |C' off the rotation direction| (r: from the axis)
+        ref = _revolution_area(surf, (u0, u1, v0, v1))
     else:
         ref = _occ_area(occ)
     assert _occ_area(rebuilt) == pytest.approx(ref, rel=1e-6)  # OCC's integration of the rebuilt face: 3e-7
