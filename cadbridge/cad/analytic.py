@@ -53,7 +53,7 @@ from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
 
 __all__ = ["ArcMap", "Frame", "InvertedCurve", "MappedCurve", "ParamMap", "SurfaceInvertedCurve", "ax2_x_direction",
-           "evaluate_inverted", "invert_edges", "sample_chain", "HERMITE_REL_TOL"]
+           "evaluate_inverted", "invert_edges", "sample_chain", "transposed_surface", "HERMITE_REL_TOL"]
 
 HERMITE_REL_TOL = 1e-10  # `to_nurbs` default: cubic deviation relative to the curve's (u, v) box
 MIN_PER_SPAN = 16  # samples per knot span of the sampled curve at least
@@ -588,15 +588,19 @@ def plane_map(frame: Frame) -> ParamMap:
                     lambda p: frame.local(p)[:, :2], (False, False), build, lambda nat, r0, r1: nat, True)
 
 
+def transposed_surface(s: NurbsSurface) -> NurbsSurface:
+    """The same surface with u and v swapped (its normal S_u x S_v reversed)."""
+    w = None if s.weights is None else np.asarray(s.weights).T
+    u0, u1, v0, v1 = s.domain
+    return NurbsSurface(s.degree_v, s.degree_u, s.knots_v, s.knots_u, np.asarray(s.control_points).transpose(1, 0, 2),
+                        w, (v0, v1, u0, u1))
+
+
 def _revolve(frame: Frame, generatrix: NurbsCurve, r1) -> NurbsSurface:
     """Revolved surface with u and v swapped: u = revolved v(theta), v = the generatrix
     parameter, so that Su x Sv points away from the axis as on OCC's gp_Cylinder, gp_Cone,
     gp_Sphere, gp_Torus (whose u is the angle about the axis too)."""
-    s = _construct().revolved_surface(generatrix, frame.origin, frame.axis, r1[0], r1[1])
-    u0, u1, v0, v1 = s.domain
-    w = None if s.weights is None else np.asarray(s.weights).T
-    return NurbsSurface(s.degree_v, s.degree_u, s.knots_v, s.knots_u, np.asarray(s.control_points).transpose(1, 0, 2),
-                        w, (v0, v1, u0, u1))
+    return transposed_surface(_construct().revolved_surface(generatrix, frame.origin, frame.axis, r1[0], r1[1]))
 
 
 def _theta_map(r1) -> ArcMap:

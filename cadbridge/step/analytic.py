@@ -16,10 +16,10 @@ OCC's (u, v) on these surfaces is an affine image of the natural coordinates of
     revolution of a non-periodic B-spline curve C(v) about the axis (O, A):
                   P = Rot(A, u) C(v)                               natural (s, theta) = (v, -u)
 
-The revolution is `cadbridge.cad.analytic`'s 120 map over a full turn (SA = 0, TA = 2 pi) with
-the generatrix's own NURBS, revolved about -A (theta = -u): its S_s x S_theta is then OCC's
-S_u x S_v; a reversed face is revolved about A (theta = u). Its seam is moved off a loop that
-crosses it as for a 120 (`ParamMap.turned`).
+The revolution is `cadbridge.cad.analytic`'s 120 map with the generatrix's own NURBS, revolved
+over the angles the face's loops span (a full turn where they span one, its seam then moved off
+a loop that crosses it as for a 120: `ParamMap.turned`) about -A (theta = -u): its
+S_s x S_theta is then OCC's S_u x S_v; a reversed face is revolved about A (theta = u).
 
 The extrusion is the unit cylinder (radius 1 about z) under the affine map x -> [aX | bY | D] x + C:
 NURBS are affine-invariant, so the cylinder's exact NURBS and angle maps serve it unchanged, and its
@@ -50,7 +50,7 @@ from math import cos, sin, tan
 import numpy as np
 
 from cadbridge.cad.analytic import (Frame, ParamMap, _affine, _apply_affine, cylinder_map, map_loops, plane_map,
-                                    sphere_map, torus_map)
+                                    sphere_map, torus_map, transposed_surface)
 from cadbridge.cad.model import Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
@@ -67,19 +67,12 @@ def _vec(d) -> np.ndarray:
     return np.array([d.X(), d.Y(), d.Z()], dtype=float)
 
 
-def _transposed_surface(s: NurbsSurface) -> NurbsSurface:
-    """The same surface with u and v swapped (its normal S_u x S_v reversed)."""
-    w = None if s.weights is None else np.asarray(s.weights).T
-    u0, u1, v0, v1 = s.domain
-    return NurbsSurface(s.degree_v, s.degree_u, s.knots_v, s.knots_u, np.asarray(s.control_points).transpose(1, 0, 2),
-                        w, (v0, v1, u0, u1))
-
-
 def _transposed(pm: ParamMap) -> ParamMap:
-    """``pm`` with the built NURBS's u and v swapped."""
+    """``pm`` with the built NURBS's u and v swapped (maps that build their surface; the
+    revolution, whose surface is fixed, is oriented by its axis instead)."""
     build, uv_fn, parts = pm.build, pm.uv_fn, pm.uv_parts
     return dataclasses.replace(
-        pm, build=lambda r0, r1: _transposed_surface(build(r0, r1)),
+        pm, build=lambda r0, r1: transposed_surface(build(r0, r1)),
         uv_fn=lambda nat, r0, r1: uv_fn(nat, r0, r1)[:, ::-1],
         uv_parts=lambda r0, r1: tuple(reversed(parts(r0, r1))), uv_identity=False)
 
