@@ -735,9 +735,15 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
         if subdivided:
             sess.set("Mesh.SubdivisionAlgorithm", 0)
             _set_sizes(g, sess, kw, size, 1.0)
+        # the algorithm asked, as it is: gmsh would quietly remesh with MeshAdapt a surface
+        # whose Delaunay-based mesh it finds invalid, which this chain follows anyway (the next
+        # algorithm, then the (u, v) fill). On the production die's binder BND00963 (quad) that
+        # MeshAdapt pass took 14 of the refold's 15 s and folded as well.
+        sess.set("Mesh.AlgorithmSwitchOnFailure", 0)
         try:
             failed = _generate(g, sorted(new))  # those alone: Mesh.MeshOnlyEmpty
         finally:
+            sess.set("Mesh.AlgorithmSwitchOnFailure", 1)
             if subdivided:
                 sess.set("Mesh.SubdivisionAlgorithm", 1)
                 _set_sizes(g, sess, kw, size, 2.0)

@@ -162,6 +162,28 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algori
     assert _winding_against_occ(again, faces) == [0, 0, 0]
 
 
+def test_the_refold_pass_meshes_with_the_algorithm_asked(boss_cutout, monkeypatch):
+    # gmsh quietly remeshes with MeshAdapt a surface whose Delaunay-based mesh it finds
+    # invalid (Mesh.AlgorithmSwitchOnFailure); in the refold pass the chain (next algorithm,
+    # then the (u, v) fill) follows anyway, and on the production die's binder that MeshAdapt
+    # pass cost 14 of 15 s and folded too. Reference: gmsh's own option value in each call.
+    from cadbridge.mesh import generate as G
+
+    path, faces = boss_cutout
+    plain = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
+    big = int(np.bincount(np.asarray(plain.cell_data["element_entity"])).argmax())
+    _folds_once(monkeypatch, G, big)
+    switch = []
+    real = G._generate
+    monkeypatch.setattr(G, "_generate", lambda g, s: switch.append(
+        g.option.getNumber("Mesh.AlgorithmSwitchOnFailure")) or real(g, s))
+    again = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
+    # the model's passes with gmsh's default, the refold pass (the last call) without the switch
+    assert switch[-1] == 0.0 and set(switch[:-1]) == {1.0}, switch
+    assert any(f"algorithm 6 on {big}" in n for n in again.notes), again.notes
+    assert _winding_against_occ(again, faces) == [0, 0, 0]
+
+
 def test_a_refolded_surface_follows_the_size_field(monkeypatch):
     # reference: the plain mesh of the same surface under the same background size field. A
     # surface reported folded (forced here) is meshed again alone; the refold must follow the
