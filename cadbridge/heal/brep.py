@@ -329,12 +329,14 @@ def trim_sew_tolerance(model: Model) -> float:
 
 
 @contextmanager
-def brep_source(model: Model, *, sew_tolerance: float | None = None) -> Iterator[tuple[Path, ModelBrep]]:
+def brep_source(model: Model, *, sew_tolerance: float | None = None,
+                brep: ModelBrep | None = None) -> Iterator[tuple[Path, ModelBrep]]:
     """A temporary OCC ``.brep`` file of `model_brep` (``model``, ``sew_tolerance``) for the
-    mesher, and the build report; removed on exit."""
+    mesher, and the build report; removed on exit. ``brep``: one built before for this model
+    (then written as it is)."""
     from OCP.BRepTools import BRepTools
 
-    brep = model_brep(model, sew_tolerance=sew_tolerance)
+    brep = brep if brep is not None else model_brep(model, sew_tolerance=sew_tolerance)
     stem = Path(model.source or model.filename or "model").stem or "model"
     with tempfile.TemporaryDirectory(prefix="cadbridge-brep-") as tmp:
         path = Path(tmp) / f"{stem}.brep"

@@ -1220,8 +1220,13 @@ def _collect(g, surfaces: list[int], parametric: bool, path: Path) -> Mesh:
         for et, en in zip(etypes, enodes):
             en = np.asarray(en, dtype=np.int64)
             if et == 2:
-                tri.append(index[en].reshape(-1, 3))
-                tri_ent.append(np.full(len(en) // 3, s, dtype=np.int64))
+                t = index[en].reshape(-1, 3)
+                # a triangle with two corners on one node (gmsh, at the collapsed edge of a face
+                # closed around a pole, imported unsewn) has no area and its two other edges are
+                # one: dropped, as `cadbridge.mesh.cleanup.merge_close_nodes` drops those it makes
+                t = t[(t[:, 0] != t[:, 1]) & (t[:, 1] != t[:, 2]) & (t[:, 2] != t[:, 0])]
+                tri.append(t)
+                tri_ent.append(np.full(len(t), s, dtype=np.int64))
             elif et == 3:
                 quad.append(index[en].reshape(-1, 4))
                 quad_ent.append(np.full(len(en) // 4, s, dtype=np.int64))

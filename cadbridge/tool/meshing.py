@@ -59,6 +59,7 @@ def mesh_for_tools(
     progress=None,
     local_sizes=None,
     route: str = "model",
+    brep_cache: dict | None = None,
 ) -> tuple[Mesh, list[str]]:
     """The mesh `convert` builds its tools on, and what was done on the way.
 
@@ -74,6 +75,8 @@ def mesh_for_tools(
 
     ``route``: "model" (gmsh on the model's B-rep, the file as OCC reads it where that cannot
     be meshed: the notes then hold `FILE_ROUTE_NOTE`) or "file" (the file as OCC reads it).
+    ``brep_cache``: a dict the caller keeps across calls on the same ``model`` (the guards'
+    refinement rounds), so the model's B-rep is built once (`_mesh_model_brep`).
 
     Returns (mesh, notes): the notes are the healed excursions and the mesher's notes.
     """
@@ -98,7 +101,7 @@ def mesh_for_tools(
                 length_divisions=length_divisions, curvature_elements=curvature_elements,
                 embed_curves=[c for _, c in lines], mesher=mesher, loop_cuts=excursions,
                 background_sizes=local_sizes)
-    mesh, tried = _mesh_model_brep(model, lines, opts) if mesher == "gmsh" and route == "model" else (None, [])
+    mesh, tried = _mesh_model_brep(model, lines, opts, brep_cache) if mesher == "gmsh" and route == "model" else (None, [])
     if mesh is None:  # QIT (it meshes the file's faces itself), or the B-rep could not be meshed
         with mesh_source(cad, model) as source:  # the file as cadbridge read it (faces re-read by the reader)
             mesh = mesh_cad(source, **opts)
@@ -115,29 +118,47 @@ def mesh_for_tools(
     return consistently_oriented(mesh, True), notes
 
 
-def _mesh_model_brep(model: Model, lines: list, opts: dict) -> tuple[Mesh | None, list[str]]:
+def _mesh_model_brep(model: Model, lines: list, opts: dict, cache: dict | None = None) -> tuple[Mesh | None, list[str]]:
     """gmsh's mesh of the model itself (`cadbridge.heal.brep`): face k of the mesh is face k
     of the model by construction, crease and fold lines are embedded in their own faces, and
     the excursions are already cut out of the model's loops. Sewn first at the mesher's
     tolerance (`SEW_TOLERANCE_MM`), then, where OCC cannot make the faces' wires of that
     (trims that miss each other by more: gmsh's import fails), at the file's trim tolerance.
-    Returns (mesh, notes); mesh None where neither meshes (`MeshError`): `convert` then
+    Last, the B-rep sewn at the mesher's tolerance is imported without gmsh sewing it again:
+    gmsh's second sewing can leave a face a wire it cannot close ("Could not fix wire";
+    K1 from CADDS, 4 STEP files of the corpus).
+    Returns (mesh, notes); mesh None where none meshes (`MeshError`): `convert` then
     meshes the file as OCC reads it, and the notes say why.
-    ``lines``: (model face index, curve) of each crease and fold line; ``opts``: `mesh_cad`'s."""
-    from cadbridge.heal.brep import brep_source, trim_sew_tolerance
+    ``lines``: (model face index, curve) of each crease and fold line; ``opts``: `mesh_cad`'s.
+    ``cache``: kept by the caller across the refinement rounds of one model: the B-reps built
+    (a round meshes the same B-rep with other sizes) and the attempt that meshed, where the
+    next round starts."""
+    from cadbridge.heal.brep import SEW_TOLERANCE_MM, brep_source, trim_sew_tolerance
     from cadbridge.mesh.generate import mesh_cad
     from cadbridge.mesh.mesh import MeshError
     from OCP.Standard import Standard_Failure
 
     failures: list[str] = []
-    for sew in (None, trim_sew_tolerance(model)):  # loop over (at most) two sewing tolerances
+    # (cadbridge's sewing tolerance, gmsh sews again): gmsh's own sewing of the sewn B-rep last
+    # left out, since it can break wires cadbridge's sewing made (gmsh: "Could not fix wire")
+    cache = {} if cache is None else cache
+    trim_tolerance = trim_sew_tolerance(model)
+    attempts = ((None, True), (trim_tolerance, True), (None, False))
+    for i, (sew, gmsh_sews) in enumerate(attempts):
+        if i < cache.get("meshed", 0):
+            continue  # failed in an earlier round on the same model
+        if sew is not None and sew <= SEW_TOLERANCE_MM / model.units.to_mm:
+            continue  # the trim tolerance is the mesher's: the first attempt was this one
         try:
-            with brep_source(model, sew_tolerance=sew) as (source, brep):
+            with brep_source(model, sew_tolerance=sew, brep=cache.get(sew)) as (source, brep):
+                cache[sew] = brep
                 mesh = mesh_cad(source, straight_splines=True, exact_curve_nodes=True, embed_faces=[k for k, _ in lines],
-                                face_anchors=brep.anchors, **{**opts, "loop_cuts": ()})
+                                face_anchors=brep.anchors, sew=gmsh_sews, **{**opts, "loop_cuts": ()})
         except (MeshError, ValueError, Standard_Failure) as e:  # ValueError: a trim no cubic follows
-            failures.append(f"mesh: the model's B-rep sewn at {_sew_text(sew, model)} could not be meshed ({e})")
+            failures.append(f"mesh: the model's B-rep sewn at {_sew_text(sew, model)}"
+                            f"{'' if gmsh_sews else ' and imported without gmsh sewing again'} could not be meshed ({e})")
             continue
+        cache["meshed"] = i
         mesh.notes = failures + brep.notes() + list(mesh.notes)
         return mesh, []
     failures.append(FILE_ROUTE_NOTE)

@@ -120,7 +120,9 @@ def _guarded_on(route: str, cad, model, excursions, build, progress, unchecked_o
     from cadbridge.normals.cad import ProjectionError
     from cadbridge.tool.guard_refinement import GuardRefinement, refine_where_guards_trip
 
-    mesh, notes = mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route, **mesh_options)
+    breps: dict = {}  # the model's B-reps, built once for all rounds (`mesh_for_tools` ``brep_cache``)
+    mesh, notes = mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route,
+                                 brep_cache=breps, **mesh_options)
     try:
         tools = build(mesh)
     except (MeshError, ProjectionError) as e:
@@ -133,7 +135,8 @@ def _guarded_on(route: str, cad, model, excursions, build, progress, unchecked_o
     return refine_where_guards_trip(
         mesh, tools, notes, model, progress=progress, build=build,
         remesh=lambda sizes: mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route,
-                                            **{**mesh_options, "curvature_elements": 0}, local_sizes=sizes))
+                                            brep_cache=breps, **{**mesh_options, "curvature_elements": 0},
+                                            local_sizes=sizes))
 
 
 def nagata_from_mesh(
