@@ -30,7 +30,7 @@ def cmd_convert(args: argparse.Namespace) -> int:
 def register(sub, fmt) -> None:
     p = sub.add_parser("convert", help="mesh + normals + Nagata + report in one go", formatter_class=fmt,
                        epilog="example:\n  cadbridge convert die.igs -o die_out/ --element quad --size 5")
-    p.add_argument("cad", help="IGES file")
+    p.add_argument("cad", help="IGES or STEP file")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--grid", type=int, default=10, help="grid divisions per patch for errors and viewing")
     p.add_argument("--allow-worse", action="store_true",

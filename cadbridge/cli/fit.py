@@ -107,7 +107,7 @@ def register(sub, fmt) -> None:
     p.add_argument("--degree", type=int, default=3, help="degree in u and v (default 3)")
     p.add_argument("--tolerance", type=float, default=0.01, help="max deviation wanted, model units (default 0.01)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--base", help="IGES file whose face (or faces joined edge to edge) parametrises the points")
+    g.add_argument("--base", help="IGES or STEP file whose face (or faces joined edge to edge) parametrises the points")
     g.add_argument("--base-curves", metavar="CURVES.igs",
                    help="IGES file with exactly 4 standalone boundary curves (126, 110, ...; polynomial) meeting "
                         "at 4 corners: parametrise on the Coons patch they span")

@@ -99,7 +99,7 @@ def format_inspect(model) -> str:
 
 
 def register(sub, fmt) -> None:
-    p = sub.add_parser("inspect", help="entities, faces, names, units, bounding box of an IGES file", formatter_class=fmt,
+    p = sub.add_parser("inspect", help="entities, faces, names, units, bounding box of an IGES or STEP file", formatter_class=fmt,
                        epilog="example:\n  cadbridge inspect iges_samples/ushape_die_nurbs.igs")
-    p.add_argument("cad", help="IGES file")
+    p.add_argument("cad", help="IGES or STEP file")
     p.set_defaults(func=cmd_inspect)

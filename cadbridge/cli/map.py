@@ -211,7 +211,7 @@ def register(sub, fmt) -> None:
                "Reruns into the same OUT reuse the stored mapping (OUT/mapping.npz); see docs/results.md.")
     p.add_argument("results", metavar="RESULTS", help="result mesh (VTU, Gmsh .msh, Abaqus .inp, GiD .msh+.res, "
                                                       "or a cadbridge tool file with --values)")
-    p.add_argument("--cad", required=True, help="IGES file of the tool")
+    p.add_argument("--cad", required=True, help="IGES or STEP file of the tool")
     p.add_argument("--field", required=True, help="point or cell array to map (NAME[k] picks a component)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--levels", default="8", help="number of equal bands (default 8) or increasing levels 0,5,10,20")

@@ -43,7 +43,7 @@ def register(sub, fmt) -> None:
     p = sub.add_parser("mesh", help="mesh the CAD with gmsh (the mesh stage of convert)", formatter_class=fmt,
                        epilog="example:\n  cadbridge mesh die.igs -o die.msh --element quad --structured --radius-divisions 3\n"
                        "  cadbridge nagata die.msh --cad die.igs -o die_tool/   # the tools convert makes")
-    p.add_argument("cad", help="IGES file")
+    p.add_argument("cad", help="IGES or STEP file")
     p.add_argument("-o", "--output", required=True, help="mesh file (.msh, .vtu, .inp, .bdf, .stl, .obj, GiD .msh via --gid)")
     add_mesh_options(p)
     p.set_defaults(func=cmd_mesh)

@@ -28,7 +28,7 @@ def register(sub, fmt) -> None:
     p = sub.add_parser("nagata", help="Nagata tool file and report from a mesh (+ CAD normals)", formatter_class=fmt,
                        epilog="example:\n  cadbridge nagata die.msh --cad die.igs -o die_tool/")
     p.add_argument("mesh", help="mesh file readable by meshio")
-    p.add_argument("--cad", help="IGES file (exact normals and shape errors)")
+    p.add_argument("--cad", help="IGES or STEP file (exact normals and shape errors)")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--name", help="tool name (default from the CAD names or the mesh file name)")
     p.add_argument("--grid", type=int, default=10, help="grid divisions per patch for errors and viewing")

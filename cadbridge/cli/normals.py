@@ -53,7 +53,7 @@ def register(sub, fmt) -> None:
                        epilog="example:\n  cadbridge normals die.msh --cad die.igs -o die_normals.vtu\n"
                        "  cadbridge normals die.msh --method mwselr")
     p.add_argument("mesh", help="mesh file readable by meshio")
-    p.add_argument("--cad", help="IGES file (needed for --method cad)")
+    p.add_argument("--cad", help="IGES or STEP file (needed for --method cad)")
     p.add_argument("-o", "--output", help="output VTU (default MESH.normals.vtu)")
     add_normal_options(p)
     p.set_defaults(func=cmd_normals)

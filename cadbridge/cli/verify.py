@@ -17,9 +17,9 @@ def cmd_verify(args: argparse.Namespace) -> int:
 
 
 def register(sub, fmt) -> None:
-    p = sub.add_parser("verify", help="compare our reading of an IGES file with OpenCASCADE", formatter_class=fmt,
+    p = sub.add_parser("verify", help="compare our reading of an IGES or STEP file with OpenCASCADE", formatter_class=fmt,
                        epilog="example:\n  cadbridge verify iges_samples/ushape_die_nurbs.igs   # exit 1 if any face deviates")
-    p.add_argument("cad", help="IGES file")
+    p.add_argument("cad", help="IGES or STEP file")
     p.add_argument("--samples", type=int, default=200, help="random (u, v) per face (default 200)")
     p.add_argument("--tol-pos", type=float, default=1e-9, help="position tolerance, relative to model size")
     p.add_argument("--tol-der", type=float, default=1e-8, help="derivative tolerance, relative")
