@@ -63,6 +63,7 @@ def _known_errors() -> tuple[type[BaseException], ...]:
         ("cadbridge.io.toolfile", "ToolFileError"),
         ("cadbridge.verify.reference", "OccReadError"),
         ("cadbridge.tool.build", "ToolQualityError"),
+        ("cadbridge.tool.outputs", "OutputFolderError"),
     ):
         try:
             module = __import__(mod, fromlist=[name])
@@ -95,6 +96,14 @@ def _stdout_to_devnull() -> None:
         pass
 
 
+def _error_text(exc: BaseException) -> str:
+    """The error line's text: a file system error as "PATH: what" (not Python's "[Errno 2]
+    No such file or directory: 'PATH'"), others as they say it."""
+    if isinstance(exc, OSError) and exc.filename and exc.strerror:
+        return f"{exc.filename}: {exc.strerror.lower()}"
+    return str(exc)
+
+
 def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -119,7 +128,7 @@ def _main(argv: list[str] | None) -> int:
         from cadbridge.normals.cad import ProjectionError
         from cadbridge.tool.build import ToolQualityError
 
-        print(f"cadbridge {args.command}: error: {exc}", file=sys.stderr)
+        print(f"cadbridge {args.command}: error: {_error_text(exc)}", file=sys.stderr)
         return EXIT_CHECK_FAILED if isinstance(exc, (ProjectionError, ToolQualityError, CheckFailed)) else EXIT_BAD_INPUT
     except (ValueError, ArithmeticError, MemoryError, OSError, RuntimeError, LookupError, TypeError) as exc:
         # anything the library did not anticipate: still one line (the input it could not

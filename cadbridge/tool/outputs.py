@@ -17,7 +17,7 @@ import numpy as np
 
 from cadbridge.tool.build import CadProjector, corner_overrides, element_blocks, grid_rows, sample_divisions, ToolResult
 
-__all__ = ['LISTING_MAX_ELEMENTS', 'staged_output', 'tool_data', 'write_tool_outputs']
+__all__ = ['LISTING_MAX_ELEMENTS', 'OutputFolderError', 'staged_output', 'tool_data', 'write_tool_outputs']
 
 
 def tool_data(tool: ToolResult, units: str, cad: str | None = None):
@@ -126,6 +126,10 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
         files += [f"{name}_surface_error.png", f"{name}_boundary_error.png", f"{name}_normal_error.png"]
     return files
 
+
+class OutputFolderError(OSError):
+    """The output folder cannot be made or written (its parent is a file, read-only, ...)."""
+
 @contextmanager
 def staged_output(output: str | os.PathLike) -> Iterator[Path]:
     """Write into a temporary folder beside ``output``; move the files into place only on
@@ -134,8 +138,12 @@ def staged_output(output: str | os.PathLike) -> Iterator[Path]:
     output = Path(output)
     parent = output.resolve().parent
     created_parent = not parent.exists()
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", dir=parent))
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{output.name}.", dir=parent))
+    except OSError as e:  # named after the output folder asked for, not the staging folder
+        raise OutputFolderError(e.errno, f"cannot write the output folder there ({e.strerror.lower()})",
+                                str(output)) from None
     try:
         yield tmp
     except BaseException:

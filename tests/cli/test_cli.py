@@ -251,6 +251,23 @@ def test_bad_input_one_line_and_nothing_written(argv, code, die_mesh, tmp_path, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["garbage.igs", "notes.igs"]
 
 
+def test_file_system_errors_name_the_path_in_words(tmp_path, capsys):
+    """A missing input and an output folder that cannot be made: one line naming the path the
+    user gave, exit 2, no Python error name or "[Errno N]" (reference: the paths given)."""
+    missing = tmp_path / "missing.stp"
+    code, _, err = run(capsys, "convert", str(missing), "-o", str(tmp_path / "out"))
+    assert code == EXIT_BAD_INPUT
+    assert err.strip().endswith(f"error: {missing}: no such file or directory"), err
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    out = blocker / "out"
+    code, _, err = run(capsys, "convert", str(SAMPLES / "trimmed_hole.igs"), "-o", str(out))
+    assert code == EXIT_BAD_INPUT
+    assert err.strip().splitlines()[-1].endswith(f"error: {out}: cannot write the output folder there (file exists)"), err
+    assert "Errno" not in err and "Error:" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
 # ----------------------------------------------------------------------------- convert
 def _samples():
     for p in sorted(q for q in SAMPLES.glob("*.igs") if not q.name.startswith("production_die")):
