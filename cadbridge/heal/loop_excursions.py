@@ -29,6 +29,7 @@ FACE(401) of ANSA9 has an excursion).
 from __future__ import annotations
 
 import copy
+import math
 
 from dataclasses import dataclass, field
 
@@ -50,6 +51,8 @@ MIN_LENGTH = 1e-4
 """Excursions shorter than this x model size are left alone (no mesher resolves them)."""
 SAMPLES_PER_SPAN = 64
 """Exact curve samples per knot span (the candidates' resolution along the loop)."""
+MAX_PAIRS = 5_000_000
+"""Sample pairs within the width an excursion search looks at, about, at most (`_best_pair`)."""
 
 
 @dataclass(frozen=True)
@@ -128,10 +131,23 @@ def _best_pair(xyz: np.ndarray, uv: np.ndarray, width: float) -> tuple[int, int,
         return np.concatenate([[0.0], np.cumsum(seg)])  # s[k]: arc from sample 0 to k; s[n] the loop
 
     s, q = arcs(xyz), arcs(uv)
-    pairs = cKDTree(xyz).query_pairs(width, output_type="ndarray")
+    tree = cKDTree(xyz)
+    # a loop sampled densely against ``width`` (trj6_b1: 82 944 samples 0.0004 apart, width
+    # 26.5) has billions of pairs within it: the pairs are then taken on every k-th sample
+    # (still exact curve points), k so that about `MAX_PAIRS` are left, and k samples no
+    # farther apart than width / 8 (where the samples are sparse against the width, as on
+    # a Z a few samples wide, every one counts)
+    count = tree.count_neighbors(tree, width)  # ordered pairs, each sample with itself included
+    stride = 1
+    if count - n > 2 * MAX_PAIRS:
+        gaps = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
+        spacing = float(np.median(gaps[gaps > 0])) if np.any(gaps > 0) else width
+        stride = max(1, min(math.ceil(math.sqrt((count - n) / (2 * MAX_PAIRS))), int(width / (8.0 * spacing))))
+    sel = np.arange(0, n, stride)
+    pairs = (tree if stride == 1 else cKDTree(xyz[sel])).query_pairs(width, output_type="ndarray")
     if len(pairs) == 0:
         return None
-    a, b = pairs[:, 0], pairs[:, 1]  # a < b
+    a, b = sel[pairs[:, 0]], sel[pairs[:, 1]]  # a < b
     d = np.linalg.norm(xyz[a] - xyz[b], axis=1)
     fwd = s[b] - s[a]
     # the excursion is the shorter way round (the rest of the loop is the face itself)
@@ -312,42 +328,71 @@ def cut_loop(lp: TrimLoop, e: Excursion) -> TrimLoop:
     return TrimLoop(out, None)
 
 
-def _proper_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+_CHUNK = 65536
+"""Points per broad-phase query of `_proper_crossings`."""
+
+
+def _proper_crossings(a: np.ndarray, b: np.ndarray, *, skip: np.ndarray | None = None,
+                      limit: int | None = None) -> np.ndarray:
     """Pairs (i, j), i < j, of the closed polygon's edges a[k] -> b[k] ((M, 2) each) that meet
     (each edge's ends on both sides of the other, or on it; collinear pairs left out),
-    neighbours excluded, (K, 2), sorted along the loop (by i, then j)."""
+    neighbours and the edges ``skip`` (M,) bool excluded, (K, 2), sorted along the loop (by i,
+    then j). ``limit``: the first ``limit`` pairs at least, not necessarily all (a loop that
+    retraces itself meets itself everywhere)."""
     m = len(a)
+    none = np.zeros((0, 2), dtype=np.int64)
     if m == 0:
-        return np.zeros((0, 2), dtype=np.int64)
+        return none
     mid = 0.5 * (a + b)
     length = np.linalg.norm(b - a, axis=1)
     half = 0.5 * length
     # broad phase: points every `step` at most along each edge; two edges that meet have points
     # within `step` of each other. (A query at the longest edge's length over the midpoints was
     # O(M^2) pairs where one edge is long: 20 of the 35 s of reading trj10_b2, 251 faces.)
-    step = float(np.median(length[length > 0])) if np.any(length > 0) else 1.0
-    count = np.maximum(1, np.ceil(length / step).astype(np.int64))  # (M,) sub-edges per edge
+    # Queried in chunks along the loop, so that a loop retracing itself (trj6_b1: 82 944
+    # samples, strands within 2e-5 of each other) stops at ``limit`` instead of pairing all.
+    use = np.ones(m, dtype=bool) if skip is None else ~np.asarray(skip, dtype=bool)
+    step = float(np.median(length[use & (length > 0)])) if np.any(use & (length > 0)) else 1.0
+    count = np.where(use, np.maximum(1, np.ceil(length / step).astype(np.int64)), -1)  # sub-edges; -1: no points
     edge = np.repeat(np.arange(m), count + 1)
     first = np.cumsum(count + 1) - (count + 1)  # (M,) each edge's first point
-    frac = (np.arange(len(edge)) - np.repeat(first, count + 1)) / np.repeat(count, count + 1)
+    frac = (np.arange(len(edge)) - np.repeat(first, count + 1)) / np.repeat(np.maximum(count, 1), count + 1)
     pts = a[edge] + frac[:, None] * (b - a)[edge]
-    pp = cKDTree(pts).query_pairs(step, output_type="ndarray")
-    if len(pp) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    ij = np.sort(edge[pp], axis=1)
-    ij = np.unique(ij[ij[:, 0] != ij[:, 1]], axis=0)  # sorted along the loop
-    if len(ij) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    i, j = ij[:, 0], ij[:, 1]
-    keep = (j - i > 1) & ~((i == 0) & (j == m - 1)) & (np.linalg.norm(mid[i] - mid[j], axis=1) <= half[i] + half[j])
-    i, j = i[keep], j[keep]
+    if len(pts) == 0:
+        return none
+    tree = cKDTree(pts)
 
     def side(p, q, r):  # orientation of r against the line p -> q
         return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
 
-    s1, s2, s3, s4 = side(a[i], b[i], a[j]), side(a[i], b[i], b[j]), side(a[j], b[j], a[i]), side(a[j], b[j], b[i])
-    hit = (s1 * s2 <= 0) & (s3 * s4 <= 0) & ~((s1 == 0) & (s2 == 0))
-    return np.column_stack([i[hit], j[hit]])
+    out, found = [], 0
+    chunk = _CHUNK
+    for c0 in range(0, len(pts), chunk):  # points in loop order: edges i in order
+        sub = cKDTree(pts[c0:c0 + chunk])
+        d = sub.sparse_distance_matrix(tree, step, output_type="ndarray")
+        i, j = edge[c0 + d["i"]], edge[d["j"]]
+        ij = np.unique(np.column_stack([i, j])[j - i > 1], axis=0)
+        i, j = ij[:, 0], ij[:, 1]
+        keep = ~((i == 0) & (j == m - 1)) & (np.linalg.norm(mid[i] - mid[j], axis=1) <= half[i] + half[j])
+        i, j = i[keep], j[keep]
+        s1, s2, s3, s4 = side(a[i], b[i], a[j]), side(a[i], b[i], b[j]), side(a[j], b[j], a[i]), side(a[j], b[j], b[i])
+        hit = (s1 * s2 <= 0) & (s3 * s4 <= 0) & ~((s1 == 0) & (s2 == 0))
+        out.append(np.column_stack([i[hit], j[hit]]))
+        found += int(hit.sum())
+        if limit is not None and found >= limit:
+            # the pairs of the edges wholly in the chunks done are complete; an edge whose
+            # points run on into the next chunk may miss pairs: those are left out
+            last = int(edge[min(c0 + chunk, len(pts)) - 1])
+            done = np.concatenate(out)
+            done = done[done[:, 0] < last] if c0 + chunk < len(pts) else done
+            if len(done) >= limit:
+                out = [done]
+                break
+    res = np.concatenate(out) if out else none
+    if len(res) == 0:
+        return none
+    res = np.unique(res, axis=0)  # an edge's points in two chunks: its pairs twice; sorted by (i, j)
+    return res
 
 
 GAP_REL = 1e-2
@@ -383,9 +428,8 @@ def loop_crossing(f: Face, li: int, lp: TrimLoop, width: float, min_length: floa
     nxt = np.roll(np.arange(n), -1)
     seg = np.linalg.norm(xyz[nxt] - xyz, axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
-    hits = _proper_crossings(uv, uv[nxt])
     jump = np.linalg.norm(uv[nxt] - uv, axis=1) > JUMP_REL * bd.size  # a pole or seam jump, not a strand
-    hits = hits[~(jump[hits[:, 0]] | jump[hits[:, 1]])]
+    hits = _proper_crossings(uv, uv[nxt], skip=jump, limit=MAX_CROSSINGS)
     found = []  # (length, i, j, s, r, crossing point uv, xyz, lobe sample indices)
     for i, j in hits[:MAX_CROSSINGS]:
         i, j = int(i), int(j)

@@ -122,12 +122,16 @@ def _brute_crossings(a: np.ndarray, b: np.ndarray) -> set[tuple[int, int]]:
     return out
 
 
-def test_proper_crossings_finds_what_testing_every_pair_finds():
+@pytest.mark.parametrize("chunk", [65536, 7])
+def test_proper_crossings_finds_what_testing_every_pair_finds(chunk, monkeypatch):
     """The broad phase (points at most a median edge apart along each edge) keeps every pair
     that meets: random star polygons with long edges (most vertices dropped) and grid-snapped
     ones (exact touches and shared vertices), against the all-pairs test. The pairs come
-    sorted along the loop."""
+    sorted along the loop. Chunk 7: the broad phase in many queries along the loop."""
+    import cadbridge.heal.loop_excursions as module
     from cadbridge.heal.loop_excursions import _proper_crossings
+
+    monkeypatch.setattr(module, "_CHUNK", chunk)
 
     rng = np.random.default_rng(7)
     checked = with_hits = 0
@@ -145,8 +149,15 @@ def test_proper_crossings_finds_what_testing_every_pair_finds():
             continue
         a, b = uv, np.roll(uv, -1, axis=0)
         got = _proper_crossings(a, b)
-        assert {tuple(map(int, p)) for p in got} == _brute_crossings(a, b)
+        brute = _brute_crossings(a, b)
+        assert {tuple(map(int, p)) for p in got} == brute
         assert [tuple(p) for p in got.tolist()] == sorted(tuple(p) for p in got.tolist())
+        # skipped edges (pole or seam jumps) and a limit: the first pairs of the rest, in order
+        skip = rng.uniform(size=len(a)) < 0.1
+        rest = sorted(p for p in brute if not (skip[p[0]] or skip[p[1]]))
+        part = _proper_crossings(a, b, skip=skip, limit=3)
+        assert [tuple(p) for p in part.tolist()][:3] == rest[:3]
+        assert len(part) >= min(3, len(rest))
         checked += 1
         with_hits += len(got) > 0
     assert checked > 80 and with_hits > 20  # the case is not vacuous

@@ -224,3 +224,42 @@ def test_restricted_mapped_trim_curve_is_the_same_curve():
         t = np.linspace(t0, t1, 11)
         np.testing.assert_array_equal(r.evaluate(t), c.evaluate(t))
         np.testing.assert_array_equal(r.derivatives(t, 2), c.derivatives(t, 2))
+
+
+def _dense_square_with(left: list, pieces: int) -> list:
+    """`_square_with`, its ``left`` edges each split into ``pieces`` straight pieces (64 samples
+    each: a loop sampled densely against the width)."""
+    poly = _square_with(left)
+    out = poly[:3]
+    for p, q in zip(left[:-1], left[1:]):
+        t = np.linspace(0.0, 1.0, pieces + 1)[:-1]
+        out += [tuple(np.array(p) + s * (np.array(q) - np.array(p))) for s in t]
+    return out + [left[-1]]
+
+
+def test_z_excursion_found_on_every_kth_sample_where_pairs_are_too_many(monkeypatch):
+    """A Z whose strands are sampled 5e-5 apart against the 1.4e-3 width (about 10^6 pairs
+    within it), with `MAX_PAIRS` lowered to 10^5, is searched on every 3rd sample: the same
+    excursion (reference: the search on all samples), its length within 5 %, and OCC's area
+    check of the cut as in `test_z_excursion_found_and_cut_against_occ_area`."""
+    import cadbridge.heal.loop_excursions as module
+
+    poly = _dense_square_with(Z_LEFT, 150)
+    full = find_excursions(_model(poly))
+    model = _model(poly)
+    f = model.faces[0]
+    _, _, uv, xyz = module._samples(f, f.trims.outer)
+    assert module._best_pair(xyz, uv, module.default_width(f, model.size())) is not None
+    monkeypatch.setattr(module, "MAX_PAIRS", 100_000)
+    strides = []
+    real = module.cKDTree
+    monkeypatch.setattr(module, "cKDTree", lambda x: strides.append(len(x)) or real(x))
+    coarse = find_excursions(model)
+    assert len(xyz) // 4 < min(strides) < len(xyz) // 2  # a subsampled search took place
+    assert len(full) == len(coarse) == 1
+    fe, c = full[0], coarse[0]
+    assert c.chord <= 1e-3 * model.size() + 1e-12 and c.start[1] > 0.40 and c.end[1] < 0.60
+    assert abs(c.length - fe.length) < 0.05 * fe.length
+    heal_excursions(model)
+    a0, a1 = OCC.area(_occ_face(np.array(poly))), OCC.area(_occ_face(_loop_vertices(model.faces[0].trims.outer)))
+    assert abs(a0 - a1 - c.uv_area) < 1e-12
