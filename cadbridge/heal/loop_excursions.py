@@ -346,13 +346,13 @@ def _proper_crossings(a: np.ndarray, b: np.ndarray, *, skip: np.ndarray | None =
     mid = 0.5 * (a + b)
     length = np.linalg.norm(b - a, axis=1)
     half = 0.5 * length
-    # broad phase: points every `step` at most along each edge; two edges that meet have points
+    # broad phase: points every `step` (the mean edge length) at most along each edge; two edges that meet have points
     # within `step` of each other. (A query at the longest edge's length over the midpoints was
     # O(M^2) pairs where one edge is long: 20 of the 35 s of reading trj10_b2, 251 faces.)
     # Queried in chunks along the loop, so that a loop retracing itself (trj6_b1: 82 944
     # samples, strands within 2e-5 of each other) stops at ``limit`` instead of pairing all.
     use = np.ones(m, dtype=bool) if skip is None else ~np.asarray(skip, dtype=bool)
-    step = float(np.median(length[use & (length > 0)])) if np.any(use & (length > 0)) else 1.0
+    step = float(np.mean(length[use & (length > 0)])) if np.any(use & (length > 0)) else 1.0
     count = np.where(use, np.maximum(1, np.ceil(length / step).astype(np.int64)), -1)  # sub-edges; -1: no points
     edge = np.repeat(np.arange(m), count + 1)
     first = np.cumsum(count + 1) - (count + 1)  # (M,) each edge's first point
@@ -371,8 +371,8 @@ def _proper_crossings(a: np.ndarray, b: np.ndarray, *, skip: np.ndarray | None =
         sub = cKDTree(pts[c0:c0 + chunk])
         d = sub.sparse_distance_matrix(tree, step, output_type="ndarray")
         i, j = edge[c0 + d["i"]], edge[d["j"]]
-        ij = np.unique(np.column_stack([i, j])[j - i > 1], axis=0)
-        i, j = ij[:, 0], ij[:, 1]
+        key = np.unique((i * m + j)[j - i > 1])  # one per edge pair (a 1-D sort: unique(axis=0) took 17 s on bug32596)
+        i, j = key // m, key % m
         keep = ~((i == 0) & (j == m - 1)) & (np.linalg.norm(mid[i] - mid[j], axis=1) <= half[i] + half[j])
         i, j = i[keep], j[keep]
         s1, s2, s3, s4 = side(a[i], b[i], a[j]), side(a[i], b[i], b[j]), side(a[j], b[j], a[i]), side(a[j], b[j], b[i])
@@ -385,14 +385,15 @@ def _proper_crossings(a: np.ndarray, b: np.ndarray, *, skip: np.ndarray | None =
             last = int(edge[min(c0 + chunk, len(pts)) - 1])
             done = np.concatenate(out)
             done = done[done[:, 0] < last] if c0 + chunk < len(pts) else done
+            done = np.unique(done, axis=0)  # an edge's points in two chunks: its pairs twice
             if len(done) >= limit:
                 out = [done]
                 break
     res = np.concatenate(out) if out else none
     if len(res) == 0:
         return none
-    res = np.unique(res, axis=0)  # an edge's points in two chunks: its pairs twice; sorted by (i, j)
-    return res
+    key = np.unique(res[:, 0] * m + res[:, 1])  # an edge's points in two chunks: its pairs twice
+    return np.column_stack([key // m, key % m])  # sorted by (i, j)
 
 
 GAP_REL = 1e-2

@@ -124,7 +124,7 @@ def _brute_crossings(a: np.ndarray, b: np.ndarray) -> set[tuple[int, int]]:
 
 @pytest.mark.parametrize("chunk", [65536, 7])
 def test_proper_crossings_finds_what_testing_every_pair_finds(chunk, monkeypatch):
-    """The broad phase (points at most a median edge apart along each edge) keeps every pair
+    """The broad phase (points at most a mean edge length apart along each edge) keeps every pair
     that meets: random star polygons with long edges (most vertices dropped) and grid-snapped
     ones (exact touches and shared vertices), against the all-pairs test. The pairs come
     sorted along the loop. Chunk 7: the broad phase in many queries along the loop."""
