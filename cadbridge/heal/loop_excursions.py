@@ -137,7 +137,7 @@ def _best_pair(xyz: np.ndarray, uv: np.ndarray, width: float) -> tuple[int, int,
     # (still exact curve points), k so that about `MAX_PAIRS` are left, and k samples no
     # farther apart than width / 8 (where the samples are sparse against the width, as on
     # a Z a few samples wide, every one counts)
-    count = tree.count_neighbors(tree, width)  # ordered pairs, each sample with itself included
+    count = tree.count_neighbors(tree, width) if n * (n - 1) > 2 * MAX_PAIRS else n  # ordered pairs, self included
     stride = 1
     if count - n > 2 * MAX_PAIRS:
         gaps = np.linalg.norm(np.diff(xyz, axis=0), axis=1)
@@ -346,8 +346,8 @@ def _proper_crossings(a: np.ndarray, b: np.ndarray, *, skip: np.ndarray | None =
     mid = 0.5 * (a + b)
     length = np.linalg.norm(b - a, axis=1)
     half = 0.5 * length
-    # broad phase: points every `step` (the mean edge length) at most along each edge; two edges that meet have points
-    # within `step` of each other. (A query at the longest edge's length over the midpoints was
+    # broad phase: points every `step` (the mean edge length) at most along each edge; two
+    # edges that meet have points within `step` of each other. (A query at the longest edge's length over the midpoints was
     # O(M^2) pairs where one edge is long: 20 of the 35 s of reading trj10_b2, 251 faces.)
     # Queried in chunks along the loop, so that a loop retracing itself (trj6_b1: 82 944
     # samples, strands within 2e-5 of each other) stops at ``limit`` instead of pairing all.
@@ -365,34 +365,25 @@ def _proper_crossings(a: np.ndarray, b: np.ndarray, *, skip: np.ndarray | None =
     def side(p, q, r):  # orientation of r against the line p -> q
         return (q[:, 0] - p[:, 0]) * (r[:, 1] - p[:, 1]) - (q[:, 1] - p[:, 1]) * (r[:, 0] - p[:, 0])
 
-    out, found = [], 0
-    chunk = _CHUNK
-    for c0 in range(0, len(pts), chunk):  # points in loop order: edges i in order
-        sub = cKDTree(pts[c0:c0 + chunk])
+    keys = []  # i * m + j of the pairs that meet, per chunk
+    for c0 in range(0, len(pts), _CHUNK):  # points in loop order: edges i in order
+        sub = cKDTree(pts[c0:c0 + _CHUNK])
         d = sub.sparse_distance_matrix(tree, step, output_type="ndarray")
         i, j = edge[c0 + d["i"]], edge[d["j"]]
         key = np.unique((i * m + j)[j - i > 1])  # one per edge pair (a 1-D sort: unique(axis=0) took 17 s on bug32596)
         i, j = key // m, key % m
         keep = ~((i == 0) & (j == m - 1)) & (np.linalg.norm(mid[i] - mid[j], axis=1) <= half[i] + half[j])
-        i, j = i[keep], j[keep]
+        i, j, key = i[keep], j[keep], key[keep]
         s1, s2, s3, s4 = side(a[i], b[i], a[j]), side(a[i], b[i], b[j]), side(a[j], b[j], a[i]), side(a[j], b[j], b[i])
-        hit = (s1 * s2 <= 0) & (s3 * s4 <= 0) & ~((s1 == 0) & (s2 == 0))
-        out.append(np.column_stack([i[hit], j[hit]]))
-        found += int(hit.sum())
-        if limit is not None and found >= limit:
-            # the pairs of the edges wholly in the chunks done are complete; an edge whose
-            # points run on into the next chunk may miss pairs: those are left out
-            last = int(edge[min(c0 + chunk, len(pts)) - 1])
-            done = np.concatenate(out)
-            done = done[done[:, 0] < last] if c0 + chunk < len(pts) else done
-            done = np.unique(done, axis=0)  # an edge's points in two chunks: its pairs twice
+        keys.append(key[(s1 * s2 <= 0) & (s3 * s4 <= 0) & ~((s1 == 0) & (s2 == 0))])
+        if limit is not None and c0 + _CHUNK < len(pts):
+            # the pairs of the edges wholly in the chunks done are complete (an edge whose
+            # points run on into the next chunk may still miss some)
+            done = np.unique(np.concatenate(keys))  # an edge's points in two chunks: its pairs twice
+            done = done[done // m < edge[c0 + _CHUNK - 1]]
             if len(done) >= limit:
-                out = [done]
-                break
-    res = np.concatenate(out) if out else none
-    if len(res) == 0:
-        return none
-    key = np.unique(res[:, 0] * m + res[:, 1])  # an edge's points in two chunks: its pairs twice
+                return np.column_stack([done // m, done % m])
+    key = np.unique(np.concatenate(keys))
     return np.column_stack([key // m, key % m])  # sorted by (i, j)
 
 

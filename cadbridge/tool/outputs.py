@@ -130,6 +130,7 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
 class OutputFolderError(OSError):
     """The output folder cannot be made or written (its parent is a file, read-only, ...)."""
 
+
 @contextmanager
 def staged_output(output: str | os.PathLike) -> Iterator[Path]:
     """Write into a temporary folder beside ``output``; move the files into place only on
