@@ -79,6 +79,7 @@ class ToolResult:
     element_face: np.ndarray | None = None  # (E,) face of each element (global numbering)
     diagnosis: list[str] = field(default_factory=list)  # worst elements, when worse than flat
     trips: GuardTrips | None = None  # elements that trip the guards (their ids as data)
+    moved_nodes: np.ndarray | None = None  # (K,) how far nodes were moved onto the CAD (`onto_cad`)
 
 def element_blocks(mesh: Mesh) -> list[np.ndarray]:
     return [np.asarray(b.data) for b in mesh.cells]
@@ -497,7 +498,8 @@ def tools_from_mesh(
     errors (`build_tool`). ``orient``: re-orient an inconsistently wound mesh
     (`consistently_oriented`) instead of raising. ``meshed_per_face``: the mesh was made face
     by face from this CAD (gmsh), so no element can span two faces; only crease lines inside
-    faces are checked for straddling elements. ``measure``: False skips the errors against
+    faces are checked for straddling elements; and nodes the mesher left off their trimmed
+    face are moved onto it (`cadbridge.tool.onto_cad`; ``ToolResult.moved_nodes``). ``measure``: False skips the errors against
     the CAD (`build_tool`)."""
     progress = progress or NoProgress()
     mesh = consistently_oriented(mesh, orient)
@@ -506,6 +508,14 @@ def tools_from_mesh(
     normals, corners, node_face, node_dist, elem_face, cn = tool_normals(
         mesh, model, method, tolerance=tolerance, flip=flip, allow_far=allow_far
     )
+    moved = None
+    if cn is not None and meshed_per_face:  # cadbridge's own mesh: its nodes onto their feet
+        from cadbridge.tool.onto_cad import onto_cad
+
+        mesh, moved = onto_cad(mesh, cn.projection.foot, cn.distance, cn.status, model.size())
+        if len(moved):
+            node_dist = node_dist.copy()
+            node_dist[moved.nodes] = 0.0
     straddle = np.zeros(mesh.n_elements, dtype=bool)
     if cn is not None:
         from cadbridge.heal.creases import straddling_elements
@@ -543,6 +553,10 @@ def tools_from_mesh(
             element_face=None if elem_face is None else np.concatenate(elem_face)[sel],
             straddling=np.flatnonzero(straddle[sel]), measure=measure,
         ))
+        if moved is not None:
+            mine = np.zeros(len(mesh.nodes), dtype=bool)
+            mine[used] = True
+            tools[-1].moved_nodes = moved.distance[mine[moved.nodes]]
     return tools
 
 def check_tools(tools: list[ToolResult], allow_worse: bool = False, refinement: str = "") -> None:

@@ -63,6 +63,13 @@ def meshed_face_by_face(mesh: Mesh) -> bool:
     return ent is not None and len(ent) == mesh.n_elements and bool(np.all(np.asarray(ent) >= 1))
 
 
+def _moved_notes(tools: list[ToolResult]) -> list[str]:
+    """One line per tool whose nodes were moved onto the CAD (`cadbridge.tool.onto_cad`)."""
+    from cadbridge.tool.onto_cad import moved_note
+
+    return [n for t in tools if (n := moved_note(t.name, t.moved_nodes))]
+
+
 def guarded_mesh(
     cad: str,
     model,
@@ -182,7 +189,7 @@ def nagata_from_mesh(
                             meshed_per_face=meshed_face_by_face(mesh))
     check_tools(tools, allow_worse)
     units = model.units.name if model is not None else "MM"
-    result = RunResult(Path(output), tools, notes=healed_notes(excursions))
+    result = RunResult(Path(output), tools, notes=healed_notes(excursions) + _moved_notes(tools))
     with staged_output(output) as tmp:
         for t in tools:
             progress.stage(f"{t.name}: writing tool file{' and report' if report else ''}")
@@ -272,7 +279,7 @@ def convert(
     for t in tools:
         measure_tool(t, model, projector=projector, grid=grid, progress=progress)
     check_tools(tools, allow_worse, refinement=refined)
-    result = RunResult(Path(output), tools, notes=notes)
+    result = RunResult(Path(output), tools, notes=notes + _moved_notes(tools))
     with staged_output(output) as tmp:
         write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
         result.files.append(f"{mesh.name}_mesh.msh")

@@ -90,11 +90,6 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
         'refused: /tmp/cadbridge-mesh-77s_8hqf/trj6_b1-ec-214.brep: gmsh failed: Impossible to mesh periodic surface 7; meshing gmsh surface 7 (Cone) in its (u, v) did not work either: gmsh surface 7 (Cone): i',
     ('trj6_b1-ec-214.stp', 'tri'):
         "failed: exit 1: solid: Nagata surface error 9.36 exceeds the flat mesh's 0.949 on 529 elements; worst: element 1144 (9.36 vs flat 0.948): inadmissible edge 686-650 (the edge curve turns back); element",
-    # since 7e342de: both sewing tolerances of its B-rep fail in gmsh's import ("Could not fix
-    # wire"), and the unsewn import (third attempt) puts nodes 3e-3 mm off OCC's shape; before,
-    # OCC's reading of the file converted soundly (4298 nodes)
-    ('trj8_k1-ct-214.stp', 'quad'):
-        'converted (nodes off the CAD: 2.30e-05 x size (tolerance 3e-06))',
     ('trj8_b1-ec-214.stp', 'quad'):
         'failed: exit 1: 49 of 57204 mesh nodes are further than 0.0304 from the CAD (or could not be projected): node 38340 at (175.582, 35.1211, 10.851) distance 0.536745, node 25475 at (175.582, -35.1211, 1',
     ('trj8_b1-ec-214.stp', 'tri'):

@@ -1,0 +1,96 @@
+"""Mesh nodes moved onto the trimmed CAD faces they were projected to.
+
+gmsh places each node on its face's surface, but not always inside the trimmed face: in a
+narrow or concave part of a face (a sliver between a trim curve and a fillet's end) its
+smoothing and quad recombination can leave an interior node a little outside the trim
+curve (K1 from CATIA V5: four nodes 0.0031 mm outside, 2.3e-5 x size). The exact CAD normal
+is taken at the node's foot on the trimmed face (`cadbridge.normals.cad.cad_normals`), so a
+node left where gmsh put it carries a normal from another point. `onto_cad` moves such nodes
+to their feet: node and normal then belong to the same point of the CAD.
+
+A node is moved only where its projection converged or ended on a face boundary, where it is
+more than ``SNAP_REL`` x model size from its foot, and where no element around it turns over
+by the move (its normal reversed); otherwise it stays where the mesher put it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from cadbridge.cad.search import CONVERGED, ON_BOUNDARY
+from cadbridge.mesh.mesh import Mesh
+
+__all__ = ["SNAP_REL", "MovedNodes", "moved_note", "onto_cad"]
+
+SNAP_REL = 1e-9  # nodes nearer their foot than this x model size are on the CAD already
+
+
+@dataclass(frozen=True)
+class MovedNodes:
+    """What `onto_cad` did: ``nodes`` (K,) indices moved, ``distance`` (K,) how far each moved
+    (model units), ``kept`` how many off-CAD nodes stayed because an element would turn over."""
+
+    nodes: np.ndarray
+    distance: np.ndarray
+    kept: int = 0
+
+    def __len__(self) -> int:
+        return len(self.nodes)
+
+
+def _element_normals(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """Area vectors (E, 3) of triangles (E, 3) or quads (E, 4) (cross product of the diagonals)."""
+    if cells.shape[1] == 3:
+        return np.cross(x[cells[:, 1]] - x[cells[:, 0]], x[cells[:, 2]] - x[cells[:, 0]])
+    return np.cross(x[cells[:, 2]] - x[cells[:, 0]], x[cells[:, 3]] - x[cells[:, 1]])
+
+
+def onto_cad(mesh: Mesh, foot: np.ndarray, distance: np.ndarray, status: np.ndarray, size: float
+             ) -> tuple[Mesh, MovedNodes]:
+    """``mesh`` with its nodes farther than ``SNAP_REL`` x ``size`` from their ``foot`` (N, 3)
+    on the trimmed CAD moved there (``distance`` (N,), ``status`` (N,) of the projection,
+    `cadbridge.cad.search.Projection`). A move that would reverse an element's normal (its
+    area vector against the one before, per element around the node) is not made. Returns
+    (the mesh, unchanged where nothing moves, and a `MovedNodes`)."""
+    off = (distance > SNAP_REL * size) & np.isin(status, (CONVERGED, ON_BOUNDARY)) & np.isfinite(distance)
+    if not off.any():
+        return mesh, MovedNodes(np.zeros(0, dtype=np.int64), np.zeros(0))
+    x = np.asarray(mesh.nodes, dtype=float)
+    new = x.copy()
+    new[off] = foot[off]
+    kept = np.zeros(len(x), dtype=bool)
+    for _ in range(4):  # undoing one node's move can turn over an element of a neighbour's
+        turned = False
+        for b in mesh.cells:
+            c = np.asarray(b.data)
+            touched = off[c].any(axis=1)
+            if not touched.any():
+                continue
+            c = c[touched]
+            before, after = _element_normals(x, c), _element_normals(new, c)
+            over = np.einsum("ij,ij->i", before, after) <= 0.0
+            if over.any():
+                back = np.unique(c[over])
+                back = back[off[back]]
+                new[back] = x[back]
+                off[back] = False
+                kept[back] = True
+                turned = True
+        if not turned:
+            break
+    moved = np.flatnonzero(off)
+    if not len(moved):
+        return mesh, MovedNodes(moved, np.zeros(0), int(kept.sum()))
+    return replace(mesh, nodes=new), MovedNodes(moved, distance[moved].copy(), int(kept.sum()))
+
+
+def moved_note(tool_name: str, distance: np.ndarray | None) -> str | None:
+    """The report line for a tool's nodes moved onto the CAD (``distance`` (K,), model
+    units), None where none moved."""
+    if distance is None or not len(distance):
+        return None
+    return (f"{tool_name}: {len(distance)} mesh node{'s' if len(distance) > 1 else ''} the mesher left off "
+            f"{'their' if len(distance) > 1 else 'its'} trimmed face (up to {float(np.max(distance)):.3g}) "
+            f"moved onto {'them' if len(distance) > 1 else 'it'}")
