@@ -291,6 +291,13 @@ def _snap_and_mark(c: np.ndarray, ef: np.ndarray, uv: np.ndarray, model: Model, 
     return pm
 
 
+def _centre_value(fv: np.ndarray) -> np.ndarray:
+    """Mean of each row of corner values (E, k), kept within the row's range: an element of
+    constant value gets exactly that value at its centre (a rounded mean of 3, 5 or 6 equal
+    values can miss it by an ulp, which would tip a plateau at a level off the level)."""
+    return np.clip(fv.mean(axis=1), fv.min(axis=1), fv.max(axis=1))
+
+
 def _regular_triangles(out: _SubTriangles, c: np.ndarray, uv: np.ndarray, fv: np.ndarray, ef: np.ndarray,
                        reg: np.ndarray, eidx: np.ndarray, n: int) -> None:
     """Sub-triangles of the elements ``reg`` (indices into the block) without a pole corner:
@@ -300,7 +307,7 @@ def _regular_triangles(out: _SubTriangles, c: np.ndarray, uv: np.ndarray, fv: np
         out.add(uv[reg], fv[reg], c[reg].astype(np.int64), ef[reg])
         return
     cu = uv[reg].mean(axis=1)
-    cf = fv[reg].mean(axis=1)
+    cf = _centre_value(fv[reg])
     ck = n + eidx[reg]
     for k in range(4):
         k1 = (k + 1) % 4
@@ -337,7 +344,7 @@ def _pole_triangles(out: _SubTriangles, e: int, f: int, keys: np.ndarray, uv: np
     if len(pu) == 3:
         out.add(pu[None], pf[None], pk[None], np.array([f]))
         return
-    cu, cf = pu.mean(axis=0), pf.mean()
+    cu, cf = pu.mean(axis=0), float(_centre_value(pf[None])[0])
     for i in range(len(pu)):
         i1 = (i + 1) % len(pu)
         out.add(np.array([[cu, pu[i], pu[i1]]]), np.array([[cf, pf[i], pf[i1]]]),

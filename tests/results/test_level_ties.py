@@ -220,3 +220,39 @@ def test_sphere_level_through_both_poles(tmp_path):
     assert np.isclose(L.lengths()[0], 2 * np.pi * R, rtol=1e-4)
     got, _ = _occ_bands(c, tmp_path)
     assert np.isclose(sum(got), 4 * np.pi * R**2, rtol=1e-6)
+
+
+def test_sphere_plateau_over_pole_quads(tmp_path):
+    """Sphere R 1.5 whose pole elements are quads (pole + three ring nodes: in (u, v) a
+    pentagon split at its centre), f = min(z, 0.8001): constant over the cap above the row
+    z = 1.0607, poles included (0.8001 is a value whose rounded mean of five copies is 1 ulp
+    off: the centre values must still be exactly 0.8001). Reference: analytic -- the zone
+    formula 2 pi R dz: the plateau is the band 0.8001 .. 1.2 (the cap above the row), the
+    band below reaches from the equator to that row (rel 1e-9); the lines are the parallels at
+    the equator and at the row; OCC's band faces sum to 4 pi R^2 (rel 1e-6)."""
+    R, c = 1.5, 0.8001
+    model, mesh, lat = sphere_case(R)
+    tri, quad = mesh.cells[0].data, mesh.cells[1].data
+    nlon = len(tri) // 2
+    south, north = tri[0, 0], tri[-1, 2]
+    ring0, ring1 = tri[:nlon, 2], tri[nlon:, 0]  # the first and last rows, in fan order
+    j = np.arange(0, nlon, 2)
+    j1, j2 = (j + 1) % nlon, (j + 2) % nlon
+    pole_quads = np.vstack([np.column_stack([np.full(len(j), south), ring0[j2], ring0[j1], ring0[j]]),
+                            np.column_stack([ring1[j], ring1[j1], ring1[j2], np.full(len(j), north)])])
+    qmesh = Mesh(mesh.nodes, [CellBlock("quad", np.vstack([quad, pole_quads]))])
+    m = map_results(qmesh, np.minimum(qmesh.nodes[:, 2], c), model)
+    assert m.pole.sum() == 2
+    plateau = np.all(np.abs(m.tri_f - c) <= 1e-12, axis=1)
+    at_pole = np.isin(m.tri_key, [north]).any(axis=1) & plateau
+    assert at_pole.sum() >= 3 * len(j) and np.all(m.tri_f[plateau] == c)  # centre values exact
+    row = R * np.sin(lat[8])
+    cc = m.contour([0.0, c, 1.2])
+    zone = 2 * np.pi * R * np.array([R, row, R - row, 0.0])
+    assert np.allclose(cc.bands.area, zone, rtol=1e-9, atol=1e-12)
+    L = cc.lines
+    assert len(L) == 2 and L.closed.all()
+    z_line = np.where(L.level == 0, 0.0, row)
+    assert np.max(np.abs(L.points[:, 2] - np.repeat(z_line, np.diff(L.offsets)))) <= 1e-12 * model.size()
+    got, _ = _occ_bands(cc, tmp_path)
+    assert np.isclose(sum(got), 4 * np.pi * R**2, rtol=1e-6)
