@@ -163,12 +163,14 @@ def _level_edges(mapping, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
     nk = np.int64(mapping.n_keys)
     rows, ia, ib, lev, up, code = [], [], [], [], [], []
     for i, j in _EDGES:
-        fi = tf[:, i]
-        k = np.minimum(np.searchsorted(levels, fi), L - 1)
-        r = np.flatnonzero((fi == tf[:, j]) & (levels[k] == fi) & (tkey[:, i] != tkey[:, j]))
+        r = np.flatnonzero(tf[:, i] == tf[:, j])  # few in general: level tests on these only
+        c = tf[r, i]
+        kr = np.minimum(np.searchsorted(levels, c), L - 1)
+        on = (levels[kr] == c) & (tkey[r, i] != tkey[r, j])
+        r, c, kr = r[on], c[on], kr[on]
         if not len(r):
             continue
-        c, f3, kr = fi[r], tf[r, 3 - i - j], k[r]
+        f3 = tf[r, 3 - i - j]
         ki, kj = tkey[r, i], tkey[r, j]
         rows.append(r)
         ia.append(np.full(len(r), i))
