@@ -461,18 +461,21 @@ def _clip_side(poly: list, axis: int, c: float, keep_below: bool, cut_keys: dict
             t = (c - p[0][axis]) / (q[0][axis] - p[0][axis])
             uv = p[0] + t * (q[0] - p[0])
             uv[axis] = c
-            key = cut_keys.get((p[2], q[2]))
-            if key is None:
-                key = cut_keys[(p[2], q[2])] = n_keys[0]
+            cut = cut_keys.get((p[2], q[2]))
+            if cut is None:  # the first triangle through this mesh edge fixes its key and value
+                cut = cut_keys[(p[2], q[2])] = (n_keys[0], p[1] + t * (q[1] - p[1]))
                 n_keys[0] += 1
-            out.append((uv, p[1] + t * (q[1] - p[1]), key))
+            out.append((uv, cut[1], cut[0]))
     return out
 
 
 def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology], n_keys: int):
     """Cut sub-triangles that reach beyond a seam at the seam line; the far part moves back by
-    one period. New vertices get keys per cut mesh edge (the same on both sides). Both
-    directions in turn (a torus' corner element crosses two seams)."""
+    one period. New vertices get a key and a field value per cut mesh edge, the same on both
+    sides and in every triangle along that edge (each triangle's own (u, v) of the edge,
+    unwrapped its way, would round the interpolated value differently: a level through the
+    cut must see one value). Both directions in turn (a torus' corner element crosses two
+    seams)."""
     cut_keys: dict = {}
     nk = [n_keys]
     for axis in (0, 1):

@@ -19,10 +19,10 @@ from tests.results.test_export import occ_faces  # noqa: E402
 from tests.results.test_mapping import cylinder_case, plane_case, sphere_case  # noqa: E402
 
 
-def _ring_mesh(R: float, z: np.ndarray, nt: int, offset: float, angle: float = 2 * np.pi) -> Mesh:
+def _ring_mesh(R: float, z: np.ndarray, nt: int, offset: float, angle: float = 2 * np.pi, flip: bool = False) -> Mesh:
     """Triangles on node rings of a cylinder about +z: nt nodes per ring at angles offset +
     k angle / nt (a closed ring for a full turn, nt + 1 nodes on an open strip otherwise),
-    rings at heights z (n,)."""
+    rings at heights z (n,); each quad split along one diagonal (the other with ``flip``)."""
     closed = np.isclose(angle, 2 * np.pi)
     n_th = nt if closed else nt + 1
     th = offset + np.arange(n_th) * angle / nt
@@ -32,7 +32,8 @@ def _ring_mesh(R: float, z: np.ndarray, nt: int, offset: float, angle: float = 2
     nxt = np.roll(idx, -1, axis=0) if closed else idx[1:]
     idx = idx if closed else idx[:-1]
     q = np.column_stack([idx[:, :-1].ravel(), nxt[:, :-1].ravel(), nxt[:, 1:].ravel(), idx[:, 1:].ravel()])
-    return Mesh(nodes, [CellBlock("triangle", np.vstack([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]))])
+    split = ([0, 1, 3], [1, 2, 3]) if flip else ([0, 1, 2], [0, 2, 3])
+    return Mesh(nodes, [CellBlock("triangle", np.vstack([q[:, split[0]], q[:, split[1]]]))])
 
 
 def _level_of_points(lines) -> np.ndarray:
@@ -102,6 +103,30 @@ def test_full_cylinder_level_on_a_node_ring(occ_cylinder, offset, tmp_path):
     assert sorted(L.level.tolist()) == [1, 2] and L.closed.all()
     assert np.max(np.abs(L.points[:, 2] - _level_of_points(L))) <= 1e-12 * model.size()
     assert np.allclose(L.lengths(), 2 * np.pi * R, rtol=1e-4)
+
+
+def test_full_cylinder_level_through_the_seam_cuts(occ_cylinder, tmp_path):
+    """OCC's cylinder R 20 x 50, 36 nodes per ring half a step off the seam, so every diagonal
+    across the seam is cut at its midpoint, where f = z takes the level 32.5 between the rings
+    30 and 35. Both triangles along such a diagonal must see the one value of the cut.
+    References: analytic band areas 2 pi R dz (rel 1e-9); the line z = 32.5 is one closed
+    circle through the seam (z = c within 1e-12 x size, length 2 pi R); OCC's band faces, one
+    per band, sum to 2 pi R H (rel 1e-6)."""
+    model, cad_area = occ_cylinder
+    R, z0, z1 = 20.0, 10.0, 60.0
+    mesh = _ring_mesh(R, np.linspace(z0, z1, 11), 36, np.pi / 36, flip=True)
+    m = map_results(mesh, mesh.nodes[:, 2], model, field_name="z")
+    levels = [0.0, 22.0, 32.5, 70.0]
+    c = m.contour(levels)
+    exact = 2 * np.pi * R * np.diff(np.clip([-np.inf, *levels, np.inf], z0, z1))
+    assert np.allclose(c.bands.area, exact, rtol=1e-9, atol=0)
+    L = c.lines
+    assert sorted(L.level.tolist()) == [1, 2] and L.closed.all()
+    assert np.max(np.abs(L.points[:, 2] - _level_of_points(L))) <= 1e-12 * model.size()
+    assert np.allclose(L.lengths(), 2 * np.pi * R, rtol=1e-4)
+    got, rows = _occ_bands(c, tmp_path)
+    assert sorted(r["band"] for r in rows) == [1, 2, 3]
+    assert np.isclose(sum(got), 2 * np.pi * R * (z1 - z0), rtol=1e-6)
 
 
 # ----------------------------------------------------------------------------- plane
