@@ -281,3 +281,32 @@ def test_sphere_plateau_over_pole_quads(tmp_path):
     assert np.max(np.abs(L.points[:, 2] - np.repeat(z_line, np.diff(L.offsets)))) <= 1e-12 * model.size()
     got, _ = _occ_bands(cc, tmp_path)
     assert np.isclose(sum(got), 4 * np.pi * R**2, rtol=1e-6)
+
+
+def test_level_on_a_curved_trim(tmp_path):
+    """trimmed_hole.igs (100 x 60 plate, R 10 hole at (30, 25)), gmsh 4 mm triangles, f = the
+    distance r from the hole's centre (exactly 10 at the nodes on the circle), levels 5, 10:
+    the border chords on the circle lie on the top level, whose value counts as below it,
+    while the triangles along them are above it. The slivers between those chords and the
+    circle belong to their triangles' band. Reference: analytic -- everything is the band
+    > 10, the plate minus the hole (rel 1e-12), the band 5 .. 10 is empty (not a negative
+    sliver sum); no line (the level only touches the border); OCC reads one band face of the
+    same area (rel 1e-9)."""
+    from pathlib import Path
+
+    from cadbridge.iges import read_iges
+    from cadbridge.mesh.generate import mesh_cad
+
+    path = Path(__file__).resolve().parents[2] / "iges_samples" / "trimmed_hole.igs"
+    model = read_iges(path)
+    mesh = mesh_cad(path, element="tri", size=4.0)
+    r = np.hypot(mesh.nodes[:, 0] - 30.0, mesh.nodes[:, 1] - 25.0)
+    on = np.abs(r - 10.0) <= 1e-9
+    m = map_results(mesh, np.where(on, 10.0, r), model)
+    assert on.sum() >= 8 and len(m.arcs) == on.sum()
+    c = m.contour([5.0, 10.0])
+    total = 100 * 60 - np.pi * 10**2
+    assert c.bands.area[0] == 0 and c.bands.area[1] == 0 and np.isclose(c.bands.area[2], total, rtol=1e-12)
+    assert len(c.lines) == 0
+    got, _ = _occ_bands(c, tmp_path)
+    assert len(got) == 1 and np.isclose(got[0], total, rtol=1e-9)
