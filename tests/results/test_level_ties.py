@@ -129,6 +129,27 @@ def test_full_cylinder_level_through_the_seam_cuts(occ_cylinder, tmp_path):
     assert np.isclose(sum(got), 2 * np.pi * R * (z1 - z0), rtol=1e-6)
 
 
+def test_cylinder_level_through_element_centres_on_the_seam(tmp_path):
+    """NURBS cylinder R 2, H 3, quads half a step off the seam, so the seam runs through their
+    centres (split vertices whose value is the mean of the corners), f = z, levels 0.25 and
+    1.75 (mid-rows: through those centres) and 0.5 (a node row). The seam cut must keep a
+    centre on the seam line as it is (no second point of another name beside it).
+    References: analytic band areas 2 pi R dz (rel 1e-9), one region per band; the lines
+    are closed circles z = c (1e-12 x size); OCC's band faces sum to 2 pi R H (rel 1e-6)."""
+    R, H = 2.0, 3.0
+    model, mesh = cylinder_case(R, H, nt=24, offset=np.pi / 24)
+    m = map_results(mesh, mesh.nodes[:, 2], model)
+    levels = [0.25, 0.5, 1.75]
+    c = m.contour(levels)
+    assert np.allclose(c.bands.area, 2 * np.pi * R * np.diff([0.0, *levels, H]), rtol=1e-9, atol=0)
+    assert sorted(r.band for r in c.bands.regions()) == [0, 1, 2, 3]
+    L = c.lines
+    assert len(L) == 3 and L.closed.all()
+    assert np.max(np.abs(L.points[:, 2] - _level_of_points(L))) <= 1e-12 * model.size()
+    got, _ = _occ_bands(c, tmp_path)
+    assert np.isclose(sum(got), 2 * np.pi * R * H, rtol=1e-6)
+
+
 # ----------------------------------------------------------------------------- plane
 @pytest.mark.parametrize("case", ["clamped", "zero region"])
 def test_plane_plateaus_and_levels_on_node_columns(case, tmp_path):
