@@ -10,8 +10,8 @@ and another above (`_level_edges`; the tie-break of `cadbridge.results.levels`),
 lines are the borders of the bands. A crossing is named by its edge's vertex keys and the
 level (a vertex by its own key), so the segments of neighbouring elements -- on one face,
 on two faces sharing an edge, on both sides of a seam -- meet at the same named point and
-are chained into polylines. Each segment is evaluated on the exact surface, S(u(t), v(t)), subdivided
-until its chord deviates from the surface by at most ``chord_tol``.
+are chained into polylines. Each segment is evaluated on the exact surface, S(u(t), v(t)),
+subdivided until its chord deviates from the surface by at most ``chord_tol``.
 
 Where a line passes from face A to face B the crossing is computed on the lower-numbered
 face and projected onto the other (Newton from its own interpolated (u, v)), so both

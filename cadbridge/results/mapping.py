@@ -452,11 +452,9 @@ def _clip_side(poly: list, axis: int, c: float, keep_below: bool, cut_keys: dict
     m = len(poly)
     for i in range(m):
         a, b = poly[i], poly[(i + 1) % m]
-        ina = a[0][axis] <= c if keep_below else a[0][axis] >= c
-        inb = b[0][axis] <= c if keep_below else b[0][axis] >= c
-        if ina:
+        if (a[0][axis] <= c) if keep_below else (a[0][axis] >= c):
             out.append(a)
-        if (a[0][axis] - c) * (b[0][axis] - c) < 0:  # strictly across (a vertex on the line is kept as is)
+        if (a[0][axis] - c) * (b[0][axis] - c) < 0:  # strictly across: a vertex on the line stays itself
             p, q = (a, b) if a[2] < b[2] else (b, a)  # canonical order: same cut on both sides
             t = (c - p[0][axis]) / (q[0][axis] - p[0][axis])
             uv = p[0] + t * (q[0] - p[0])
@@ -490,7 +488,8 @@ def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology],
             eps = 1e-12 * (hi - lo)
             # vertices on the seam line (element centres too) exactly on it: a cut never
             # passes a hair beside a vertex, which would make a second point of another name
-            x = t_uv[sel, :, axis] = _snap(t_uv[sel, :, axis], lo, hi)
+            t_uv[sel, :, axis] = _snap(t_uv[sel, :, axis], lo, hi)
+            x = t_uv[sel, :, axis]
             out = sel[(x.max(axis=1) > hi + eps) | (x.min(axis=1) < lo - eps)]
             drop[out] = True
             for ti in out:
