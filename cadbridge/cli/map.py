@@ -19,7 +19,7 @@ import numpy as np
 
 __all__ = ["register", "cmd_map", "parse_levels"]
 
-_CACHE_VERSION = "cadbridge-map-1"
+_CACHE_VERSION = "cadbridge-map-2"  # 2: seam cuts and element centre values exact at levels (issue 34)
 
 
 def parse_levels(text: str) -> int | list[float]:

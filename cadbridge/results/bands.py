@@ -3,7 +3,10 @@ each face's (u, v) and their exact area (Hawkins 1989, ch. 5: contour/trim regio
 
 Band numbering for levels c_0 < ... < c_{L-1}: band 0 is f < c_0, band i (1 <= i <= L-1) is
 c_{i-1} <= f <= c_i, band L is f > c_{L-1} (the open bands exist only where the field leaves
-the level range, e.g. with --min / --max).
+the level range, e.g. with --min / --max). Values equal to a level: a sub-triangle that a
+level only touches (at a vertex or along an edge) lies whole in the band of its interior;
+one of constant value lies in `band_index`'s band (`cadbridge.results.levels`). So no piece
+has zero area, and every triangle is decided the same way on every face and seam side.
 
 A sub-triangle of the mapping whose three values lie in one band belongs to it whole; its
 exact area was computed once by the mapping. A sub-triangle that levels cross is clipped
@@ -68,7 +71,7 @@ def _clip(poly: np.ndarray, cnt: np.ndarray, c: np.ndarray, keep_above: bool) ->
             q = np.where(swap[:, None], pa, pb)
             cc = c[m]
             t = (cc - p[:, 2]) / (q[:, 2] - p[:, 2])
-            x = p + t[:, None] * (q - p)
+            x = np.where((t == 1.0)[:, None], q, p + t[:, None] * (q - p))  # a vertex on c: itself
             x[:, 2] = cc
             out[rows[m], ncnt[m]] = x
             ncnt += m
@@ -382,6 +385,12 @@ def _slivers(mapping, levels: np.ndarray):
     k, t0, t1 = k[keep], t0[keep], t1[keep]
     fm = fa[k] + 0.5 * (t0 + t1) * (fb[k] - fa[k])
     band = band_index(fm, levels)
+    # a chord of constant value on a level: the sliver (constant too) joins its sub-triangle's
+    # band, the side of the level where the triangle's third vertex lies
+    f3 = mapping.tri_f[arcs.tri[k], (arcs.edge[k] + 2) % 3]
+    flat = (fa[k] == fb[k]) & np.isin(fm, levels) & (f3 != fm)
+    band[flat] = np.where(f3[flat] < fm[flat], np.searchsorted(levels, fm[flat], side="left"),
+                          np.searchsorted(levels, fm[flat], side="right"))
     return k, band, t0, t1, arcs.sliver_area(mapping, k, t0, t1)
 
 
@@ -399,13 +408,12 @@ def band_areas(mapping, levels: np.ndarray, quadrature: int = 4, ranks: tuple[np
     upper = np.concatenate([levels, [np.inf]])
     if ranks is None:
         ranks = level_ranks(mapping, levels)
-    # band_index is monotone: the bands of a triangle's extreme values bound its bands; a
-    # value equal to the top level belongs to the top interior band
+    # a triangle meets bands lo .. hi with positive area (`level_ranks`: a level equal to its
+    # smallest or largest value only touches it); a constant one lies in band_index's band
     fmin, fmax = mapping.tri_range
     bmin, bmax = ranks[0].copy(), ranks[1].copy()
-    if L >= 2:
-        bmin[fmin == levels[-1]] = L - 1
-        bmax[fmax == levels[-1]] = L - 1
+    const = fmin == fmax
+    bmin[const] = bmax[const] = band_index(fmin[const], levels)
     one = bmin == bmax
     whole = np.where(one, bmin, -1)
     face_area = np.bincount(np.where(one, bmin * F + mapping.tri_face, (L + 1) * F), weights=mapping.tri_area,

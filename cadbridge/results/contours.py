@@ -2,12 +2,16 @@
 
 Within each parameter-space sub-triangle of a `ResultMapping` the field is linear, so the
 iso-line f = c is a straight segment in (u, v) between the crossings of two triangle edges
-(marching triangles; a value equal to the level counts as above it, so every crossing lies on
-an edge with one end below and one at or above). A crossing is named by its edge's vertex
-keys and the level, so the segments of neighbouring elements -- on one face, on two faces
-sharing an edge, on both sides of a seam -- meet at the same named point and are chained
-into polylines. Each segment is evaluated on the exact surface, S(u(t), v(t)), subdivided
-until its chord deviates from the surface by at most ``chord_tol``.
+(marching triangles) where the level cuts the triangle, fmin < c < fmax; a crossing at a
+vertex whose value is c is that vertex. A level equal to a triangle's smallest or largest
+value only touches it: where two vertices lie on the level, the mesh edge between them is a
+line exactly when it separates two bands, i.e. a sub-triangle along it lies below the level
+and another above (`_level_edges`; the tie-break of `cadbridge.results.levels`), so the
+lines are the borders of the bands. A crossing is named by its edge's vertex keys and the
+level (a vertex by its own key), so the segments of neighbouring elements -- on one face,
+on two faces sharing an edge, on both sides of a seam -- meet at the same named point and
+are chained into polylines. Each segment is evaluated on the exact surface, S(u(t), v(t)),
+subdivided until its chord deviates from the surface by at most ``chord_tol``.
 
 Where a line passes from face A to face B the crossing is computed on the lower-numbered
 face and projected onto the other (Newton from its own interpolated (u, v)), so both
@@ -147,6 +151,48 @@ def _level_pairs(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return tri, first + step
 
 
+def _level_edges(mapping, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mesh edges lying on a level (both ends' values equal to it) that separate two bands:
+    of the sub-triangles along the edge (on any face, either side of a seam, named by the
+    edge's vertex keys), one lies below the level and one above it (by its third vertex; a
+    constant one by `band_index`'s rule). A ridge or valley on the level, or a border edge,
+    separates nothing. Returns per such edge one sub-triangle below it, the edge's local
+    vertices a, b and the level index, (E,) int64 each."""
+    tf, tkey = mapping.tri_f, mapping.tri_key
+    L = len(levels)
+    nk = np.int64(mapping.n_keys)
+    rows, ia, ib, lev, up, code = [], [], [], [], [], []
+    for i, j in _EDGES:
+        r = np.flatnonzero(tf[:, i] == tf[:, j])  # few in general: level tests on these only
+        c = tf[r, i]
+        kr = np.minimum(np.searchsorted(levels, c), L - 1)
+        on = (levels[kr] == c) & (tkey[r, i] != tkey[r, j])
+        r, c, kr = r[on], c[on], kr[on]
+        if not len(r):
+            continue
+        f3 = tf[r, 3 - i - j]
+        ki, kj = tkey[r, i], tkey[r, j]
+        rows.append(r)
+        ia.append(np.full(len(r), i))
+        ib.append(np.full(len(r), j))
+        lev.append(kr)
+        up.append((f3 > c) | ((f3 == c) & (kr < L - 1)))
+        code.append((np.minimum(ki, kj) * nk + np.maximum(ki, kj)) * L + kr)
+    if not rows:
+        z = np.zeros(0, dtype=np.int64)
+        return z, z, z, z
+    rows, ia, ib = np.concatenate(rows), np.concatenate(ia), np.concatenate(ib)
+    lev, up, code = np.concatenate(lev), np.concatenate(up), np.concatenate(code)
+    uniq, inv = np.unique(code, return_inverse=True)
+    n_up = np.bincount(inv, weights=up, minlength=len(uniq))
+    n_down = np.bincount(inv, weights=~up, minlength=len(uniq))
+    border = (n_up > 0) & (n_down > 0)
+    down = np.flatnonzero(~up & border[inv])
+    _, first = np.unique(inv[down], return_index=True)  # one segment per edge
+    sel = down[first]
+    return rows[sel], ia[sel], ib[sel], lev[sel]
+
+
 def _eval(model, face: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     out = np.empty((len(face), 3))
     for f in np.unique(face):
@@ -166,13 +212,7 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
     size = mapping.size
     tol = 1e-5 * size if chord_tol is None else float(chord_tol)
     tf, tuv, tkey, tface = mapping.tri_f, mapping.tri_uv, mapping.tri_key, mapping.tri_face
-    tri, lev = _level_pairs(lo, hi)
-    # a level at the field's maximum meets it only where it peaks (points, or edges of a
-    # plateau): no line is drawn there (nor at the minimum, which no triangle crosses)
-    at_max = levels >= float(np.max(mapping.values))
-    if at_max.any():
-        keep = ~at_max[lev]
-        tri, lev = tri[keep], lev[keep]
+    tri, lev = _level_pairs(lo, hi)  # the levels cutting a triangle: fmin < c < fmax
     c = levels[lev]
     above = tf[tri] >= c[:, None]  # (P, 3)
     # per pair, the two crossed edges (in edge order); canonical orientation by key
@@ -227,6 +267,16 @@ def contour_lines(mapping, levels: np.ndarray, *, chord_tol: float | None = None
     seg_arc = ends_arc[rows, idx]  # (P, 2, 2)
     seg_face = tface[tri]
     seg_lev = lev
+    # mesh edges on a level between two bands: segments from vertex point to vertex point
+    et, ea, eb, elev = _level_edges(mapping, levels)
+    if len(et):
+        ka, kb = tkey[et, ea], tkey[et, eb]
+        seg_code = np.concatenate([seg_code, np.column_stack([(ka * nk + ka) * len(levels) + elev,
+                                                              (kb * nk + kb) * len(levels) + elev])])
+        seg_uv = np.concatenate([seg_uv, np.stack([tuv[et, ea], tuv[et, eb]], axis=1)])
+        seg_arc = np.concatenate([seg_arc, np.full((len(et), 2, 2), np.nan)])
+        seg_face = np.concatenate([seg_face, tface[et]])
+        seg_lev = np.concatenate([seg_lev, elev])
     # drop segments of zero length in (u, v) on the same point name (a level through a vertex)
     keep = seg_code[:, 0] != seg_code[:, 1]
     seg_code, seg_uv, seg_face, seg_lev = seg_code[keep], seg_uv[keep], seg_face[keep], seg_lev[keep]

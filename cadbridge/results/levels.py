@@ -1,5 +1,14 @@
 """Contour levels: chosen from the data (`make_levels`) and ranked against each sub-triangle's
-value range (`level_ranks`), which both the lines and the bands of a mapping use."""
+value range (`level_ranks`), which both the lines and the bands of a mapping use.
+
+Values equal to a level (the tie-break every part of the results follows): inside a
+sub-triangle the field is linear, so a level c with fmin < c < fmax cuts it into two parts of
+positive area, and a level equal to fmin or fmax only touches it (at a vertex or along an
+edge: a set of zero area). Such a touching level decides nothing about the triangle: it lies
+in the band of its interior values, on the one side of c where its area is. Only a triangle
+of constant value equal to a level needs the rule of `bands.band_index`: a value equal to a
+level counts as above it, except the top level (its value counts as below).
+"""
 
 from __future__ import annotations
 
@@ -48,15 +57,17 @@ def _ranks_kernel(fmin, fmax, levels, lo, hi):  # pragma: no cover - compiled
         while k < n_lv and levels[k] <= a:
             k += 1
         lo[i] = k
-        while k < n_lv and levels[k] <= b:
+        while k < n_lv and levels[k] < b:
             k += 1
         hi[i] = k
 
 
 def level_ranks(mapping, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per sub-triangle, the number of levels <= its smallest and <= its largest value,
-    (T,) int64 each (``searchsorted(levels, f, side="right")``, one compiled pass): the
-    levels crossing it are those with rank in [lo, hi)."""
+    """Per sub-triangle, the number of levels <= its smallest value (lo) and < its largest
+    (hi), (T,) int64 each (``searchsorted(levels, fmin, "right")``, ``max(lo, searchsorted(levels,
+    fmax, "left"))``, one compiled pass): the levels that cut it, fmin < c < fmax, are those
+    with rank in [lo, hi), and a triangle that is not constant meets bands lo .. hi with
+    positive area (a constant one: hi = lo, its band but for the top level's exception)."""
     fmin, fmax = mapping.tri_range
     lo = np.empty(len(fmin), dtype=np.int64)
     hi = np.empty(len(fmin), dtype=np.int64)

@@ -291,6 +291,13 @@ def _snap_and_mark(c: np.ndarray, ef: np.ndarray, uv: np.ndarray, model: Model, 
     return pm
 
 
+def _centre_value(fv: np.ndarray) -> np.ndarray:
+    """Mean of each row of corner values (E, k), kept within the row's range: an element of
+    constant value gets exactly that value at its centre (a rounded mean of 3, 5 or 6 equal
+    values can miss it by an ulp, which would tip a plateau at a level off the level)."""
+    return np.clip(fv.mean(axis=1), fv.min(axis=1), fv.max(axis=1))
+
+
 def _regular_triangles(out: _SubTriangles, c: np.ndarray, uv: np.ndarray, fv: np.ndarray, ef: np.ndarray,
                        reg: np.ndarray, eidx: np.ndarray, n: int) -> None:
     """Sub-triangles of the elements ``reg`` (indices into the block) without a pole corner:
@@ -300,7 +307,7 @@ def _regular_triangles(out: _SubTriangles, c: np.ndarray, uv: np.ndarray, fv: np
         out.add(uv[reg], fv[reg], c[reg].astype(np.int64), ef[reg])
         return
     cu = uv[reg].mean(axis=1)
-    cf = fv[reg].mean(axis=1)
+    cf = _centre_value(fv[reg])
     ck = n + eidx[reg]
     for k in range(4):
         k1 = (k + 1) % 4
@@ -337,7 +344,7 @@ def _pole_triangles(out: _SubTriangles, e: int, f: int, keys: np.ndarray, uv: np
     if len(pu) == 3:
         out.add(pu[None], pf[None], pk[None], np.array([f]))
         return
-    cu, cf = pu.mean(axis=0), pf.mean()
+    cu, cf = pu.mean(axis=0), float(_centre_value(pf[None])[0])
     for i in range(len(pu)):
         i1 = (i + 1) % len(pu)
         out.add(np.array([[cu, pu[i], pu[i1]]]), np.array([[cf, pf[i], pf[i1]]]),
@@ -445,27 +452,28 @@ def _clip_side(poly: list, axis: int, c: float, keep_below: bool, cut_keys: dict
     m = len(poly)
     for i in range(m):
         a, b = poly[i], poly[(i + 1) % m]
-        ina = a[0][axis] <= c if keep_below else a[0][axis] >= c
-        inb = b[0][axis] <= c if keep_below else b[0][axis] >= c
-        if ina:
+        if (a[0][axis] <= c) if keep_below else (a[0][axis] >= c):
             out.append(a)
-        if ina != inb:
+        if (a[0][axis] - c) * (b[0][axis] - c) < 0:  # strictly across: a vertex on the line stays itself
             p, q = (a, b) if a[2] < b[2] else (b, a)  # canonical order: same cut on both sides
             t = (c - p[0][axis]) / (q[0][axis] - p[0][axis])
             uv = p[0] + t * (q[0] - p[0])
             uv[axis] = c
-            key = cut_keys.get((p[2], q[2]))
-            if key is None:
-                key = cut_keys[(p[2], q[2])] = n_keys[0]
+            cut = cut_keys.get((p[2], q[2]))
+            if cut is None:  # the first triangle through this mesh edge fixes its key and value
+                cut = cut_keys[(p[2], q[2])] = (n_keys[0], p[1] + t * (q[1] - p[1]))
                 n_keys[0] += 1
-            out.append((uv, p[1] + t * (q[1] - p[1]), key))
+            out.append((uv, cut[1], cut[0]))
     return out
 
 
 def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology], n_keys: int):
     """Cut sub-triangles that reach beyond a seam at the seam line; the far part moves back by
-    one period. New vertices get keys per cut mesh edge (the same on both sides). Both
-    directions in turn (a torus' corner element crosses two seams)."""
+    one period. New vertices get a key and a field value per cut mesh edge, the same on both
+    sides and in every triangle along that edge (each triangle's own (u, v) of the edge,
+    unwrapped its way, would round the interpolated value differently: a level through the
+    cut must see one value). Both directions in turn (a torus' corner element crosses two
+    seams)."""
     cut_keys: dict = {}
     nk = [n_keys]
     for axis in (0, 1):
@@ -478,6 +486,9 @@ def _cut_seams(t_uv, t_f, t_key, t_face, model: Model, topo: list[FaceTopology],
             sel = np.flatnonzero(t_face == f)
             lo, hi = dom[2 * axis], dom[2 * axis + 1]
             eps = 1e-12 * (hi - lo)
+            # vertices on the seam line (element centres too) exactly on it: a cut never
+            # passes a hair beside a vertex, which would make a second point of another name
+            t_uv[sel, :, axis] = _snap(t_uv[sel, :, axis], lo, hi)
             x = t_uv[sel, :, axis]
             out = sel[(x.max(axis=1) > hi + eps) | (x.min(axis=1) < lo - eps)]
             drop[out] = True

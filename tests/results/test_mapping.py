@@ -14,17 +14,18 @@ from cadbridge.results import make_levels, map_results
 
 
 # ----------------------------------------------------------------------------- geometry
-def plane_case(seed: int = 3):
+def plane_case(seed: int = 3, jitter: float = 0.07):
     """A tilted plane patch (point (1, 2, 3), normal (0, 0.6, 0.8), u along +x over 0..4,
-    v over 0..3) meshed with jittered quads on one half and triangles on the other."""
+    v over 0..3) meshed with quads on one half and triangles on the other, the inner nodes
+    moved by up to ``jitter`` each way (0: a regular grid, x = 1 + k / 4)."""
     s = plane_surface((1.0, 2.0, 3.0), (0.0, 0.6, 0.8), (1.0, 0.0, 0.0), (0.0, 4.0), (0.0, 3.0))
     model = Model(faces=[Face(s, de=1, name="PLANE")])
     nu, nv = 17, 11
     u, v = np.meshgrid(np.linspace(0, 4, nu), np.linspace(0, 3, nv), indexing="ij")
     rng = np.random.default_rng(seed)
     inner = (u > 0) & (u < 4) & (v > 0) & (v < 3)
-    u = u + inner * rng.uniform(-0.07, 0.07, u.shape)
-    v = v + inner * rng.uniform(-0.07, 0.07, v.shape)
+    u = u + inner * rng.uniform(-jitter, jitter, u.shape)
+    v = v + inner * rng.uniform(-jitter, jitter, v.shape)
     w = np.cross((0.0, 0.6, 0.8), (1.0, 0.0, 0.0))
     nodes = np.array([1.0, 2.0, 3.0]) + u.reshape(-1, 1) * np.array([1.0, 0, 0]) + v.reshape(-1, 1) * w
     idx = np.arange(nu * nv).reshape(nu, nv)
