@@ -74,8 +74,6 @@ KNOWN_FAILURES: dict[tuple[str, str], str] = {
         'timeout',
     ('bug28366_fuselage.stp', 'tri'):
         'failed: exit 1: prodname: mesh straddles a crease: elements 1106, 1108, 1118, 1159, 1294, 1296, 1338, 1342, 1484, 1496 (and 6 more) (1-based, 16 in all) have corners on both sides of a crease line or ',
-    ('ec_turbine-A.stp', 'quad'):
-        'refused: /tmp/cadbridge-mesh-4y_me2qk/ec_turbine-A.brep: gmsh failed: The 1D mesh seems not to be forming a closed loop (also after OCC shape healing; first attempt: /tmp/cadbridge-mesh-4y_me2qk/ec_tu',
     ('trj10_b2-oc-214.stp', 'quad'):
         'failed: exit 1: 31 of 21578 mesh nodes are further than 0.0206 from the CAD (or could not be projected): node 19986 at (-21.8214, -11.6503, 61) distance 1.26331, node 16538 at (-23.7593, -8.71069, 3) ',
     ('trj10_b2-oc-214.stp', 'tri'):

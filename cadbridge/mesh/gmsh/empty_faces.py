@@ -318,6 +318,59 @@ def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float) -> tuple[np.ndar
     return np.flatnonzero(keep), strips
 
 
+def _signed_area(uv: np.ndarray) -> float:
+    """Signed area (shoelace) of a closed polygon uv (n, 2), positive counter-clockwise."""
+    return 0.5 * float(np.sum(uv[:, 0] * np.roll(uv[:, 1], -1) - np.roll(uv[:, 0], -1) * uv[:, 1]))
+
+
+def _joined_at_touching_corners(loops: list[tuple], tol: float) -> tuple[list[tuple], list[np.ndarray]]:
+    """Loops whose corners coincide joined into one loop through that point: (loops, the
+    points (3,) where two were joined).
+
+    A hole that touches the outer loop (or another hole) at a vertex makes a pinched face:
+    the crescent between two internally tangent circles (ec_turbine's planar face 2, whose
+    hole and outer loop each have their own vertex at the same point). Meshed as two loops,
+    the straight segments on either side of the touching point cut across each other (the
+    two curves run together there), and the face's boundary "crosses itself". Joined, the
+    touching point becomes two corners of one loop, outer .. P, around the hole from P back
+    to P, P .. outer, and `_zip_cusps` cuts the strips narrower than the CAD's accuracy on
+    either side of it, as at any cusp. ``loops`` as `_face_loops` gives them; two corners
+    (index 0 along their curve) within ``tol`` (model units) touch. A hole is joined only
+    where it runs against the loop it joins (opposite signed (u, v) area for the outer loop,
+    the same for another hole), so the joined loop bounds the same region."""
+    loops = list(loops)
+    where = []
+    outer = int(np.argmax([abs(_signed_area(lp[2])) for lp in loops])) if loops else 0
+    joined = True
+    while joined and len(loops) > 1:
+        joined = False
+        for i in range(len(loops)):
+            for j in range(len(loops)):
+                if i == j or j == outer:
+                    continue
+                ci, cj = np.flatnonzero(loops[i][3] == 0), np.flatnonzero(loops[j][3] == 0)
+                if not len(ci) or not len(cj):
+                    continue
+                d = np.linalg.norm(loops[i][1][ci][:, None, :] - loops[j][1][cj][None, :, :], axis=2)
+                a, b = np.unravel_index(int(np.argmin(d)), d.shape)
+                if d[a, b] > tol:
+                    continue
+                si, sj = _signed_area(loops[i][2]), _signed_area(loops[j][2])
+                if (si * sj < 0) != (i == outer):
+                    continue  # wound so that the joined loop would cover the hole
+                a, b = int(ci[a]), int(cj[b])
+                merged = tuple(np.concatenate([x[:a], y[b:], y[:b], x[a:]]) for x, y in zip(loops[i], loops[j]))
+                where.append(loops[i][1][a])
+                keep = [lp for k, lp in enumerate(loops) if k not in (i, j)]
+                loops = [merged] + keep
+                outer = 0 if i == outer else outer - (outer > i) - (outer > j) + 1
+                joined = True
+                break
+            if joined:
+                break
+    return loops, where
+
+
 def _segments_cross(uv_loops: list[np.ndarray]) -> bool:
     """True if two non-adjacent segments of the loops (closed polygons in (u, v)) intersect."""
     from scipy.spatial import cKDTree
@@ -416,6 +469,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     coarse = element == "quad" and subdivided
     if coarse:
         h *= 2.0  # split in two below
+    loops, pinches = _joined_at_touching_corners(loops, max(EPS_FACTOR * dev, 1e-9 * diag))
     # the nodes meshed on: all loop nodes, or (after subdivision) every other node per curve
     kept_loops, notes_strip, n_cut = [], [], 0
     for tags, xyz, uv, k, even in loops:
@@ -490,6 +544,9 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     if tangled:
         note += f" ({tangled} element(s) inverted in (u, v) smoothed out)" if tangled > 0 else \
             f" ({-tangled} element(s) inverted in (u, v) that smoothing could not repair)"
+    if pinches:
+        note += (f"; a hole touching another loop at {len(pinches)} point(s) joined to it there: "
+                 + "; ".join(f"({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})" for x in pinches))
     if notes_strip:
         note += (f"; {len(notes_strip)} cusp strip(s) narrower than {eps:.2g} (where two boundary curves run "
                  f"together within the CAD's accuracy) left open: " + "; ".join(notes_strip))
