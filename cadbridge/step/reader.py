@@ -240,12 +240,14 @@ def _face_loops(face, flip: tuple[float, float] | None) -> tuple[list[list[Nurbs
         ex.Next()
     loops: list[list[NurbsCurve]] = []
     tol = 0.0
+    surface = BRep_Tool.Surface_s(face)
     for w in wires:
-        curves = []
+        curves, joints = [], []  # joints[i]: (vertex tolerance, edge tolerance) where piece i starts
         we = BRepTools_WireExplorer(w, face)
         while we.More():
             e = we.Current()
             tol = max(tol, BRep_Tool.Tolerance_s(e))
+            joint = (BRep_Tool.Tolerance_s(we.CurrentVertex()), BRep_Tool.Tolerance_s(e))
             first, last = BRep_Tool.Range_s(e, face)
             c2 = BRep_Tool.CurveOnSurface_s(e, face, first, last)
             if c2 is None or last - first <= 0:
@@ -262,10 +264,12 @@ def _face_loops(face, flip: tuple[float, float] | None) -> tuple[list[list[Nurbs
             c = nurbs_curve2d(bs)
             if e.Orientation() == TopAbs_REVERSED:
                 c = reverse_curve(c)
-            if flip is not None:
-                c = _mirrored_u(c, *flip)
             curves.append(c)
+            joints.append(joint)
             we.Next()
+        curves = _bridged(curves, joints, surface)
+        if flip is not None:
+            curves = [_mirrored_u(c, *flip) for c in curves]
         if curves:
             loops.append(curves)
     if not loops:
@@ -280,6 +284,33 @@ def _face_loops(face, flip: tuple[float, float] | None) -> tuple[list[list[Nurbs
 
     k = int(np.argmax([box_area(lp) for lp in loops]))
     return [loops[k]] + loops[:k] + loops[k + 1:], tol
+
+
+def _bridged(curves: list[NurbsCurve], joints: list[tuple[float, float]], surface) -> list[NurbsCurve]:
+    """The pieces of one wire, in order, with a straight (u, v) piece added where a piece ends
+    short of the next one's start by more than both edges' tolerances but within the shared
+    vertex's (``joints[i]``: (vertex tolerance, edge tolerance) where piece i starts; 3D gap
+    on ``surface``, OCC's `Geom_Surface`).
+
+    OCC's topology joins two edges through their vertex, whose tolerance may cover an edge
+    curve that stops short of it (b1 from CASCADE, trj8: an edge on planar face 206 stops
+    0.43 mm short; OCC finds the shape valid). The pcurves alone leave the loop open there,
+    and an open loop is no wire for the mesher ("Could not fix wire"). The straight piece is
+    what the vertex stands for: the shortest join in (u, v)."""
+    n = len(curves)
+    if n == 0:
+        return curves
+    out: list[NurbsCurve] = []
+    for i, c in enumerate(curves):
+        out.append(c)
+        nxt = curves[(i + 1) % n]
+        vertex_tol, edge_tol = joints[(i + 1) % n]
+        a = c.evaluate(np.array([c.domain[1]]))[0]
+        b = nxt.evaluate(np.array([nxt.domain[0]]))[0]
+        gap = surface.Value(float(a[0]), float(a[1])).Distance(surface.Value(float(b[0]), float(b[1])))
+        if max(edge_tol, joints[i][1]) < gap <= 2.0 * vertex_tol:
+            out.append(NurbsCurve(1, [0.0, 0.0, 1.0, 1.0], np.array([a, b])))
+    return out
 
 
 def _face_trims(face, flip: tuple[float, float] | None) -> tuple[Trim | None, float]:

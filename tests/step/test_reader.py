@@ -231,3 +231,79 @@ def test_outer_loop_encloses_the_holes(which, part_files):
             a, b = _box(h)
             tol = 1e-9 * float(np.linalg.norm(hi - lo))
             assert np.all(a >= lo - tol) and np.all(b <= hi + tol), (f.de, lo, hi, a, b)
+
+
+def test_a_wire_gap_its_vertex_covers_is_bridged():
+    """Class of defect: an edge curve that stops short of its vertex, the vertex's tolerance
+    covering the gap (b1 from CASCADE: 0.43 mm on planar face 206; OCC finds it valid). The
+    pcurves alone leave the loop open; `_bridged` adds the straight (u, v) piece the vertex
+    stands for. Reference: analytic distances on OCC's plane z = 0 (3D gap = (u, v) gap)."""
+    from OCP.Geom import Geom_Plane
+    from OCP.gp import gp_Dir, gp_Pnt
+
+    from cadbridge.nurbs.curve import NurbsCurve
+    from cadbridge.step.reader import _bridged
+
+    plane = Geom_Plane(gp_Pnt(0, 0, 0), gp_Dir(0, 0, 1))
+
+    def line(a, b):
+        return NurbsCurve(1, [0, 0, 1, 1], np.array([a, b], dtype=float))
+
+    # a square whose right side stops 0.4 short of the corner (10, 10)
+    square = [line([0, 0], [10, 0]), line([10, 0], [10, 9.6]), line([10, 10], [0, 10]), line([0, 10], [0, 0])]
+    covered = [(1e-7, 1e-7), (1e-7, 1e-7), (0.25, 1e-7), (1e-7, 1e-7)]  # the corner's tolerance 0.25: 2 x 0.25 >= 0.4
+    out = _bridged(square, covered, plane)
+    assert len(out) == 5
+    ends = np.array([[c.evaluate(np.array([t]))[0] for t in c.domain] for c in out])  # (5, 2, 2)
+    np.testing.assert_allclose(ends[2], [[10, 9.6], [10, 10]], atol=1e-15)  # the bridge
+    np.testing.assert_allclose(ends[:, 1], np.roll(ends[:, 0], -1, axis=0), atol=1e-15)  # closed
+    # not covered: the vertex's tolerance below half the gap (OCC's wire is open too)
+    assert len(_bridged(square, [(1e-7, 1e-7), (1e-7, 1e-7), (0.15, 1e-7), (1e-7, 1e-7)], plane)) == 4
+    # within the edges' own tolerance: left to the B-rep healing (no piece of 1e-8)
+    near = [line([0, 0], [10, 0]), line([10, 0], [10, 10 - 1e-8]), line([10, 10], [0, 10]), line([0, 10], [0, 0])]
+    assert len(_bridged(near, [(0.25, 1e-7)] * 4, plane)) == 4
+
+
+@pytest.mark.skipif(not (CORPUS / "trj8_b1-ec-214.stp").is_file(), reason="corpus not present")
+def test_b1_face_206_closes_through_its_vertex():
+    """b1 from CASCADE, face 206 (index 205): OCC's own edges on it leave a 0.43 mm gap between
+    two consecutive edges (`BRepAdaptor_Curve` ends, the reference), within twice the shared
+    vertex's tolerance; cadbridge's loop closes it with one straight piece of that length."""
+    from OCP.BRep import BRep_Tool
+    from OCP.BRepAdaptor import BRepAdaptor_Curve
+    from OCP.BRepTools import BRepTools_WireExplorer
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_REVERSED, TopAbs_WIRE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from cadbridge.step.reader import occ_step_shape
+
+    path = CORPUS / "trj8_b1-ec-214.stp"
+    ex = TopExp_Explorer(occ_step_shape(path), TopAbs_FACE)
+    for _ in range(205):
+        ex.Next()
+    face = TopoDS.Face_s(ex.Current())
+    wires = TopExp_Explorer(face, TopAbs_WIRE)
+    assert wires.More()
+    ends, vertex_tol = [], []  # the face's one wire
+    while wires.More():
+        we = BRepTools_WireExplorer(TopoDS.Wire_s(wires.Current()), face)
+        while we.More():
+            c = BRepAdaptor_Curve(we.Current())
+            a, b = c.Value(c.FirstParameter()), c.Value(c.LastParameter())
+            ends.append((b, a) if we.Current().Orientation() == TopAbs_REVERSED else (a, b))
+            vertex_tol.append(BRep_Tool.Tolerance_s(we.CurrentVertex()))  # where this edge starts
+            we.Next()
+        wires.Next()
+    occ_gap = [ends[i][1].Distance(ends[(i + 1) % len(ends)][0]) for i in range(len(ends))]
+    k = int(np.argmax(occ_gap))
+    assert 0.4 < occ_gap[k] <= 2 * vertex_tol[(k + 1) % len(ends)]
+    model = read_step(path)
+    f = model.faces[205]
+    loop = f.trims.outer.curves
+    assert len(loop) == len(ends) + 1
+    x = [f.surface.evaluate(*c.evaluate(np.array(c.domain)).T) for c in loop]  # (2, 3) per piece
+    steps = [np.linalg.norm(x[i][1] - x[(i + 1) % len(x)][0]) for i in range(len(x))]
+    assert max(steps) < 1e-4  # closed
+    lengths = [np.linalg.norm(p[1] - p[0]) for p in x]
+    assert min(abs(L - occ_gap[k]) for L in lengths) < 1e-6
