@@ -8,7 +8,9 @@ cadbridge.io.toolfile nor cadbridge.nagata (nor anything else of cadbridge), onl
   order), 0-based arrays.
 * `corner_normals(tf)`: rule 1 ("Corner normals") -> (E, 4, 3), NaN for a triangle's 4th.
 * `edge_coefficients(tf)`: rules 2-5 (edges, which formula, two-normal formula with its
-  bounded cases, generalized inverse with adj / D0 / D1 / D2, the one-end-multiple rule).
+  bounded cases, generalized inverse with adj / D0 / D1 / D2, the one-end-multiple rule) of
+  the bounded edge rule (``EDGE_RULE bounded``, or no such line); a file of the published
+  rule is rebuilt by the independent reference of tests/nagata/test_edge_rule.py.
 * `rebuild(tf) -> (E, 8, 3)`: rule 6 (patch coefficients; c21 = c12 = 0 for triangles).
 * `evaluate(coef, kind, elem, eta, zeta)`: the patch polynomial of "Corners and patch
   parameters"; `flat(tf, elem, eta, zeta)`: the flat element (triangle
@@ -59,6 +61,7 @@ class ToolFile:
     edge_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (B, 3) extra normal at edge_nodes[:, 0]
     edge_q: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (B, 3) at edge_nodes[:, 1]
     extra: dict = field(default_factory=dict)
+    edge_rule: str = "bounded"  # the EDGE_RULE header line; a file without it: bounded
 
     @property
     def n_tri(self) -> int:
@@ -130,7 +133,7 @@ def read(path: str | Path) -> ToolFile:
         key, _, value = ln.partition(" ")  # value: everything after the first blank after the keyword
         if key == "COUNTS":
             break
-        if key in ("NAME", "UNITS", "SOURCE", "NORMAL_SOURCE"):
+        if key in ("NAME", "UNITS", "SOURCE", "NORMAL_SOURCE", "EDGE_RULE"):
             if key in head:
                 _fail(path, i + 1, f"{key} appears twice")
             head[key] = value
@@ -147,6 +150,9 @@ def read(path: str | Path) -> ToolFile:
     for req in ("NAME", "UNITS"):
         if req not in head:
             _fail(path, i + 1, f"header has no {req}")
+    rule = head.get("EDGE_RULE", "bounded")
+    if rule not in ("bounded", "published"):
+        _fail(path, i + 1, f"EDGE_RULE must be bounded or published, not {rule!r}")
     counts = lines[i].split()[1:]
     want = 5 if version == 1 else 6
     if len(counts) != want or not all(c.isdigit() for c in counts):
@@ -259,7 +265,7 @@ def read(path: str | Path) -> ToolFile:
     if any(ln.strip() for ln in lines[i + 1:]):
         _fail(path, i + 2, "text after END")
     return ToolFile(head["NAME"], head["UNITS"], head.get("SOURCE", ""), head.get("NORMAL_SOURCE", ""),
-                    meta, comments, nodes, normals, conn, nn, ce, cc, cn, coef, en, ep, eqn)
+                    meta, comments, nodes, normals, conn, nn, ce, cc, cn, coef, en, ep, eqn, edge_rule=rule)
 
 
 def model_size(tf: ToolFile) -> float:
@@ -334,7 +340,9 @@ class Edges:
 
 
 def edge_coefficients(tf: ToolFile) -> Edges:
-    """Rules 2, 3, 4, 5 for every mesh edge."""
+    """Rules 2, 3, 4, 5 for every mesh edge (the bounded edge rule)."""
+    if tf.edge_rule != "bounded":
+        raise ToolFileError(f"this reference rebuilds the bounded edge rule, the file says {tf.edge_rule!r}")
     N_ = corner_normals(tf)
     E = tf.n_elements
     tri = np.flatnonzero(tf.nn == 3)
