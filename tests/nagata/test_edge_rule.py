@@ -10,7 +10,8 @@ References:
   eq. (20) ``c = [n]^+ {d}`` with the Moore-Penrose inverse of numpy's SVD (the generalized
   inverse eqs. 21-31 compute in closed form) for several distinct normals at an end. It
   reads the tool file with tests/helpers/toolfile_reference.py (docs/toolfile.md alone), not
-  with cadbridge.
+  with cadbridge. The same files are also rebuilt by that helper's own reading of
+  docs/toolfile.md "The published rule" (`R.rebuild`), so the page says what is written.
 * ``bounded``: digests of the coefficients cadbridge computed before the option existed
   (commit 03d82a1), on the cases of `grid_case`.
 """
@@ -182,6 +183,7 @@ def test_published_equals_nagata_2005_on_random_patches(tmp_path, seed, creases)
     ref = nagata_2005_patches(tf)
     size = _size(nodes)
     assert np.max(np.abs(tf.coefficients - ref)) <= 1e-12 * size
+    assert np.max(np.abs(tf.coefficients - R.rebuild(tf))) <= 1e-12 * size  # docs/toolfile.md's wording
     # the published rule is not the bounded one here: the test can tell them apart
     bounded = NagataMesh(nodes, blocks, corner if creases else normals, edge_normals=en if creases else None)
     assert np.max(np.abs(bounded.tri_coefficients - nm.tri_coefficients)) > 1e-3 * size
@@ -226,6 +228,7 @@ def test_convert_published_equals_nagata_2005(converted):
     assert tf.edge_rule == "published" and len(tf.corner_element) and len(tf.edge_nodes)
     ref = nagata_2005_patches(tf)
     assert np.max(np.abs(tf.coefficients - ref)) <= 1e-12 * R.model_size(tf)
+    assert np.max(np.abs(tf.coefficients - R.rebuild(tf))) <= 1e-12 * R.model_size(tf)
 
 
 def test_convert_summary_gives_both_rules(converted):
