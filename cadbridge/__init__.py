@@ -3,7 +3,8 @@
 The product in one call: ``convert("die.igs", "out/")`` (or ``"die.stp"``) (mesh, exact normals, Nagata
 patches, tool files and report; ``nagata_from_mesh`` from a mesh of your own), and beside
 it ``map_results`` (simulation results on the exact CAD), ``fit_points`` (a NURBS surface
-from points), ``read_toolfile`` / ``write_toolfile``.
+from points), ``read_toolfile`` / ``write_toolfile``. ``convert`` and ``nagata_from_mesh`` take
+``edge_rule="bounded"`` (default) or ``"published"`` (Nagata 2005 exactly; README "Edge rule").
 
 The chain underneath (ARCHITECTURE.md): ``read_cad`` (IGES or STEP, by content; ``read_iges``,
 ``read_step``) -> ``Model`` of exact NURBS faces; a

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from cadbridge.cli.options import add_mesh_options, add_normal_options, no_qit_refinement
+from cadbridge.cli.options import add_edge_rule_option, add_mesh_options, add_normal_options, edge_rule, no_qit_refinement
 from cadbridge.common.errors import EXIT_OK
 from cadbridge.common.progress import Progress, say
 
@@ -13,13 +13,14 @@ def cmd_convert(args: argparse.Namespace) -> int:
     from cadbridge.tool.pipeline import convert
 
     no_qit_refinement(args)
+    rule = edge_rule(args)
     with Progress("cadbridge convert") as progress:
         result = convert(
             args.cad, args.output, element=args.element, size=args.size, structured=args.structured,
             radius_divisions=args.radius_divisions, length_divisions=args.length_divisions,
             curvature_elements=args.curvature_elements, method=args.method, grid=args.grid, flip=args.flip, tolerance=args.tolerance, progress=progress,
             allow_worse=args.allow_worse, shape_tolerance=args.shape_tolerance, min_size=args.min_size,
-            mesher=args.mesher, full_report=args.full_report,
+            mesher=args.mesher, full_report=args.full_report, edge_rule=rule,
         )
     if getattr(result, "adaptive", None) is not None:
         say(result.adaptive.summary())
@@ -40,4 +41,5 @@ def register(sub, fmt) -> None:
                         "50 000 elements (default: only up to that size)")
     add_mesh_options(p)
     add_normal_options(p)
+    add_edge_rule_option(p)
     p.set_defaults(func=cmd_convert)

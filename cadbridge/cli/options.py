@@ -1,10 +1,11 @@
-"""Argument groups and checks that several subcommands share (mesh, normals, mesher)."""
+"""Argument groups and checks that several subcommands share (mesh, normals, mesher, edge rule)."""
 
 from __future__ import annotations
 
 import argparse
 
 from cadbridge.common.errors import UsageError
+from cadbridge.nagata.edge import EDGE_RULES
 
 
 def add_mesher_option(p: argparse.ArgumentParser, what: str = "the mesh") -> None:
@@ -43,6 +44,21 @@ def add_normal_options(p: argparse.ArgumentParser, default: str = "cad") -> None
     p.add_argument("--allow-far", action="store_true", help="keep going when nodes are beyond the tolerance")
     p.add_argument("--orient", action="store_true",
                    help="re-orient inconsistently wound elements (default: stop and name them)")
+
+
+def add_edge_rule_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--edge-rule", default=EDGE_RULES[0], metavar="{" + ",".join(EDGE_RULES) + "}",
+                   help="rule of the Nagata edge coefficients: bounded (default: eq. 15 with the bounded cases, "
+                        "conormals on curved boundary edges) or published (Nagata 2005 exactly); the tool file "
+                        "states it (docs/toolfile.md, README)")
+
+
+def edge_rule(args: argparse.Namespace) -> str:
+    """``args.edge_rule`` checked: one of `EDGE_RULES`, else a one-line `UsageError` (exit 2)."""
+    rule = getattr(args, "edge_rule", EDGE_RULES[0])
+    if rule not in EDGE_RULES:
+        raise UsageError(f"--edge-rule must be one of {', '.join(EDGE_RULES)}, got {rule!r}")
+    return rule
 
 
 def no_qit_refinement(args: argparse.Namespace) -> None:

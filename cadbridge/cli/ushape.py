@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from cadbridge.cli.options import add_mesher_option
+from cadbridge.cli.options import add_edge_rule_option, add_mesher_option, edge_rule
 from cadbridge.common.errors import EXIT_OK
 from cadbridge.common.progress import Progress, say
 
@@ -12,9 +12,10 @@ from cadbridge.common.progress import Progress, say
 def cmd_ushape(args: argparse.Namespace) -> int:
     from cadbridge.ushape.benchmark import run_ushape
 
+    rule = edge_rule(args)
     with Progress("cadbridge ushape") as progress:
         summary = run_ushape(args.output, grid=args.grid, fine_size=args.fine_size, progress=progress,
-                             mesher=args.mesher)
+                             mesher=args.mesher, edge_rule=rule)
     say(summary.table())
     say("")
     say("\n".join(summary.findings("die")))
@@ -29,4 +30,5 @@ def register(sub, fmt) -> None:
     p.add_argument("--grid", type=int, default=20, help="grid divisions per patch")
     p.add_argument("--fine-size", type=float, default=4.0, help="element size of the unstructured triangle variant (mm)")
     add_mesher_option(p, "the unstructured triangle variant")
+    add_edge_rule_option(p)
     p.set_defaults(func=cmd_ushape)

@@ -4,6 +4,7 @@ The format is specified in ``docs/toolfile.md``. In short::
 
     CADBRIDGE-NAGATA-TOOL 2
     NAME <text>            UNITS <word>       SOURCE <text>     NORMAL_SOURCE <word>
+    EDGE_RULE bounded|published   (the edge coefficients' rule; no line: bounded)
     META <key> <text>      COMMENT <text>     (any number, optional)
     COUNTS <nodes> <triangles> <quads> <corner_normals> <has_coefficients 0|1> <edge_normals>
     NODES <N>              then N lines: id x y z
@@ -30,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from cadbridge.common.atomic import atomic_write
+from cadbridge.nagata.edge import EDGE_RULES
 
 __all__ = [
     "FORMAT_VERSION",
@@ -79,6 +81,9 @@ class ToolData:
         Patch coefficients in the order c00 c10 c01 c11 c20 c02 [c21 c12]; both or neither.
     source, normal_source : str
         CAD file the tool came from and how normals were obtained (cad, mwe, ...).
+    edge_rule : str
+        The rule the edge coefficients follow, one of `cadbridge.nagata.edge.EDGE_RULES`
+        ("bounded", "published"; docs/toolfile.md "Rebuilding the coefficients").
     metadata : dict[str, str]
         Further key/value notes (keys: one word; values: one line).
     comments : list[str]
@@ -100,6 +105,7 @@ class ToolData:
     quad_coefficients: np.ndarray | None = None
     source: str = ""
     normal_source: str = ""
+    edge_rule: str = "bounded"
     metadata: dict[str, str] = field(default_factory=dict)
     comments: list[str] = field(default_factory=list)
 
@@ -137,6 +143,8 @@ class ToolData:
                 raise ToolFileError("corner_local: corner index out of range for its element type")
         if not _WORD.match(self.units):
             raise ToolFileError(f"units must be one word, got {self.units!r}")
+        if self.edge_rule not in EDGE_RULES:
+            raise ToolFileError(f"edge_rule must be one of {', '.join(EDGE_RULES)}, got {self.edge_rule!r}")
         if self.normal_source and not _WORD.match(self.normal_source):
             raise ToolFileError(f"normal_source must be one word, got {self.normal_source!r}")
         for what, text in [("name", self.name), ("source", self.source)] + [
@@ -182,7 +190,8 @@ class ToolData:
 
         blocks = [b for b in (self.triangles, self.quads) if len(b)]
         return NagataMesh(self.nodes, blocks, self.corner_normal_blocks(),
-                          edge_normals=(self.edge_nodes, self.edge_normals[:, 0], self.edge_normals[:, 1]))
+                          edge_normals=(self.edge_nodes, self.edge_normals[:, 0], self.edge_normals[:, 1]),
+                          edge_rule=self.edge_rule)
 
     def equals(self, other: "ToolData") -> bool:
         """Bit-for-bit equality of all arrays and text fields."""
@@ -194,7 +203,7 @@ class ToolData:
 
         arrays = ("nodes", "normals", "triangles", "quads", "corner_element", "corner_local", "corner_normals",
                   "edge_nodes", "edge_normals", "tri_coefficients", "quad_coefficients")
-        texts = ("name", "units", "source", "normal_source", "metadata", "comments")
+        texts = ("name", "units", "source", "normal_source", "edge_rule", "metadata", "comments")
         return all(same(getattr(self, a), getattr(other, a)) for a in arrays) and all(
             getattr(self, t) == getattr(other, t) for t in texts
         )
@@ -272,6 +281,7 @@ def format_toolfile(tool: ToolData) -> str:
         f"UNITS {tool.units}",
         f"SOURCE {tool.source}",
         f"NORMAL_SOURCE {tool.normal_source}",
+        f"EDGE_RULE {tool.edge_rule}",
     ]
     lines += [f"META {k} {v}" for k, v in tool.metadata.items()]
     lines += [f"COMMENT {t}" for t in tool.comments]
@@ -443,10 +453,12 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
     while counts is None:
         line = cur.next()
         kw, _, value = line.partition(" ")
-        if kw in ("NAME", "UNITS", "SOURCE", "NORMAL_SOURCE"):
+        if kw in ("NAME", "UNITS", "SOURCE", "NORMAL_SOURCE", "EDGE_RULE"):
             if kw in head:
                 raise cur.error(f"duplicate {kw} line")
             head[kw] = value
+            if kw == "EDGE_RULE" and value not in EDGE_RULES:
+                raise cur.error(f"EDGE_RULE must be one of {', '.join(EDGE_RULES)}, got {value!r}")
         elif kw == "META":
             key, _, val = value.partition(" ")
             if not key:
@@ -469,6 +481,7 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
     for kw in ("NAME", "UNITS"):
         if kw not in head:
             raise cur.error(f"header has no {kw} line")
+    edge_rule = head.get("EDGE_RULE", "bounded")  # files before the line: the bounded rule
     n, et, eq, c, has_coef, nb = counts
 
     # ---- NODES, NORMALS
@@ -564,7 +577,7 @@ def parse_toolfile(text: str, filename: str = "<string>") -> ToolData:
             quads=quads, corner_element=celem, corner_local=ccorner, corner_normals=cnormals,
             edge_nodes=enodes, edge_normals=enormals,
             tri_coefficients=tri_coef, quad_coefficients=quad_coef, source=head.get("SOURCE", ""),
-            normal_source=head.get("NORMAL_SOURCE", ""), metadata=metadata, comments=comments,
+            normal_source=head.get("NORMAL_SOURCE", ""), edge_rule=edge_rule, metadata=metadata, comments=comments,
         )
     except ToolFileError as exc:
         raise ToolFileError(f"{filename}: {exc}") from None

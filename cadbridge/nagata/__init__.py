@@ -1,6 +1,13 @@
 """Nagata patches: edge coefficient, triangular/quadrilateral patches, error analysis."""
 
-from cadbridge.nagata.edge import EPS_RANK, EPS_SINGULAR, edge_coefficient, edge_coefficient_multi
+from cadbridge.nagata.edge import (
+    EDGE_RULES,
+    EPS_RANK,
+    EPS_SINGULAR,
+    check_edge_rule,
+    edge_coefficient,
+    edge_coefficient_multi,
+)
 from cadbridge.nagata.errors import (
     Cylinder,
     ErrorReport,
@@ -16,6 +23,7 @@ from cadbridge.nagata.mesh import ClosestPoint, Grid, NagataMesh
 from cadbridge.nagata.patch import quad_coefficients, quad_eval, tri_coefficients, tri_eval
 
 __all__ = [
+    "EDGE_RULES",
     "EPS_RANK",
     "EPS_SINGULAR",
     "ClosestPoint",
@@ -27,6 +35,7 @@ __all__ = [
     "Sphere",
     "Torus",
     "cad_errors",
+    "check_edge_rule",
     "edge_coefficient",
     "edge_coefficient_multi",
     "normal_error",

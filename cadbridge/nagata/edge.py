@@ -29,6 +29,13 @@ minimum-norm (least-squares) solution of ``[n] c = {d}`` (eqs. 6-7, 19-20, 32).
 * Any number of normals (sharp edge, non-manifold edge): generalized inverse of
   eqs. (20)-(31) with the rank tests on the dimensionless ``D^(k)``.
 
+Edge rules (`EDGE_RULES`, chosen per mesh in `cadbridge.nagata.mesh.NagataMesh`): ``bounded``
+applies the inflected-edge and edge-plane rules above, a boundary edge's conormals
+(`edge_coefficient_conormal`) and, where only one end of a crease edge carries several
+normals, the normal most orthogonal to the edge; ``published`` is Nagata 2005 as published:
+eq. (15) with its singular cases only (``bounded=False``), the generalized inverse of
+eqs. (19)-(33) wherever an end carries several distinct normals, no conormals.
+
 Reversing an edge (swap ``x0, x1`` and ``n0, n1``) leaves ``c`` unchanged: the system
 ``[n] c = {d}`` is the same set of equations, and the reversed curve
 ``x1 + (-d - c) t + c t^2`` traces ``x(1 - t)``.
@@ -44,6 +51,17 @@ EPS_SINGULAR = 1e-10
 
 EPS_RANK = 1e-12
 """Default threshold on the dimensionless determinant coefficients ``D^(k)`` of eq. (31)."""
+
+
+EDGE_RULES = ("bounded", "published")
+"""The edge rules (module docs); the first is the default."""
+
+
+def check_edge_rule(rule: str) -> str:
+    """``rule`` if it is one of `EDGE_RULES`, else ValueError naming them."""
+    if rule not in EDGE_RULES:
+        raise ValueError(f"edge rule must be one of {', '.join(EDGE_RULES)}, got {rule!r}")
+    return rule
 
 
 def _dot(a: NDArray, b: NDArray) -> NDArray:

@@ -17,6 +17,11 @@ conormals ask for (`cadbridge.nagata.edge.edge_coefficient_conormal`): the edge 
 the surface's normal curvature and follows the trim curve's geodesic curvature, instead of
 being the straight chord two equal surface normals give on a planar face with a round hole.
 On a crease edge the listed conormals are not used.
+
+All of the above is the ``bounded`` edge rule (the default). ``edge_rule="published"`` is
+Nagata 2005 as published (`cadbridge.nagata.edge` module docs): eq. (15) without the bounded
+cases, the generalized inverse wherever an end carries several distinct normals (one end
+too), and the edge normals do not change any coefficient (they are kept, for the tool file).
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 from cadbridge.nagata.edge import (
     EPS_RANK,
     EPS_SINGULAR,
+    check_edge_rule,
     edge_coefficient,
     edge_coefficient_conormal,
     edge_coefficient_multi,
@@ -154,6 +160,15 @@ def _edge_normals(given, n_nodes: int) -> tuple[NDArray, NDArray, NDArray]:
     return pairs, p, q
 
 
+def _distinct(n: NDArray, mask: NDArray) -> NDArray:
+    """(K, P) bool: the rows of ``mask`` whose normal ``n`` (K, P, 3) differs by more than
+    `SAME_NORMAL` from every earlier present row of its edge (each distinct normal once)."""
+    p = n.shape[1]
+    close = np.abs(n[:, :, None] - n[:, None, :]).max(axis=3) <= SAME_NORMAL  # (K, P, P)
+    earlier = np.tri(p, k=-1, dtype=bool)  # [i, j]: j < i
+    return mask & ~np.any(close & mask[:, None, :] & earlier, axis=2)
+
+
 class NagataMesh:
     """Nagata patches over a triangle, quadrilateral or mixed mesh.
 
@@ -168,6 +183,7 @@ class NagataMesh:
     eps_rank : threshold on the dimensionless ``D^(k)`` (Nagata eq. 31).
     edge_normals : optional ``(pairs (B, 2) node ids, p (B, 3) at pairs[:, 0], q (B, 3) at
         pairs[:, 1])``: a conormal at each end of each listed mesh edge (module docs).
+    edge_rule : "bounded" (default) or "published" (module docs, `cadbridge.nagata.edge.EDGE_RULES`).
     """
 
     def __init__(
@@ -178,12 +194,14 @@ class NagataMesh:
         eps: float = EPS_SINGULAR,
         eps_rank: float = EPS_RANK,
         edge_normals: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+        edge_rule: str = "bounded",
     ) -> None:
         self.nodes = np.ascontiguousarray(nodes, dtype=float)
         if self.nodes.ndim != 2 or self.nodes.shape[1] != 3:
             raise ValueError(f"nodes must be (N, 3), got {self.nodes.shape}")
         self.eps = eps
         self.eps_rank = eps_rank
+        self.edge_rule = check_edge_rule(edge_rule)
         if isinstance(elements, np.ndarray) or (
             isinstance(elements, Sequence) and len(elements) > 0 and np.ndim(elements[0]) == 1
         ):
@@ -248,7 +266,8 @@ class NagataMesh:
         straddles a crease): at that end the normal most orthogonal to the edge is used."""
         self.edge_normals = _edge_normals(edge_normals, nn)
         """(pairs (B, 2), p (B, 3), q (B, 3)): the extra edge normals given (module docs)."""
-        tri_ec, quad_ec = self._edge_coefficients(per_node and len(self.edge_normals[0]) == 0)
+        bounded = self.edge_rule == "bounded"
+        tri_ec, quad_ec = self._edge_coefficients(per_node and (len(self.edge_normals[0]) == 0 or not bounded))
         self.tri_edge_coefficients = tri_ec  # (Et, 3, 3) c1 c2 c3
         self.quad_edge_coefficients = quad_ec  # (Eq, 4, 3) c1 c2 c3 c4
         self.tri_coefficients = tri_coefficients(self.nodes[self.tri_elements], tri_ec)
@@ -273,11 +292,12 @@ class NagataMesh:
 
     def _edge_coefficients(self, per_node: bool) -> tuple[NDArray, NDArray]:
         x, t, q = self.nodes, self.tri_elements, self.quad_elements
+        bounded = self.edge_rule == "bounded"
         if per_node:
             # one normal per node: no creases possible, two-normal formula on every element edge
             def per_elem(conn: NDArray, nrm: NDArray, le: NDArray) -> NDArray:
                 a, b = conn[:, le[:, 0]], conn[:, le[:, 1]]
-                return edge_coefficient(x[a], x[b], nrm[:, le[:, 0]], nrm[:, le[:, 1]], self.eps)
+                return edge_coefficient(x[a], x[b], nrm[:, le[:, 0]], nrm[:, le[:, 1]], self.eps, bounded)
 
             return per_elem(t, self.tri_corner_normals, TRI_EDGES), per_elem(q, self.quad_corner_normals, QUAD_EDGES)
         topo = self.edges
@@ -304,7 +324,7 @@ class NagataMesh:
         # two sides: 1e-17 apart; taken as a crease, the edge read as half a crease, a straddle)
         crease = np.bincount(eid, weights=(diff > SAME_NORMAL).astype(float), minlength=ne) > 0
         lo, hi = topo["edges"][:, 0], topo["edges"][:, 1]
-        c_edge = edge_coefficient(x[lo], x[hi], n_lo[first], n_hi[first], self.eps)
+        c_edge = edge_coefficient(x[lo], x[hi], n_lo[first], n_hi[first], self.eps, bounded)
         ce = np.flatnonzero(crease)
         self.crease_edges = ce
         if ce.size:
@@ -328,11 +348,15 @@ class NagataMesh:
             multi0 = np.any(mask & (np.abs(n0 - n0[:, :1]).max(axis=2) > SAME_NORMAL), axis=1)
             multi1 = np.any(mask & (np.abs(n1 - n1[:, :1]).max(axis=2) > SAME_NORMAL), axis=1)
             full = multi0 & multi1
+            half = np.flatnonzero(~full)
+            self.half_crease_edges = ce[half]
+            if not bounded:  # published: eqs. 19-33 with the distinct normals of each end, at every crease edge
+                c_edge[ce] = edge_coefficient_multi(d, n0, n1, _distinct(n0, mask), _distinct(n1, mask), self.eps_rank)
+                half = half[:0]
+                full[:] = False
             if np.any(full):  # a crease edge: one curve orthogonal to every normal (eqs. 19-33)
                 f = np.flatnonzero(full)
                 c_edge[ce[f]] = edge_coefficient_multi(d[f], n0[f], n1[f], mask[f], mask[f], self.eps_rank)
-            half = np.flatnonzero(~full)
-            self.half_crease_edges = ce[half]
             if half.size:
                 # several normals at one end only: the edge leaves a crease node into one side
                 # (elements on both sides of it straddle the crease). Eqs. 19-33 would make its
@@ -345,14 +369,14 @@ class NagataMesh:
                 c_edge[ce[half]] = edge_coefficient(x[lo[ce[half]]], x[hi[ce[half]]], pick(n0[half], mask[half]),
                                                     pick(n1[half], mask[half]), self.eps)
         pairs, p_extra, q_extra = self.edge_normals
-        if len(pairs):  # boundary edges along a curve: two-normal c plus the conormals' sideways part
+        if len(pairs):  # boundary edges along a curve: two-normal c plus the conormals' sideways part (bounded)
             key = topo["edges"][:, 0] * np.int64(x.shape[0]) + topo["edges"][:, 1]
             kx = np.minimum(pairs[:, 0], pairs[:, 1]) * np.int64(x.shape[0]) + np.maximum(pairs[:, 0], pairs[:, 1])
             pos = np.minimum(np.searchsorted(key, kx), ne - 1)
             if np.any(key[pos] != kx):
                 bad = int(np.flatnonzero(key[pos] != kx)[0])
                 raise ValueError(f"edge_normals: nodes {pairs[bad].tolist()} are not an edge of the mesh")
-            use = ~crease[pos]  # a crease edge keeps the generalized inverse of its elements' normals
+            use = ~crease[pos] & bounded  # a crease edge keeps the generalized inverse of its elements' normals
             e, sw = pos[use], (pairs[:, 0] > pairs[:, 1])[use]
             p_lo = np.where(sw[:, None], q_extra[use], p_extra[use])
             p_hi = np.where(sw[:, None], p_extra[use], q_extra[use])

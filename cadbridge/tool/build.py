@@ -17,7 +17,7 @@ import numpy as np
 from cadbridge.common.progress import NoProgress
 from cadbridge.mesh.mesh import CellBlock, Mesh
 
-__all__ = ['CadProjector', 'GuardTrips', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'guard_trips', 'measure_tool', 'reversed_normal_elements', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
+__all__ = ['CadProjector', 'GuardTrips', 'REVERSAL_DEG', 'SAMPLE_BUDGET', 'ToolQualityError', 'ToolResult', 'build_tool', 'check_tools', 'consistently_oriented', 'folded_elements', 'guard_trips', 'measure_tool', 'reversed_normal_elements', 'rule_shape_errors', 'sample_divisions', 'tool_groups', 'tool_normals', 'tools_from_mesh']
 
 
 class ToolQualityError(ValueError):
@@ -202,6 +202,7 @@ def build_tool(
     straddling: np.ndarray | None = None,
     boundary_curves: bool = True,
     measure: bool = True,
+    edge_rule: str = "bounded",
 ) -> ToolResult:
     """Nagata patches over ``mesh`` with the given normals and their errors against the CAD
     (`cadbridge.tool.accuracy`: surface, boundary, flat surface and normal errors).
@@ -212,7 +213,7 @@ def build_tool(
     boundary_curves: free boundary edges follow their faces' trim curves
     (`cadbridge.nagata.boundary_edges`; needs ``model``). measure: False leaves out the sample
     grid and the errors against the CAD (`measure_tool` adds them later; the guards'
-    ``trips`` and lines only)."""
+    ``trips`` and lines only). edge_rule: "bounded" or "published" (`cadbridge.nagata.edge`)."""
     from cadbridge.nagata import NagataMesh
 
     progress = progress or NoProgress()
@@ -241,7 +242,7 @@ def build_tool(
             progress.stage(f"{name}: boundary edges along the trim curves")
             edge_normals = boundary_conormals(mesh, corner_normals, ef, model).as_edge_normals()
     progress.stage(f"{name}: Nagata patches")
-    nm = NagataMesh(mesh.nodes, element_blocks(mesh), corner_normals, edge_normals=edge_normals)
+    nm = NagataMesh(mesh.nodes, element_blocks(mesh), corner_normals, edge_normals=edge_normals, edge_rule=edge_rule)
     if straddling is not None and remap is not None:  # given in block order: to the tool's numbering
         inv = np.empty_like(remap)
         inv[remap] = np.arange(len(remap))
@@ -255,11 +256,13 @@ def build_tool(
 
 
 def measure_tool(tool: ToolResult, model, *, projector: CadProjector | None = None, grid: int = 10,
-                 progress=None) -> None:
+                 progress=None, compare_rules: bool = False) -> None:
     """The sample grid of ``tool`` (``grid`` divisions per patch at most, `sample_divisions`)
     and, with a ``model``, its errors against the CAD (`cadbridge.tool.accuracy.tool_errors`):
     sets ``tool.grid`` and ``tool.stats``, and adds the diagnosis line of a tool worse than
-    its flat mesh (`_diagnose`) after the guards' lines."""
+    its flat mesh (`_diagnose`) after the guards' lines. ``compare_rules``: also
+    ``stats["shape_error_by_rule"]``, {edge rule: max shape error} for both edge rules
+    (`rule_shape_errors`)."""
     progress = progress or NoProgress()
     nm = tool.nagata
     grid = sample_divisions(nm, grid)
@@ -276,7 +279,45 @@ def measure_tool(tool: ToolResult, model, *, projector: CadProjector | None = No
                      flat_surface_error=err.flat_surface, normal_error=err.normal, face=err.face)
     tool.stats = err.stats()
     tool.stats["grid"] = grid
+    if compare_rules:
+        tool.stats["shape_error_by_rule"] = rule_shape_errors(tool, err, model, projector.project)
     tool.diagnosis += _diagnose(nm, err, g.elem, tool.trips.straddling, model.size())
+
+
+def rule_shape_errors(tool: ToolResult, err, model, project_trimmed) -> dict[str, float]:
+    """{edge rule: max shape error [length]} of ``tool`` under both edge rules
+    (`cadbridge.nagata.edge.EDGE_RULES`), on the samples of ``tool.grid``. The shape error of
+    a sample is the larger of its |surface error| and its boundary error
+    (`cadbridge.tool.accuracy`; as `cadbridge.tool.refine` measures it). ``err`` (the
+    `ToolErrors` of those samples) gives the tool's own rule; for the other rule the patches
+    are built again and only the samples of the elements whose coefficients change are
+    measured again (the others are the same points)."""
+    from cadbridge.nagata import EDGE_RULES, NagataMesh
+    from cadbridge.tool.accuracy import tool_errors
+
+    nm = tool.nagata
+    def shape(surface: np.ndarray, boundary: np.ndarray) -> float:
+        return float(np.max(np.maximum(np.abs(surface), boundary))) if len(surface) else 0.0
+
+    out = {nm.edge_rule: shape(err.surface, err.boundary)}
+    for rule in EDGE_RULES:
+        if rule == nm.edge_rule:
+            continue
+        pairs, p, q = nm.edge_normals
+        other = NagataMesh(nm.nodes, element_blocks(tool.mesh), tool.corner_normals, edge_normals=(pairs, p, q),
+                           edge_rule=rule)
+        changed = np.zeros(nm.n_elements, dtype=bool)
+        changed[nm.tri_global] = np.any(other.tri_coefficients != nm.tri_coefficients, axis=(1, 2))
+        changed[nm.quad_global] = np.any(other.quad_coefficients != nm.quad_coefficients, axis=(1, 2))
+        g = tool.grid
+        surface, boundary = np.array(err.surface, dtype=float), np.array(err.boundary, dtype=float)
+        rows = np.flatnonzero(changed[g["element"]])
+        if len(rows):
+            e = tool_errors(other, g["element"][rows], g["eta"][rows], g["zeta"][rows], tool.element_face, model,
+                            project_trimmed)
+            surface[rows], boundary[rows] = e.surface, e.boundary
+        out[rule] = shape(surface, boundary)
+    return out
 
 
 def _guard_lines(trips: GuardTrips, ef, model) -> list[str]:
@@ -492,6 +533,7 @@ def tools_from_mesh(
     orient: bool = False,
     meshed_per_face: bool = False,
     measure: bool = True,
+    edge_rule: str = "bounded",
 ) -> list[ToolResult]:
     """Tools of ``mesh`` on ``model`` (None: estimated normals, no CAD errors): normals
     (`tool_normals`), one tool per connected part (`tool_groups`), Nagata patches and their
@@ -499,8 +541,9 @@ def tools_from_mesh(
     (`consistently_oriented`) instead of raising. ``meshed_per_face``: the mesh was made face
     by face from this CAD (gmsh), so no element can span two faces; only crease lines inside
     faces are checked for straddling elements; and nodes the mesher left off their trimmed
-    face are moved onto it (`cadbridge.tool.onto_cad`; ``ToolResult.moved_nodes``). ``measure``: False skips the errors against
-    the CAD (`build_tool`)."""
+    face are moved onto it (`cadbridge.tool.onto_cad`; ``ToolResult.moved_nodes``).
+    ``measure``: False skips the errors against the CAD (`build_tool`). ``edge_rule``:
+    "bounded" or "published" (`cadbridge.nagata.edge`)."""
     progress = progress or NoProgress()
     mesh = consistently_oriented(mesh, orient)
     progress.stage(f"{mesh.name}: {'projecting nodes onto the CAD' if method == 'cad' else method + ' normals'}"
@@ -551,7 +594,7 @@ def tools_from_mesh(
             node_distance=None if node_dist is None else node_dist[used],
             projector=projector, progress=progress,
             element_face=None if elem_face is None else np.concatenate(elem_face)[sel],
-            straddling=np.flatnonzero(straddle[sel]), measure=measure,
+            straddling=np.flatnonzero(straddle[sel]), measure=measure, edge_rule=edge_rule,
         ))
         if moved is not None:
             mine = np.zeros(len(mesh.nodes), dtype=bool)

@@ -45,6 +45,7 @@ def tool_data(tool: ToolResult, units: str, cad: str | None = None):
         quad_coefficients=nm.quad_coefficients if quad else None,
         source=cad or "",
         normal_source=tool.normal_source,
+        edge_rule=nm.edge_rule,
     )
 
 LISTING_MAX_ELEMENTS = 50_000

@@ -44,10 +44,18 @@ class RunResult:
                 f"{s.get('max_abs_surface_error', nan):>13.3e}{s.get('max_boundary_error', nan):>14.3e}"
                 f"{s.get('max_abs_flat_surface_error', nan):>11.3e}{s.get('max_normal_error_deg', nan):>11.4f}°"
             )
+        for t in self.tools:
+            by_rule = t.stats.get("shape_error_by_rule")
+            if by_rule:
+                rule = t.nagata.edge_rule
+                lines.append(f"  {t.name}: shape err by edge rule: " + ", ".join(
+                    f"{r} {e:.3e}{' (tool file)' if r == rule else ''}" for r, e in by_rule.items()))
         if any(t.stats for t in self.tools):
             lines.append("  surface err: max |distance| of the Nagata surface to its faces' underlying surfaces; "
                          "boundary err: max distance to the trimmed faces (includes the patches' boundary chords); "
-                         "flat err: surface err of the flat mesh at the same samples")
+                         "flat err: surface err of the flat mesh at the same samples"
+                         + ("; shape err: the larger of surface and boundary err, per edge rule (--edge-rule)"
+                            if any(t.stats.get("shape_error_by_rule") for t in self.tools) else ""))
         for t in self.tools:
             lines += [f"  {t.name}: {d}" for d in t.diagnosis]
         lines += [f"  {n}" for n in self.notes]
@@ -161,6 +169,7 @@ def nagata_from_mesh(
     progress=None,
     orient: bool = False,
     allow_worse: bool = False,
+    edge_rule: str = "bounded",
 ) -> RunResult:
     """`cadbridge nagata`: tool file(s) + report from a user mesh (and the CAD).
 
@@ -168,15 +177,19 @@ def nagata_from_mesh(
     mesh that says which CAD face each element was meshed on (`meshed_face_by_face`: the
     meshes cadbridge writes) is checked as `convert` checks its own mesh.
     Raises `ToolQualityError` when a tool is worse than its flat mesh (`check_tools`),
-    unless ``allow_worse``.
+    unless ``allow_worse``. ``edge_rule``: "bounded" (default) or "published", the rule of
+    the edge coefficients (`cadbridge.nagata.edge`); with a CAD the summary gives the surface
+    error of both rules.
 
     Example::
 
         >>> run = cadbridge.nagata_from_mesh("die.msh", cad="die.igs", output="die_tool/")  # doctest: +SKIP
     """
     from cadbridge.mesh.io import read_mesh
+    from cadbridge.nagata import check_edge_rule
 
     progress = progress or NoProgress()
+    check_edge_rule(edge_rule)
     if cad is None and method == "cad":
         raise ValueError("--method cad needs --cad FILE.igs")
     model, excursions = read_healed(cad, progress) if cad is not None else (None, [])  # as convert reads it
@@ -186,7 +199,9 @@ def nagata_from_mesh(
     projector = CadProjector(model, progress) if model is not None else None
     tools = tools_from_mesh(mesh, model, method=method, name=name, grid=grid, tolerance=tolerance, flip=flip,
                             allow_far=allow_far, projector=projector, progress=progress, orient=orient,
-                            meshed_per_face=meshed_face_by_face(mesh))
+                            meshed_per_face=meshed_face_by_face(mesh), measure=False, edge_rule=edge_rule)
+    for t in tools:
+        measure_tool(t, model, projector=projector, grid=grid, progress=progress, compare_rules=True)
     check_tools(tools, allow_worse)
     units = model.units.name if model is not None else "MM"
     result = RunResult(Path(output), tools, notes=healed_notes(excursions) + _moved_notes(tools))
@@ -217,6 +232,7 @@ def convert(
     min_size: float | None = None,
     mesher: str = "gmsh",
     full_report: bool = False,
+    edge_rule: str = "bounded",
 ) -> RunResult:
     """`cadbridge convert`: mesh the CAD with gmsh (or ``mesher="qit"``, `cadbridge.mesh.qit.mesher`),
     exact normals, Nagata, tool files, report.
@@ -235,7 +251,9 @@ def convert(
     elements and how many rounds. Raises `ToolQualityError` when a tool is worse than its
     flat mesh or those elements remain (the message says after how many rounds), unless
     ``allow_worse``. ``full_report``: the per-patch listings also for tools above
-    `cadbridge.tool.outputs.LISTING_MAX_ELEMENTS` elements.
+    `cadbridge.tool.outputs.LISTING_MAX_ELEMENTS` elements. ``edge_rule``: "bounded" (default)
+    or "published", the rule of the edge coefficients (`cadbridge.nagata.edge`); the summary
+    gives the surface error of both rules.
 
     Example::
 
@@ -244,7 +262,9 @@ def convert(
         >>> [t.name for t in run.tools], run.tools[0].stats["max_abs_surface_error"]  # doctest: +SKIP
     """
     from cadbridge.mesh.io import write_mesh
+    from cadbridge.nagata import check_edge_rule
 
+    check_edge_rule(edge_rule)
     cad = str(cad)  # a Path as well (the tool file records the source as text)
     progress = progress or NoProgress()
     model, excursions = read_healed(cad, progress)
@@ -253,7 +273,8 @@ def convert(
 
         projector = CadProjector(model, progress)
         adaptive = refine_mesh(cad, shape_tolerance, element=element, max_size=size, min_size=min_size,
-                               model=model, projector=projector, progress=progress, loop_cuts=excursions)
+                               model=model, projector=projector, progress=progress, loop_cuts=excursions,
+                               edge_rule=edge_rule)
         mesh, notes = adaptive.mesh, healed_notes(excursions) + list(adaptive.mesh.notes)
     else:
         adaptive = None
@@ -264,7 +285,7 @@ def convert(
         m.name = stem
         return tools_from_mesh(m, model, method=method, grid=grid, tolerance=tolerance, flip=flip,
                                projector=projector, progress=progress, orient=True, meshed_per_face=True,
-                               measure=False)
+                               measure=False, edge_rule=edge_rule)
 
     refined = ""
     if adaptive is None:
@@ -277,7 +298,7 @@ def convert(
     else:
         tools = build(mesh)
     for t in tools:
-        measure_tool(t, model, projector=projector, grid=grid, progress=progress)
+        measure_tool(t, model, projector=projector, grid=grid, progress=progress, compare_rules=True)
     check_tools(tools, allow_worse, refinement=refined)
     result = RunResult(Path(output), tools, notes=notes + _moved_notes(tools))
     with staged_output(output) as tmp:

@@ -635,6 +635,7 @@ def refine_mesh(
     projector=None,
     progress=None,
     loop_cuts=(),
+    edge_rule: str = "bounded",
 ) -> AdaptiveResult:
     """Mesh ``cad`` (IGES) so that its Nagata surface with exact normals is within
     ``tolerance`` [model units] of the CAD (module docs).
@@ -654,6 +655,8 @@ def refine_mesh(
               follow) or elements too many
 
     loop_cuts    trim-loop excursions cut out of the meshes (`cadbridge.mesh.generate.mesh_cad`)
+    edge_rule    the rule of the edge coefficients measured, "bounded" or "published"
+              (`cadbridge.nagata.edge`)
 
     Returns an `AdaptiveResult` (``met`` False when some elements stay above the tolerance
     at the size floor or after ``max_passes``; the best mesh is still in it)."""
@@ -716,9 +719,9 @@ def refine_mesh(
             if moved:
                 cn = cad_normals(mesh, model, orient=True, allow_far=True)
             bad_full = inadmissible_elements(mesh, model, cn, NagataMesh(
-                mesh.nodes, [np.asarray(b.data) for b in mesh.cells], cn.corner_normals))
+                mesh.nodes, [np.asarray(b.data) for b in mesh.cells], cn.corner_normals, edge_rule=edge_rule))
         tools = tools_from_mesh(mesh, model, method="cad", grid=grid, projector=projector, progress=progress,
-                                orient=True, meshed_per_face=True)
+                                orient=True, meshed_per_face=True, edge_rule=edge_rule)
         surf = np.concatenate([_shape_error(t.grid) for t in tools])
         nerr = np.concatenate([t.grid["normal_error"] for t in tools])
         pm = _PassMarks(np.ones(len(model.faces)))

@@ -203,7 +203,7 @@ def _estimated(mesh_nodes, quads, method, sub_elements=None):
     return nodes, q, estimate_normals(nodes, [q], method=method), used
 
 
-def _tool_sources(tool, mesh, cn, on_radius, p, projector, grid):
+def _tool_sources(tool, mesh, cn, on_radius, p, projector, grid, edge_rule="bounded"):
     """Fig. 49 for one tool: per normal source the section errors (tools with a radius),
     the node-normal angles to the CAD normals and the shape errors of the whole Nagata
     surface against the CAD. Returns (results, sections, element boundaries, angles,
@@ -226,7 +226,7 @@ def _tool_sources(tool, mesh, cn, on_radius, p, projector, grid):
         else:
             nodes, q, nrm, used = _estimated(mesh.nodes, quads, method, None if planes else rad_el)
             angles[key] = angle_deg(nrm, cn.normals[used])
-        nm = NagataMesh(nodes, q, nrm)
+        nm = NagataMesh(nodes, q, nrm, edge_rule=edge_rule)
         if planes:  # the whole tool against the CAD
             g = nm.sample_grid(grid)
             foot, ncad = projector(g.points)
@@ -246,10 +246,12 @@ def _tool_sources(tool, mesh, cn, on_radius, p, projector, grid):
 
 
 def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 20, fine_size: float = 4.0,
-               progress=None, mesher: str = "gmsh") -> UShapeSummary:
+               progress=None, mesher: str = "gmsh", edge_rule: str = "bounded") -> UShapeSummary:
     """Run the benchmark into ``output`` (created; files are moved in only on success).
 
     mesher: "gmsh" or "qit" for the unstructured triangle variant (``fine_size``).
+    edge_rule: "bounded" (default) or "published", the rule of every Nagata surface built
+    (`cadbridge.nagata.edge`).
 
     progress: optional stage reporter (see `cadbridge.common.progress.NoProgress`).
     """
@@ -264,6 +266,9 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
 
     p = params or UShapeParams()
     progress = progress or NoProgress()
+    from cadbridge.nagata import check_edge_rule
+
+    check_edge_rule(edge_rule)
     t_start = time.perf_counter()
     summary = UShapeSummary()
     files: list[str] = []
@@ -290,7 +295,8 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
             on_radius = np.isin(np.concatenate(cn.element_face), radius_faces)
 
             progress.stage(f"{tool}: CAD vs MWE / MWAAT / MWELR normals (Fig. 49)")
-            results, sections, boundaries, poly, angles, shape = _tool_sources(tool, mesh, cn, on_radius, p, projector, grid)
+            results, sections, boundaries, poly, angles, shape = _tool_sources(tool, mesh, cn, on_radius, p, projector, grid,
+                                                                               edge_rule)
             if sections:
                 plot_section_error(
                     tmp / f"{tool}_section_error.png", sections, element_boundaries=boundaries, polyhedral=poly, legend_outside=True,
@@ -306,7 +312,8 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
 
             # the tool file + report: CAD normals on the structured quad mesh
             tq = build_tool(tool, mesh, cn.normals, cn.corner_normals, "cad", model=model, grid=grid,
-                            node_face=cn.face, node_distance=cn.distance, projector=projector, progress=progress)
+                            node_face=cn.face, node_distance=cn.distance, projector=projector, progress=progress,
+                            edge_rule=edge_rule)
             (tmp / tool).mkdir()
             progress.stage(f"{tool}: tool file and report")
             files += [f"{tool}/{f}" for f in write_tool_outputs(tq, tmp / tool, model.units.name, f"cad/{tool}.igs",
@@ -326,7 +333,7 @@ def run_ushape(output: str, *, params: UShapeParams | None = None, grid: int = 2
             cf = cad_normals(fine, model)
             tf = build_tool(f"{tool}_tri", fine, cf.normals, cf.corner_normals, "cad", model=model,
                             grid=max(4, grid // 4), node_face=cf.face, node_distance=cf.distance,
-                            projector=projector, progress=progress)
+                            projector=projector, progress=progress, edge_rule=edge_rule)
             results["cad_fine_tri_vs_cad"] = {
                 "max_abs_surface_error_mm": tf.stats["max_abs_surface_error"],
                 "max_boundary_error_mm": tf.stats["max_boundary_error"],

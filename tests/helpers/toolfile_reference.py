@@ -8,7 +8,10 @@ cadbridge.io.toolfile nor cadbridge.nagata (nor anything else of cadbridge), onl
   order), 0-based arrays.
 * `corner_normals(tf)`: rule 1 ("Corner normals") -> (E, 4, 3), NaN for a triangle's 4th.
 * `edge_coefficients(tf)`: rules 2-5 (edges, which formula, two-normal formula with its
-  bounded cases, generalized inverse with adj / D0 / D1 / D2, the one-end-multiple rule).
+  bounded cases, generalized inverse with adj / D0 / D1 / D2, the one-end-multiple rule, 4b)
+  of the bounded edge rule (``EDGE_RULE bounded``, or no such line), or "The published rule"
+  (``EDGE_RULE published``: eq. 15 without the bounded cases, the generalized inverse with the
+  distinct normals wherever an end carries several, no EDGE_NORMALS).
 * `rebuild(tf) -> (E, 8, 3)`: rule 6 (patch coefficients; c21 = c12 = 0 for triangles).
 * `evaluate(coef, kind, elem, eta, zeta)`: the patch polynomial of "Corners and patch
   parameters"; `flat(tf, elem, eta, zeta)`: the flat element (triangle
@@ -59,6 +62,7 @@ class ToolFile:
     edge_p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (B, 3) extra normal at edge_nodes[:, 0]
     edge_q: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (B, 3) at edge_nodes[:, 1]
     extra: dict = field(default_factory=dict)
+    edge_rule: str = "bounded"  # the EDGE_RULE header line; a file without it: bounded
 
     @property
     def n_tri(self) -> int:
@@ -130,7 +134,7 @@ def read(path: str | Path) -> ToolFile:
         key, _, value = ln.partition(" ")  # value: everything after the first blank after the keyword
         if key == "COUNTS":
             break
-        if key in ("NAME", "UNITS", "SOURCE", "NORMAL_SOURCE"):
+        if key in ("NAME", "UNITS", "SOURCE", "NORMAL_SOURCE", "EDGE_RULE"):
             if key in head:
                 _fail(path, i + 1, f"{key} appears twice")
             head[key] = value
@@ -147,6 +151,9 @@ def read(path: str | Path) -> ToolFile:
     for req in ("NAME", "UNITS"):
         if req not in head:
             _fail(path, i + 1, f"header has no {req}")
+    rule = head.get("EDGE_RULE", "bounded")
+    if rule not in ("bounded", "published"):
+        _fail(path, i + 1, f"EDGE_RULE must be bounded or published, not {rule!r}")
     counts = lines[i].split()[1:]
     want = 5 if version == 1 else 6
     if len(counts) != want or not all(c.isdigit() for c in counts):
@@ -259,7 +266,7 @@ def read(path: str | Path) -> ToolFile:
     if any(ln.strip() for ln in lines[i + 1:]):
         _fail(path, i + 2, "text after END")
     return ToolFile(head["NAME"], head["UNITS"], head.get("SOURCE", ""), head.get("NORMAL_SOURCE", ""),
-                    meta, comments, nodes, normals, conn, nn, ce, cc, cn, coef, en, ep, eqn)
+                    meta, comments, nodes, normals, conn, nn, ce, cc, cn, coef, en, ep, eqn, edge_rule=rule)
 
 
 def model_size(tf: ToolFile) -> float:
@@ -300,6 +307,26 @@ def two_normal(d: np.ndarray, n0: np.ndarray, n1: np.ndarray) -> np.ndarray:
     return c - dot(c, bu)[:, None] * bu
 
 
+def two_normal_published(d: np.ndarray, n0: np.ndarray, n1: np.ndarray) -> np.ndarray:
+    """"The published rule", one normal per end: eq. 15 with its singular cases only, (M, 3) each."""
+    dot = lambda a, b: np.einsum("ij,ij->i", a, b)  # noqa: E731
+    v, dv = (n0 + n1) / 2, (n0 - n1) / 2
+    dc = dot(n0, dv)
+    one = 1 - dc
+    f1 = np.where(one >= EPS, dot(d, dv) / np.where(one >= EPS, one, 1.0), 0.0)
+    f2 = np.where(dc >= EPS, dot(d, v) / np.where(dc >= EPS, dc, 1.0), 0.0)
+    return f1[:, None] * v + f2[:, None] * dv
+
+
+def _distinct_rows(n: np.ndarray) -> np.ndarray:
+    """The rows of ``n`` (K, 3) that differ by more than 1e-12 (componentwise) from every earlier kept row."""
+    kept: list = []
+    for row in n:
+        if not any(np.max(np.abs(row - k)) <= 1e-12 for k in kept):
+            kept.append(row)
+    return np.array(kept)
+
+
 def generalized_inverse(d: np.ndarray, S: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Rule 5 from the already averaged S (M, 3, 3) and r (M, 3)."""
     D0 = np.linalg.det(S) if len(S) else np.zeros(0)
@@ -334,7 +361,7 @@ class Edges:
 
 
 def edge_coefficients(tf: ToolFile) -> Edges:
-    """Rules 2, 3, 4, 5 for every mesh edge."""
+    """Rules 2, 3, 4, 5 (4b) for every mesh edge, or "The published rule" (``tf.edge_rule``)."""
     N_ = corner_normals(tf)
     E = tf.n_elements
     tri = np.flatnonzero(tf.nn == 3)
@@ -374,6 +401,23 @@ def edge_coefficients(tf: ToolFile) -> Edges:
     d = x1 - x0
     coef = np.zeros((M, 3))
     kind = np.zeros(M, dtype=np.int64)
+    local = -np.ones((E, 4), dtype=np.int64)
+    local[el, slot] = gid
+
+    if tf.edge_rule == "published":  # "The published rule": eq. 15, or eqs. 19-33 with the distinct normals
+        coef = two_normal_published(d, n0[first], n1[first])
+        ends = np.append(first, len(gid))
+        for g in np.flatnonzero(mult0 | mult1):  # loop over the (few) edges with several normals at an end
+            p = _distinct_rows(n0[ends[g]:ends[g + 1]])
+            q = _distinct_rows(n1[ends[g]:ends[g + 1]])
+            if len(p) == 1 and len(q) == 1:
+                continue  # differences below 1e-12: one normal per end
+            m = len(p) + len(q)
+            S = (p.T @ p + q.T @ q) / m
+            r = (p.T @ (p @ d[g]) - q.T @ (q @ d[g])) / m
+            coef[g] = generalized_inverse(d[g:g + 1], S[None], r[None])[0]
+            kind[g] = 2
+        return Edges(np.stack([a[first], b[first]], axis=1), coef, kind, local)
 
     # neither end multiple
     g = ~mult0 & ~mult1
@@ -452,8 +496,6 @@ def edge_coefficients(tf: ToolFile) -> Edges:
         coef[gi] = c2 + np.where(ok, s, 0.0)[:, None] * bv
         kind[gi] = 3
 
-    local = -np.ones((E, 4), dtype=np.int64)
-    local[el, slot] = gid
     return Edges(np.stack([a[first], b[first]], axis=1), coef, kind, local)
 
 
