@@ -81,8 +81,15 @@ def view_direction(normals: np.ndarray, weights: np.ndarray, *, grazing_deg: flo
     n, w = n[ok], w[ok]
     if not len(w):
         return np.array([0.0, 0.0, 1.0])
-    cand = [_fibonacci_sphere(candidates)]
     mean = w @ n
+    # normals within about half a degree are one: a die has few distinct directions, and the
+    # score matrix is (distinct normals, candidates), not (E, candidates) (3 s -> 0.1 s on a die)
+    _, group = np.unique(np.round(n * 128.0).astype(np.int64), axis=0, return_inverse=True)
+    group = group.ravel()
+    w_g = np.bincount(group, weights=w)
+    n_g = np.stack([np.bincount(group, weights=w * n[:, k]) for k in range(3)], axis=1) / w_g[:, None]
+    n, w = n_g / np.maximum(np.linalg.norm(n_g, axis=1, keepdims=True), 1e-300), w_g
+    cand = [_fibonacci_sphere(candidates)]
     if np.linalg.norm(mean) > 1e-12 * w.sum():
         cand.insert(0, (mean / np.linalg.norm(mean))[None])
     cand = np.concatenate(cand)
@@ -182,15 +189,17 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
         w0 = worst[0]
         radius = 8.0 * size[w0]
         close = np.flatnonzero(np.linalg.norm(centre - centre[w0], axis=1) <= radius)
-        ew = area[close] * np.where(finite[close], val[close], 0.0)
+        # weighted by the error alone, not by area: a sliver with the largest error counts
+        ew = np.where(finite[close], val[close], 0.0)
         close_view = view_direction(cnorm[close], ew if np.any(ew > 0) else area[close])
-    else:  # nothing measured: the close-up shows the whole tool
+    else:  # nothing labelled: the close-up shows the whole tool
         close = all_el
         close_view = whole_view
+        radius = np.inf
 
     fig = Figure(figsize=figsize, dpi=dpi)  # fixed margins: a constrained layout costs a second per picture
     FigureCanvasAgg(fig)
-    gs = fig.add_gridspec(2, 5, width_ratios=[1, 0.22, 1, 0.22, 0.04], height_ratios=[1, 0.16], left=0.02,
+    gs = fig.add_gridspec(2, 5, width_ratios=[1, 0.24, 1, 0.3, 0.04], height_ratios=[1, 0.16], left=0.02,
                           right=0.94, bottom=0.02, top=0.92, wspace=0.05, hspace=0.08)
     ax_whole, ax_close = fig.add_subplot(gs[0, 0]), fig.add_subplot(gs[0, 2])  # columns 1, 3: their labels
     for ax, elems, d, m, name in ((ax_whole, all_el, whole_view, 1, "whole tool"),
@@ -209,8 +218,12 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
         rgba[:, :3] *= shade[:, None]
         edge = "face" if m == 1 else (0.15, 0.15, 0.15, 0.6)
         ax.add_collection(PolyCollection(xy[back], facecolors=rgba[back], edgecolors=edge,
-                                         linewidths=0.3 if m == 1 else 0.4, antialiased=m != 1))
+                                         linewidths=0.3 if m == 1 else 0.4, antialiased=m != 1),
+                          autolim=False)  # the limits are set below: no extents of 86 000 paths
         lo, hi = xy.reshape(-1, 2).min(axis=0), xy.reshape(-1, 2).max(axis=0)
+        if m != 1 and np.isfinite(radius):  # the close-up: a square around the worst element
+            c = np.array([centre[worst[0]] @ right, centre[worst[0]] @ up])
+            lo, hi = np.maximum(lo, c - 0.7 * radius), np.minimum(hi, c + 0.7 * radius)  # inside the selection
         pad = 0.04 * float(max(hi - lo)) + 1e-12
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
         ax.set_ylim(lo[1] - pad, hi[1] + pad)
@@ -223,14 +236,16 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
         if len(shown):
             wpts = _outlines(nagata, worst[shown], EDGE_SAMPLES)[0]
             wxy = np.stack([wpts @ right, wpts @ up], axis=-1)
-            ax.add_collection(PolyCollection(wxy, facecolors="none", edgecolors="red", linewidths=1.6))
+            ax.add_collection(PolyCollection(wxy, facecolors="none", edgecolors="red", linewidths=1.6), autolim=False)
             wc = wxy.mean(axis=1)
+            if m == 1:  # on a die an element is a few pixels: a ring around it as well
+                ax.scatter(wc[:, 0], wc[:, 1], s=160, facecolors="none", edgecolors="red", linewidths=1.4)
             for i, y in zip(*_label_heights((wc[:, 1] - lo[1] + pad) / (hi[1] - lo[1] + 2 * pad))):
                 e = worst[shown[i]]
                 ax.annotate(f"{e + 1}: {val[e]:.3g} {unit}".rstrip(), wc[i], xytext=(1.03, y),
                             textcoords="axes fraction", fontsize=9, color="red", fontweight="bold", va="center",
                             annotation_clip=False, bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="red", lw=0.5),
-                            arrowprops=dict(arrowstyle="-", color="red", lw=0.7, shrinkA=0, shrinkB=2))
+                            arrowprops=dict(arrowstyle="-", color="red", lw=0.7, shrinkA=0, shrinkB=0))
         ax.set_title(f"{name} (view from {d[0]:+.2f}, {d[1]:+.2f}, {d[2]:+.2f})", fontsize=10)
 
     cax = fig.add_subplot(gs[0, 4])
@@ -243,7 +258,7 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
                    ha="right", fontsize=8, rotation=90)
     tax = fig.add_subplot(gs[1, :])
     tax.axis("off")
-    rows = [f"element {e + 1}: {val[e]:.4g} {unit} at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
+    rows = [f"element {e + 1}: {val[e]:.4g} {unit} at ({c[0]:.5g}, {c[1]:.5g}, {c[2]:.5g})"
             for e, c in zip(worst, corners[worst].mean(axis=1))]
     if not finite.any():
         rows = ["no element has a measured error"]
@@ -253,7 +268,7 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
              "'element' is this - 1):"] + ["    ".join(rows[i:i + 3]) for i in range(0, len(rows), 3)]
     if (~finite).any():
         notes.append(f"{int((~finite).sum())} elements without a measured error (grey)")
-    tax.text(0.0, 1.0, "\n".join(notes), va="top", ha="left", fontsize=9, transform=tax.transAxes, wrap=True)
+    tax.text(0.0, 1.0, "\n".join(notes), va="top", ha="left", fontsize=9, transform=tax.transAxes)
     fig.suptitle(title)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=fig.dpi)
@@ -275,6 +290,9 @@ def _label_heights(y: np.ndarray, gap: float = 0.06) -> tuple[np.ndarray, np.nda
     return order, h
 
 
+_HALO = dict(boxstyle="square,pad=0.1", fc="white", ec="none", alpha=0.8)
+
+
 def _triad(ax, right: np.ndarray, up: np.ndarray) -> None:
     """The x, y, z axes as seen in the view, in the lower left corner."""
     o = np.array([0.07, 0.08])
@@ -283,11 +301,12 @@ def _triad(ax, right: np.ndarray, up: np.ndarray) -> None:
         e[k] = 1.0
         v = np.array([e @ right, e @ up]) * 0.05
         if np.linalg.norm(v) < 1e-3:
-            ax.text(*o, name, transform=ax.transAxes, fontsize=8, ha="center", va="center")
+            ax.text(*o, name, transform=ax.transAxes, fontsize=8, ha="center", va="center", bbox=_HALO)
             continue
-        ax.annotate("", xy=o + v, xytext=o, xycoords="axes fraction",
-                    arrowprops=dict(arrowstyle="->", lw=1.0, color="k"))
-        ax.text(*(o + 1.35 * v), name, transform=ax.transAxes, fontsize=8, ha="center", va="center")
+        for colour, lw in (("white", 3.0), ("k", 1.0)):  # a white halo: readable over dark elements
+            ax.annotate("", xy=o + v, xytext=o, xycoords="axes fraction",
+                        arrowprops=dict(arrowstyle="->", lw=lw, color=colour))
+        ax.text(*(o + 1.35 * v), name, transform=ax.transAxes, fontsize=8, ha="center", va="center", bbox=_HALO)
 
 
 def _scale_bar(ax, extent: float, unit: str) -> None:
@@ -300,6 +319,7 @@ def _scale_bar(ax, extent: float, unit: str) -> None:
     x0, x1 = ax.get_xlim()
     y0, y1 = ax.get_ylim()
     xe, ye = x1 - 0.04 * (x1 - x0), y0 + 0.04 * (y1 - y0)
+    ax.plot([xe - length, xe], [ye, ye], color="white", lw=5)
     ax.plot([xe - length, xe], [ye, ye], color="k", lw=2)
-    ax.text(xe - length / 2, ye + 0.01 * (y1 - y0), f"{length:g} {unit}".rstrip(), ha="center", va="bottom",
-            fontsize=8)
+    ax.text(xe - length / 2, ye + 0.015 * (y1 - y0), f"{length:g} {unit}".rstrip(), ha="center", va="bottom",
+            fontsize=8, bbox=_HALO)
