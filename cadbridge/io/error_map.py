@@ -7,11 +7,14 @@ their error. Each view looks along a direction chosen from the geometry
 (`view_direction`): the whole tool so that its curved elements (radii) face the viewer,
 the close-up so that the elements carrying the error do; neither edge-on.
 
-Drawing is 2D (painter's sort of the projected polygons into one `PolyCollection`), not
-mplot3d: a production die (about 60 000 elements) draws in about a second per picture,
-where `Poly3DCollection` takes tens of seconds. Painter's order is per polygon (its mean
-depth): where two elements overlap in the view the nearer centre wins, which is exact for
-a tool surface seen from one side and approximate where it folds behind itself.
+Drawing is 2D: the polygons projected along the view direction, sorted far to near
+(painter's order, by mean depth) into one `PolyCollection`. Where two elements overlap in
+the view the nearer centre wins: exact for a tool surface seen from one side, approximate
+where it folds behind itself. On the production die (85 898 elements, 2 cores shared, load
+about 4.5) one picture takes 2.1 s; the previous mplot3d drawing (`Poly3DCollection`, the
+same elements as 171 796 triangles, no labels) took 3.1 s. The 2D drawing is not chosen for
+speed alone: it gives the view direction, the crop of the close-up and the label positions
+in screen coordinates directly.
 
 matplotlib Agg (no pyplot state), written atomically (`cadbridge.common.atomic`).
 """
