@@ -5,7 +5,8 @@ largest error, in two views: the whole tool and a close-up around the worst elem
 worst elements are outlined and labelled with their number in the tool file (1-based) and
 their error. Each view looks along a direction chosen from the geometry
 (`view_direction`): the whole tool so that its curved elements (radii) face the viewer,
-the close-up so that the elements carrying the error do; neither edge-on.
+the close-up so that the elements carrying the error do; in both the worst element is
+seen within 60 degrees of its normal, never edge-on.
 
 Drawing is 2D: the polygons projected along the view direction, sorted far to near
 (painter's order, by mean depth) into one `PolyCollection`. Where two elements overlap in
@@ -33,6 +34,7 @@ __all__ = ["ErrorMap", "element_max", "plot_error_map", "view_direction"]
 
 GRAZING_DEG = 70.0  # a surface seen at more than this from its normal counts as edge-on
 LABEL_FLOOR = 0.05  # elements below this fraction of the largest error are not labelled
+MUST_SEE_DEG = 60.0  # the worst element is seen at most this far from its normal
 EDGE_SAMPLES = 3  # points per element edge in the close-up outlines (corners only in the whole view)
 
 
@@ -71,13 +73,15 @@ def element_max(elem: np.ndarray, values: np.ndarray, n_elements: int) -> np.nda
     return out
 
 
-def view_direction(normals: np.ndarray, weights: np.ndarray, *, grazing_deg: float = GRAZING_DEG,
-                   candidates: int = 400) -> np.ndarray:
+def view_direction(normals: np.ndarray, weights: np.ndarray, *, must_see: np.ndarray | None = None,
+                   grazing_deg: float = GRAZING_DEG, candidates: int = 400) -> np.ndarray:
     """Unit view direction (3,) (from the surface towards the viewer) that sees the weighted
     surface best: it maximises sum(w_i cos a_i) over the elements seen at a_i < ``grazing_deg``
     from their unit ``normals`` (E, 3) (``weights`` (E,) >= 0). Candidates: the weighted mean
     normal, then ``candidates`` directions spread over the sphere; the mean normal wins ties
-    (it is the optimum when every element is seen at less than ``grazing_deg``)."""
+    (it is the optimum when every element is seen at less than ``grazing_deg``). With
+    ``must_see`` (3,) (the worst element's unit normal) only directions within `MUST_SEE_DEG`
+    of it count (and itself): that element is never seen edge-on."""
     n = np.asarray(normals, dtype=float)
     w = np.asarray(weights, dtype=float)
     ok = np.isfinite(w) & np.all(np.isfinite(n), axis=1) & (w > 0)
@@ -96,7 +100,9 @@ def view_direction(normals: np.ndarray, weights: np.ndarray, *, grazing_deg: flo
     if np.linalg.norm(mean) > 1e-12 * w.sum():
         cand.insert(0, (mean / np.linalg.norm(mean))[None])
     cand = np.concatenate(cand)
-    c = n @ cand.T  # (E, C)
+    if must_see is not None and np.all(np.isfinite(must_see)):
+        cand = np.concatenate([cand[cand @ must_see >= np.cos(np.radians(MUST_SEE_DEG))], [must_see]])
+    c = n @ cand.T  # (distinct normals, C)
     score = w @ np.where(c > np.cos(np.radians(grazing_deg)), c, 0.0)
     return cand[int(np.argmax(score))]
 
@@ -147,11 +153,15 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
                    figsize: tuple[float, float] = (16, 8), dpi: float = 110) -> ErrorMap:
     """One PNG of the error per element of ``nagata`` (a `cadbridge.nagata.NagataMesh`, E
     elements): ``values`` (E,) the largest |error| of each element (`element_max`; NaN: not
-    measured, drawn grey). ``label`` names the colour bar, ``unit`` follows the labelled
-    values, ``length_unit`` the scale bar, ``tolerance`` (if given) is marked on the colour bar and included in its range.
-    Left: the whole tool; right: the elements within 8 sizes of the worst one. The
-    ``n_worst`` largest values (above ``negligible`` and 5 % of the largest) are outlined in red and numbered (1-based element numbers, as
-    in the tool file) in both views and listed under the pictures."""
+    measured, drawn grey, never coloured or labelled). ``label`` names the colour bar,
+    ``unit`` follows the labelled values, ``length_unit`` the scale bar; ``tolerance`` (if
+    given) is marked on the colour bar and included in its range.
+
+    Left: the whole tool; right: the elements within 8 sizes of the worst one, cropped to a
+    square around it. The ``n_worst`` largest values (above ``negligible`` and above
+    `LABEL_FLOOR` x the largest) are outlined in red and labelled "element: value" (element
+    numbers 1-based, as in the tool file) in each view that shows them, and listed under the
+    pictures with their centres. Returns what was drawn (`ErrorMap`)."""
     from matplotlib import colormaps, colors
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.collections import PolyCollection
@@ -185,7 +195,8 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
     # the centre normal, radians) times its size ~ area x curvature; flat elements weigh 0
     turn = np.arccos(np.clip(np.einsum("ekj,ej->ek", cornn, cnorm), -1, 1)).max(axis=1)
     curved = turn * size
-    whole_view = view_direction(cnorm, curved if np.any(curved > 1e-9 * size.max()) else area)
+    worst_normal = cnorm[worst[0]] if len(worst) else None
+    whole_view = view_direction(cnorm, curved if np.any(curved > 1e-9 * size.max()) else area, must_see=worst_normal)
 
     if len(worst):
         centre = corners.mean(axis=1)
@@ -194,7 +205,7 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
         close = np.flatnonzero(np.linalg.norm(centre - centre[w0], axis=1) <= radius)
         # weighted by the error alone, not by area: a sliver with the largest error counts
         ew = np.where(finite[close], val[close], 0.0)
-        close_view = view_direction(cnorm[close], ew if np.any(ew > 0) else area[close])
+        close_view = view_direction(cnorm[close], ew if np.any(ew > 0) else area[close], must_see=worst_normal)
     else:  # nothing labelled: the close-up shows the whole tool
         close = all_el
         close_view = whole_view
@@ -235,12 +246,14 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
         ax.set_yticks([])
         _triad(ax, right, up)
         _scale_bar(ax, float(max(hi - lo)), length_unit)
-        shown = np.flatnonzero(np.isin(worst, elems))
+        wpts = _outlines(nagata, worst, EDGE_SAMPLES)[0]
+        wxy = np.stack([wpts @ right, wpts @ up], axis=-1)
+        wc = wxy.mean(axis=1)
+        # labelled in this view: in its elements and inside its limits (the close-up's crop)
+        shown = np.flatnonzero(np.isin(worst, elems) & np.all((wc >= lo) & (wc <= hi), axis=1))
         if len(shown):
-            wpts = _outlines(nagata, worst[shown], EDGE_SAMPLES)[0]
-            wxy = np.stack([wpts @ right, wpts @ up], axis=-1)
+            wxy, wc = wxy[shown], wc[shown]
             ax.add_collection(PolyCollection(wxy, facecolors="none", edgecolors="red", linewidths=1.6), autolim=False)
-            wc = wxy.mean(axis=1)
             if m == 1:  # on a die an element is a few pixels: a ring around it as well
                 ax.scatter(wc[:, 0], wc[:, 1], s=160, facecolors="none", edgecolors="red", linewidths=1.4)
             for i, y in zip(*_label_heights((wc[:, 1] - lo[1] + pad) / (hi[1] - lo[1] + 2 * pad))):
@@ -304,7 +317,8 @@ def _triad(ax, right: np.ndarray, up: np.ndarray) -> None:
         e[k] = 1.0
         v = np.array([e @ right, e @ up]) * 0.05
         if np.linalg.norm(v) < 1e-3:
-            ax.text(*o, name, transform=ax.transAxes, fontsize=8, ha="center", va="center", bbox=_HALO)
+            ax.text(*(o - [0.03, 0.0]), name, transform=ax.transAxes, fontsize=8, ha="center", va="center",
+                    bbox=_HALO)  # along the view: beside the origin
             continue
         for colour, lw in (("white", 3.0), ("k", 1.0)):  # a white halo: readable over dark elements
             ax.annotate("", xy=o + v, xytext=o, xycoords="axes fraction",

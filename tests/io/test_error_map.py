@@ -123,3 +123,16 @@ def test_values_must_be_one_per_element(tmp_path):
     with pytest.raises(ValueError, match="values must be"):
         plot_error_map(tmp_path / "bad.png", nm, np.zeros(3), title="t", label="e")
     assert not (tmp_path / "bad.png").exists()
+
+
+def test_view_keeps_the_worst_element_in_sight():
+    """Elements facing +x (weight 1) and the worst element facing +z: unconstrained the view is
+    +x, which sees the worst element edge-on (90 degrees). With ``must_see`` the view stays
+    within 60 degrees of +z; the best such direction (analytic) is on that cone's rim nearest
+    +x, 30 degrees from +x, and the candidates are about 10 degrees apart."""
+    n = np.array([[1.0, 0.0, 0.0]] * 20 + [[0.0, 0.0, 1.0]])
+    w = np.r_[np.ones(20), 1e-6]
+    np.testing.assert_allclose(view_direction(n, w), [1.0, 0.0, 0.0], atol=1e-6)
+    d = view_direction(n, w, must_see=np.array([0.0, 0.0, 1.0]))
+    assert np.degrees(np.arccos(d[2])) <= 60.0 + 1e-9
+    assert np.degrees(np.arccos(d[0])) <= 40.0
