@@ -182,7 +182,8 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
     # label on round-off in flat elements; none at or below ``negligible``)
     labelled = (fv >= LABEL_FLOOR * fv.max()) & (fv > negligible)
     worst = order[: min(n_worst, int(labelled.sum()))]
-    top = max(float(fv.max()), tolerance or 0.0)
+    # round-off (at or below ``negligible``) does not stretch the scale: it shows as 0
+    top = max(float(fv.max()), tolerance or 0.0, negligible)
     top = top if top > 0 else 1.0  # an error-free tool: the scale 0..1, every element at 0
     norm = colors.Normalize(0.0, top)
     cmap = colormaps["plasma"]
@@ -279,7 +280,8 @@ def plot_error_map(path: str | os.PathLike, nagata, values: np.ndarray, *, title
     if not finite.any():
         rows = ["no element has a measured error"]
     elif not rows:
-        rows = [f"largest error {fv.max():.4g} {unit}: no element labelled"]
+        floor = f" (not above {negligible:.3g} {unit}: round-off)" if negligible > 0 else ""
+        rows = [f"largest error {fv.max():.4g} {unit}{floor}: no element labelled"]
     notes = ["largest errors, worst first (red; element numbers as in the tool file, 1-based; the VTU's "
              "'element' is this - 1):"] + ["    ".join(rows[i:i + 3]) for i in range(0, len(rows), 3)]
     if (~finite).any():

@@ -157,7 +157,8 @@ def write_error_maps(tool: ToolResult, folder: Path, units: str) -> list[str]:
         values = element_max(g["element"], g[key], nm.n_elements)
         plot_error_map(folder / f"{name}_{stem}.png", nm, values, label=label, unit=unit, length_unit=u,
                        negligible=negligible,
-                       title=f"{name}: {what} ({nm.n_elements} elements, {tool.normal_source} normals)")
+                       title=f"{name}: {what} ({nm.n_elements} element{'s' * (nm.n_elements != 1)}, "
+                             f"{tool.normal_source} normals)")
         files.append(f"{name}_{stem}.png")
     return files
 

@@ -109,6 +109,10 @@ def test_error_free_tool_still_draws(tmp_path):
     drawn = plot_error_map(tmp_path / "zero.png", nm, np.zeros(nm.n_elements), title="t", label="e")
     assert png_size(tmp_path / "zero.png") == (1760, 880)
     assert len(drawn.worst) == 0 and drawn.unmeasured == 0
+    # round-off of a flat tool (1e-16 x its size) at or below ``negligible``: drawn, not labelled
+    roundoff = np.full(nm.n_elements, 2.2e-16)
+    drawn = plot_error_map(tmp_path / "roundoff.png", nm, roundoff, title="t", label="e", negligible=1e-12)
+    assert len(drawn.worst) == 0 and (tmp_path / "roundoff.png").is_file()
 
 
 def test_nothing_measured_draws_grey_and_labels_nothing(tmp_path):
