@@ -158,18 +158,19 @@ class AdaptiveResult:
         with atomic_write(folder / "adaptive_report.md") as fh:
             fh.write("# Adaptive Nagata meshing\n\n```\n" + self.summary() + "\n```\n")
         files.append("adaptive_report.md")
+        from cadbridge.io.error_map import element_max
+        from cadbridge.tool.accuracy import tool_errors
+
+        u = model.units.name.lower()
         for t in self.tools:
             nm = t.nagata
-            verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(4, return_params=True)
-            from cadbridge.tool.accuracy import tool_errors
-
+            pe, peta, pzeta = nm.grid_parameters(4)
             err = tool_errors(nm, pe, peta, pzeta, t.element_face, model, _projector(model, projector).project)
-            x = nm.nodes
-            e2 = nm.edges["edges"]
-            plot_error_map(folder / f"{t.name}_shape_error.png", verts, tris, err.surface,
-                           title=f"{t.name}: |shape error| of the Nagata surface vs CAD ({len(x)} nodes)",
-                           label=f"|distance to the CAD| [{model.units.name.lower()}]", tolerance=self.tolerance,
-                           edges=np.stack([x[e2[:, 0]], x[e2[:, 1]]], axis=1))
+            plot_error_map(folder / f"{t.name}_shape_error.png", nm, element_max(pe, err.surface, nm.n_elements),
+                           title=f"{t.name}: |shape error| of the Nagata surface vs CAD ({len(nm.nodes)} nodes, "
+                                 f"4 divisions per patch)",
+                           label=f"element's largest |distance to the CAD| [{u}]", unit=u, length_unit=u,
+                           tolerance=self.tolerance, negligible=1e-12 * float(np.linalg.norm(np.ptp(nm.nodes, axis=0))))
             files.append(f"{t.name}_shape_error.png")
         return files
 

@@ -191,7 +191,8 @@ def test_nagata_writes_tool_file_and_report(die_mesh, tmp_path, capsys):
     assert [r["tool"] for r in rows] == ["die"]
     files = {p.name for p in out.iterdir()}
     assert files == {"die.nagata", "die_nagata.vtu", "die_mesh.vtu", "die_grid.csv", "die_coefficients.txt",
-                     "die_surface_error.png", "die_boundary_error.png", "die_normal_error.png", "die_nagata.igs"}
+                     "die_surface_error.png", "die_boundary_error.png", "die_normal_error.png", "die_nagata.igs",
+                     "die_shape_error_map.png", "die_normal_error_map.png"}
     td = read_toolfile(out / "die.nagata")
     assert td.normal_source == "cad" and len(td.quads) == int(rows[0]["elems"])
     surf = meshio.read(out / "die_nagata.vtu")
