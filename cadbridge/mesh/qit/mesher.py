@@ -1191,15 +1191,15 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
     rep.so = int((~inside).sum())
     rep.se = int((inside & ~si).sum())
     rep.si = int(si.sum())
-    # pattern coordinates of the edge vertices (eqs. 19-20), Delaunay of all surface
-    # vertices in (u, v) scaled by the mean |Su|, |Sv| (isotropic enough for interpolation)
-    d = s.derivatives(uv[:, 0].clip(surf.lo[0], surf.hi[0]), uv[:, 1].clip(surf.lo[1], surf.hi[1]), order=1)
-    scale = np.array([np.linalg.norm(d[:, 1, 0], axis=1).mean(), np.linalg.norm(d[:, 0, 1], axis=1).mean()])
-    e_pr = _interpolate_pattern(uv * scale, pr, e_uv * scale)
+    # pattern coordinates of the edge vertices (eqs. 19-20): area coordinates in the lattice's
+    # own cells (not a Delaunay of the (u, v), which the distortion folds)
+    e_pr = _interpolate_pattern(xs_all, uv, pr, _lattice_cells(lat.ij), e_x, e_uv, R)
     # constrained Delaunay in pattern space
     si_idx = np.flatnonzero(si)
     pts = np.concatenate([pr[si_idx], e_pr])
     if len(si_idx) == 0:
+        d = s.derivatives(uv[:, 0].clip(surf.lo[0], surf.hi[0]), uv[:, 1].clip(surf.lo[1], surf.hi[1]), order=1)
+        scale = np.array([np.linalg.norm(d[:, 1, 0], axis=1).mean(), np.linalg.norm(d[:, 0, 1], axis=1).mean()])
         # no interior lattice vertex (a face about R wide or smaller): the pattern positions
         # of its edge vertices are all extrapolated, and straight edges can come out bent;
         # the loop is then triangulated in its (u, v) scaled by the metric instead
@@ -1389,35 +1389,82 @@ def _n_folded(s, uv: np.ndarray, x: np.ndarray, tris: np.ndarray) -> int:
     return int(np.sum(np.einsum("kj,kj->k", tn, np.cross(d[:, 1, 0], d[:, 0, 1])) <= 0))
 
 
-def _interpolate_pattern(p: np.ndarray, r: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Eqs. 19-20: pattern coordinates at points q (E, 2) by area coordinates in the Delaunay
-    triangle (of the points p (N, 2) with pattern coordinates r (N, 2)) containing q; a point
-    outside the hull takes the nearest-vertex triangle whose area coordinates are least
-    negative (linear extrapolation). Candidates are the triangles around the 3 nearest
-    vertices, so no point-location walk is needed."""
-    dt = Delaunay(p)
-    simp = dt.simplices
-    inc_t = np.repeat(np.arange(len(simp)), 3)
-    inc_v = simp.ravel()
+def _lattice_cells(ij: list[tuple[int, int]]) -> np.ndarray:
+    """(T, 3) indices (CCW in the pattern) of the lattice triangles whose three vertices were
+    computed: up cells (i, j), (i+1, j), (i, j+1) and down cells (i+1, j), (i+1, j+1), (i, j+1)."""
+    idx = {tuple(k): n for n, k in enumerate(ij)}
+    out = []
+    for (i, j), n in idx.items():
+        a, b, c = idx.get((i + 1, j)), idx.get((i, j + 1)), idx.get((i + 1, j + 1))
+        if a is not None and b is not None:
+            out.append((n, a, b))
+            if c is not None:
+                out.append((a, c, b))
+    return np.array(out, dtype=np.int64).reshape(-1, 3)
+
+
+def _interpolate_pattern(x: np.ndarray, uv: np.ndarray, r: np.ndarray, cells: np.ndarray, qx: np.ndarray,
+                         quv: np.ndarray, R: float, k: int = 6) -> np.ndarray:
+    """Eqs. 19-20: pattern coordinates (E, 2) of the edge vertices (3D qx (E, 3), parameters
+    quv (E, 2)) by area coordinates, in (u, v), in the lattice cell that contains them
+    (``cells`` (T, 3) into the lattice vertices x (N, 3), uv (N, 2), pattern r (N, 2)). The
+    cells are the images of the pattern's own triangles, so the map is the lattice's
+    piecewise-linear one, one-to-one wherever the lattice is; a triangulation made in
+    (u, v) instead (a Delaunay) joins, where the parametrisation is distorted, vertices
+    that the pattern orders the other way, and its map folds (on clustered knots the edge
+    loop came out folded or self-crossing). A vertex in no cell takes the cell whose least
+    area coordinate is largest (linear extrapolation); where cells overlap (a lattice that
+    ran over itself), the one nearest the pattern's centre. Candidates: the cells around the
+    k lattice vertices nearest in 3D. Area coordinates in (u, v) are still first-order in
+    the cell's size, so the point is then refined by trilateration: the lattice was built
+    with chords |x_c - x_a| = |r_c - r_a| (AIP with the chord polish), so the pattern point
+    whose distances to those k vertices (the ones within 2R of it in the pattern) are their
+    3D chords to the edge vertex, weights 1/chord^2 (Gauss-Newton; kept where it fits better)."""
+    inc_t = np.repeat(np.arange(len(cells)), 3)
+    inc_v = cells.ravel()
     order = np.argsort(inc_v, kind="stable")
     inc_v, inc_t = inc_v[order], inc_t[order]
-    start = np.searchsorted(inc_v, np.arange(len(p) + 1))
-    _, near = cKDTree(p).query(q, k=min(3, len(p)))
-    near = np.atleast_2d(near).reshape(len(q), -1)
+    start = np.searchsorted(inc_v, np.arange(len(x) + 1))
+    used = np.unique(inc_v)
+    _, near = cKDTree(x[used]).query(qx, k=min(k, len(used)))
+    near = used[np.asarray(near).reshape(len(qx), -1)]
     cand = [np.unique(np.concatenate([inc_t[start[v]:start[v + 1]] for v in row])) for row in near]
     width = max(len(c) for c in cand)
     ct = np.array([np.pad(c, (0, width - len(c)), mode="edge") for c in cand])  # (E, W)
-    a, b, c = p[simp[ct, 0]], p[simp[ct, 1]], p[simp[ct, 2]]  # (E, W, 2)
-    v0, v1, v2 = b - a, c - a, q[:, None] - a
+    a = uv[cells[ct, 0]]
+    v0, v1, v2 = uv[cells[ct, 1]] - a, uv[cells[ct, 2]] - a, quv[:, None] - a  # (E, W, 2)
     den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
     den = np.where(np.abs(den) > 0, den, np.inf)
     l1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
     l2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
     lam = np.stack([1 - l1 - l2, l1, l2], axis=-1)  # (E, W, 3)
-    best = np.argmax(lam.min(axis=-1), axis=1)
-    rows = np.arange(len(q))
-    tri = ct[rows, best]
-    return np.einsum("ki,kij->kj", lam[rows, best], r[simp[tri]])
+    # a cell that contains the vertex, nearest the lattice's centre (where the lattice
+    # overlaps itself, the part the front made first); else the least-outside one
+    least = lam.min(axis=-1)
+    ring = np.linalg.norm(r[cells[ct]].mean(axis=2), axis=-1) / R
+    best = np.argmax(np.where(least >= -1e-9, 1e6 - ring, least), axis=1)
+    rows = np.arange(len(qx))
+    q = np.einsum("ki,kij->kj", lam[rows, best], r[cells[ct[rows, best]]])
+    # trilateration (Gauss-Newton on |q - r_i| = |qx - x_i|)
+    q0 = q
+    d = np.linalg.norm(x[near] - qx[:, None], axis=2)  # (E, k)
+    rn = r[near]
+    w = np.where(np.linalg.norm(rn - q[:, None], axis=2) <= 2.0 * R, 1.0 / np.maximum(d, 1e-3 * R) ** 2, 0.0)
+    for _ in range(20):
+        dv = q[:, None] - rn
+        ln = np.maximum(np.linalg.norm(dv, axis=2), 1e-300)
+        J = dv / ln[..., None]  # (E, k, 2)
+        res = ln - d
+        A = np.einsum("ek,eki,ekj->eij", w, J, J)
+        b = np.einsum("ek,eki,ek->ei", w, J, res)
+        step = np.linalg.solve(A + 1e-12 * np.eye(2), b[..., None])[..., 0]
+        q = q - step
+        if np.abs(step).max() < 1e-9 * R:
+            break
+    def misfit(p):
+        return np.einsum("ek,ek->e", w, (np.linalg.norm(p[:, None] - rn, axis=2) - d) ** 2)
+
+    return np.where((misfit(q) <= misfit(q0))[:, None], q, q0)
 
 
 class _EdgeDistance:
