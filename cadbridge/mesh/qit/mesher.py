@@ -99,6 +99,7 @@ class QitFaceReport:
     strip_reverted: bool = False
     mesher: str = "qit"
     refused: str = ""
+    choice: str = ""
 
 
 # ---------------------------------------------------------------------------------------
@@ -1117,7 +1118,8 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
                 raise
             stage(f"QIT: {label} refused ({str(exc).split(';')[0].removeprefix(label + ': ')}); meshing it with gmsh")
             rep = QitFaceReport(face=f, mesher="gmsh", refused=str(exc))
-            tris = _fallback_face(model, f, loops_f, opt, label, node_x, node_face, node_uv, rep)
+            tris = _refused_face(model, f, loops_f, opt, label, node_x, node_face, node_uv, rep,
+                                 alone=_face_alone(f, edges, face_loops))
         rep.triangles = len(tris)
         if reports is not None:
             reports.append(rep)
@@ -1379,6 +1381,82 @@ def _fallback_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, lab
     return out[keep]
 
 
+def angle_share(x: np.ndarray, tris: np.ndarray, tol: float = 10.0) -> float:
+    """Share of the triangles' angles within 60 +- ``tol`` degrees (x (N, 3), tris (T, 3))."""
+    from cadbridge.mesh.quality import triangle_angles
+
+    return float(np.mean(np.abs(triangle_angles(x, tris) - 60.0) <= tol)) if len(tris) else 0.0
+
+
+def _face_alone(f: int, edges: list[_Edge], face_loops: dict) -> bool:
+    """True if face f shares no edge and no corner with another face being meshed."""
+    own = {i for lp in face_loops[f] for i in lp}
+    shared = any((i in own) != (e.owner in own) for i, e in enumerate(edges))
+    mine = {k for i in own for k in edges[i].nodes}
+    others = {k for i, e in enumerate(edges) if i not in own for k in e.nodes}
+    return not shared and not (mine & others)
+
+
+def _refused_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, label: str,
+                  node_x: list, node_face: list, node_uv: list, rep: QitFaceReport, *, alone: bool) -> np.ndarray:
+    """A face QIT refused: gmsh on QIT's edge vertices (`_fallback_face`, conformal with its
+    neighbours) or, for a face that shares no edge or corner with another (``alone``), also
+    gmsh's own mesh of the face at the same size (`_gmsh_own_face`); the one with the larger
+    share of angles within 60 +- 10 deg is kept (its name in ``rep.mesher``, both shares in
+    ``rep.choice``). Appends the kept interior nodes to the registry; returns triangles."""
+    n0 = len(node_x)
+    try:
+        tris = _fallback_face(model, f, loops, opt, label, node_x, node_face, node_uv, rep)
+        fb = angle_share(np.array(node_x), tris)
+    except QitError:
+        if not alone:
+            raise
+        tris, fb = None, -1.0
+    if not alone:
+        return tris
+    x, uv, own = _gmsh_own_face(model.faces[f], opt.size)
+    gm = angle_share(x, own)
+    rep.choice = (f"within 60 +- 10 deg: gmsh on QIT's edge vertices "
+                  f"{'failed' if fb < 0 else f'{100 * fb:.0f} %'}, gmsh's own mesh of the face {100 * gm:.0f} %")
+    if tris is not None and fb >= gm:
+        return tris
+    del node_x[n0:], node_face[n0:], node_uv[n0:]
+    node_x.extend(x)
+    node_face.extend([f] * len(x))
+    node_uv.extend(uv)
+    rep.mesher = "gmsh-face"
+    rep.edge_vertices = 0
+    return own + n0
+
+
+def _gmsh_own_face(face, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """gmsh's own mesh of one face (Frontal-Delaunay on the face through OCC, size ``size``,
+    `cadbridge.mesh.generate.mesh_cad`), its nodes moved onto S(u, v) at their feet on the
+    surface (`cadbridge.nurbs.project.project_to_surface`). Returns x (N, 3),
+    uv (N, 2) and triangles (T, 3), counter-clockwise about Su x Sv."""
+    import tempfile
+    from pathlib import Path
+
+    from cadbridge.iges import write_iges
+    from cadbridge.mesh.generate import mesh_cad
+    from cadbridge.nurbs.project import project_to_surface
+
+    with tempfile.TemporaryDirectory() as td:
+        p = Path(td) / "face.igs"
+        write_iges([face], p)
+        m = mesh_cad(p, element="tri", size=size, parametric=False)
+    s = face.surface
+    pr = project_to_surface(s, m.nodes)
+    uv = np.column_stack([pr.u, pr.v])
+    x = s.evaluate(uv[:, 0], uv[:, 1])
+    tris = m.triangles.astype(np.int64)
+    d = s.derivatives(*uv[tris].mean(axis=1).T, order=1)
+    tn = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
+    if np.sum(np.einsum("kj,kj->k", tn, np.cross(d[:, 1, 0], d[:, 0, 1])) < 0) > len(tris) / 2:
+        tris = tris[:, [0, 2, 1]]
+    return x, uv, tris
+
+
 def _n_folded(s, uv: np.ndarray, x: np.ndarray, tris: np.ndarray) -> int:
     """Triangles whose 3D normal is against Su x Sv at their (u, v) centroid."""
     u0, u1, v0, v1 = s.domain
@@ -1516,7 +1594,7 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
 
     path = Path(path)
     if element != "tri":
-        raise MeshError("QIT makes triangles only: use --element tri with --mesher qit")
+        raise MeshError("QIT makes triangles only: --element quad needs --mesher gmsh")
     if structured:
         raise MeshError("QIT makes unstructured meshes: --structured needs --mesher gmsh")
     if not path.is_file():
@@ -1535,7 +1613,10 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
     import warnings
 
     for r in reports:
-        if r.mesher == "gmsh":
-            warnings.warn(f"{r.refused.split(';')[0]}; meshing it with gmsh on QIT's edge vertices", stacklevel=2)
+        if r.mesher != "qit":
+            how = "gmsh on QIT's edge vertices" if r.mesher == "gmsh" else "gmsh's own mesh of the face"
+            note = f"{r.refused.split(';')[0]}; meshing it with {how}" + (f" ({r.choice})" if r.choice else "")
+            mesh.notes.append(f"mesh: {note}")
+            warnings.warn(note, stacklevel=2)
     mesh.name = path.stem
     return mesh
