@@ -1408,13 +1408,19 @@ def _refused_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, labe
     try:
         tris = _fallback_face(model, f, loops, opt, label, node_x, node_face, node_uv, rep)
         fb = angle_share(np.array(node_x), tris)
-    except QitError:
+    except QitError as exc:
         if not alone:
             raise
-        tris, fb = None, -1.0
+        tris, fb, why = None, -1.0, exc
     if not alone:
         return tris
-    x, uv, own = _gmsh_own_face(model.faces[f], opt.size)
+    try:
+        x, uv, own = _gmsh_own_face(model.faces[f], opt.size)
+    except MeshError as exc:
+        if tris is None:
+            raise QitError(f"{why}; gmsh's own mesh of the face failed too: {exc}") from exc
+        rep.choice = f"gmsh's own mesh of the face failed: {exc}"
+        return tris
     gm = angle_share(x, own)
     rep.choice = (f"within 60 +- 10 deg: gmsh on QIT's edge vertices "
                   f"{'failed' if fb < 0 else f'{100 * fb:.0f} %'}, gmsh's own mesh of the face {100 * gm:.0f} %")
@@ -1445,6 +1451,8 @@ def _gmsh_own_face(face, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarra
         p = Path(td) / "face.igs"
         write_iges([face], p)
         m = mesh_cad(p, element="tri", size=size, parametric=False)
+    if len(m.triangles) == 0:
+        raise MeshError("gmsh made no triangles on the face")
     s = face.surface
     pr = project_to_surface(s, m.nodes)
     uv = np.column_stack([pr.u, pr.v])
