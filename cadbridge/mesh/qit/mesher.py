@@ -79,7 +79,10 @@ class QitOptions:
 
 @dataclass
 class QitFaceReport:
-    """What QIT did on one face: vertex counts by class, rings, AIP failures, flips."""
+    """What QIT did on one face: vertex counts by class, rings, AIP failures, flips; for a face
+    QIT refused (``refused``, why), ``mesher`` "gmsh" (on QIT's edge vertices) or "gmsh-face"
+    (gmsh's own mesh of a face alone) and ``choice`` (the two candidates' shares of angles
+    within 60 +- 10 deg)."""
 
     face: int
     rings: int = 0
@@ -983,7 +986,9 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
     refuses for its shape (a front that does not fill it, folds, a failed first hexagon or
     constraint recovery) is then meshed by gmsh on QIT's edge vertices
     (`cadbridge.mesh.gmsh.planar`; its report says ``mesher="gmsh"`` and why), so the
-    shared edges still conform; a vanishing Jacobian (`QitJacobianError`) stays an error.
+    shared edges still conform -- or, for a face that shares no edge or corner with another,
+    by gmsh's own mesh of it where that has the larger share of angles within 60 +- 10 deg
+    (``mesher="gmsh-face"``); a vanishing Jacobian (`QitJacobianError`) stays an error.
     """
     from cadbridge.cad.model import Face, Model
 
@@ -1547,6 +1552,7 @@ def _interpolate_pattern(x: np.ndarray, uv: np.ndarray, r: np.ndarray, cells: np
         q = q - step
         if np.abs(step).max() < 1e-9 * R:
             break
+
     def misfit(p):
         return np.einsum("ek,ek->e", w, (np.linalg.norm(p[:, None] - rn, axis=2) - d) ** 2)
 
@@ -1593,7 +1599,9 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
     all its faces with QIT (default size: bounding-box diagonal / 20, as gmsh's default).
     Raises `MeshError` (one line) for what QIT does not do: quads, structured meshes,
     crease lines inside faces (``embed_curves``). Faces QIT refuses are meshed by gmsh on
-    QIT's edge vertices (``qit_mesh(..., fallback=True)``, named in the progress output)."""
+    QIT's edge vertices, or by gmsh's own mesh where that is better on a face alone
+    (``qit_mesh(..., fallback=True)``); each such face is named, with the way it went, in a
+    warning and in ``mesh.notes`` (the notes the CLI prints)."""
     from pathlib import Path
 
     from cadbridge.formats import read_cad
