@@ -16,7 +16,8 @@ def add_mesher_option(p: argparse.ArgumentParser, what: str = "the mesh") -> Non
 
 def add_mesh_options(p: argparse.ArgumentParser) -> None:
     add_mesher_option(p)
-    p.add_argument("--element", choices=["tri", "quad"], default="quad", help="element type (default quad)")
+    p.add_argument("--element", choices=["tri", "quad"], default=None,
+                   help="element type (default quad; tri with --mesher qit, which makes triangles only)")
     p.add_argument("--size", type=float, default=None, help="target element size in model units")
     p.add_argument("--structured", action="store_true", help="structured (transfinite) mesh on four-sided faces")
     p.add_argument("--radius-divisions", type=int, default=3, help="elements across fillet radii (structured)")
@@ -62,5 +63,12 @@ def edge_rule(args: argparse.Namespace) -> str:
 
 
 def no_qit_refinement(args: argparse.Namespace) -> None:
+    """Usage checks of --mesher qit; also sets the default --element (quad, tri with qit)."""
+    qit = getattr(args, "mesher", "gmsh") == "qit"
+    if hasattr(args, "element"):
+        if args.element is None:
+            args.element = "tri" if qit else "quad"
+        elif qit and args.element == "quad":
+            raise UsageError("QIT makes triangles only: --element quad needs --mesher gmsh")
     if getattr(args, "mesher", "gmsh") == "qit" and getattr(args, "shape_tolerance", None) is not None:
         raise UsageError("--shape-tolerance refines with gmsh; it cannot be combined with --mesher qit")

@@ -79,7 +79,10 @@ class QitOptions:
 
 @dataclass
 class QitFaceReport:
-    """What QIT did on one face: vertex counts by class, rings, AIP failures, flips."""
+    """What QIT did on one face: vertex counts by class, rings, AIP failures, flips; for a face
+    QIT refused (``refused``, why), ``mesher`` "gmsh" (on QIT's edge vertices) or "gmsh-face"
+    (gmsh's own mesh of a face alone) and ``choice`` (the two candidates' shares of angles
+    within 60 +- 10 deg)."""
 
     face: int
     rings: int = 0
@@ -99,6 +102,7 @@ class QitFaceReport:
     strip_reverted: bool = False
     mesher: str = "qit"
     refused: str = ""
+    choice: str = ""
 
 
 # ---------------------------------------------------------------------------------------
@@ -982,7 +986,9 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
     refuses for its shape (a front that does not fill it, folds, a failed first hexagon or
     constraint recovery) is then meshed by gmsh on QIT's edge vertices
     (`cadbridge.mesh.gmsh.planar`; its report says ``mesher="gmsh"`` and why), so the
-    shared edges still conform; a vanishing Jacobian (`QitJacobianError`) stays an error.
+    shared edges still conform -- or, for a face that shares no edge or corner with another,
+    by gmsh's own mesh of it where that has the larger share of angles within 60 +- 10 deg
+    (``mesher="gmsh-face"``); a vanishing Jacobian (`QitJacobianError`) stays an error.
     """
     from cadbridge.cad.model import Face, Model
 
@@ -1117,7 +1123,8 @@ def qit_mesh(model, size: float, options: QitOptions | None = None, faces=None, 
                 raise
             stage(f"QIT: {label} refused ({str(exc).split(';')[0].removeprefix(label + ': ')}); meshing it with gmsh")
             rep = QitFaceReport(face=f, mesher="gmsh", refused=str(exc))
-            tris = _fallback_face(model, f, loops_f, opt, label, node_x, node_face, node_uv, rep)
+            tris = _refused_face(model, f, loops_f, opt, label, node_x, node_face, node_uv, rep,
+                                 alone=_face_alone(f, edges, face_loops))
         rep.triangles = len(tris)
         if reports is not None:
             reports.append(rep)
@@ -1191,15 +1198,15 @@ def _mesh_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, dx_th: 
     rep.so = int((~inside).sum())
     rep.se = int((inside & ~si).sum())
     rep.si = int(si.sum())
-    # pattern coordinates of the edge vertices (eqs. 19-20), Delaunay of all surface
-    # vertices in (u, v) scaled by the mean |Su|, |Sv| (isotropic enough for interpolation)
-    d = s.derivatives(uv[:, 0].clip(surf.lo[0], surf.hi[0]), uv[:, 1].clip(surf.lo[1], surf.hi[1]), order=1)
-    scale = np.array([np.linalg.norm(d[:, 1, 0], axis=1).mean(), np.linalg.norm(d[:, 0, 1], axis=1).mean()])
-    e_pr = _interpolate_pattern(uv * scale, pr, e_uv * scale)
+    # pattern coordinates of the edge vertices (eqs. 19-20): area coordinates in the lattice's
+    # own cells (not a Delaunay of the (u, v), which the distortion folds)
+    e_pr = _interpolate_pattern(xs_all, uv, pr, _lattice_cells(lat.ij), e_x, e_uv, R)
     # constrained Delaunay in pattern space
     si_idx = np.flatnonzero(si)
     pts = np.concatenate([pr[si_idx], e_pr])
     if len(si_idx) == 0:
+        d = s.derivatives(uv[:, 0].clip(surf.lo[0], surf.hi[0]), uv[:, 1].clip(surf.lo[1], surf.hi[1]), order=1)
+        scale = np.array([np.linalg.norm(d[:, 1, 0], axis=1).mean(), np.linalg.norm(d[:, 0, 1], axis=1).mean()])
         # no interior lattice vertex (a face about R wide or smaller): the pattern positions
         # of its edge vertices are all extrapolated, and straight edges can come out bent;
         # the loop is then triangulated in its (u, v) scaled by the metric instead
@@ -1379,6 +1386,90 @@ def _fallback_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, lab
     return out[keep]
 
 
+def angle_share(x: np.ndarray, tris: np.ndarray, tol: float = 10.0) -> float:
+    """Share of the triangles' angles within 60 +- ``tol`` degrees (x (N, 3), tris (T, 3))."""
+    from cadbridge.mesh.quality import triangle_angles
+
+    return float(np.mean(np.abs(triangle_angles(x, tris) - 60.0) <= tol)) if len(tris) else 0.0
+
+
+def _face_alone(f: int, edges: list[_Edge], face_loops: dict) -> bool:
+    """True if face f shares no edge and no corner with another face being meshed."""
+    own = {i for lp in face_loops[f] for i in lp}
+    shared = any((i in own) != (e.owner in own) for i, e in enumerate(edges))
+    mine = {k for i in own for k in edges[i].nodes}
+    others = {k for i, e in enumerate(edges) if i not in own for k in e.nodes}
+    return not shared and not (mine & others)
+
+
+def _refused_face(model, f: int, loops: list[list[_Edge]], opt: QitOptions, label: str,
+                  node_x: list, node_face: list, node_uv: list, rep: QitFaceReport, *, alone: bool) -> np.ndarray:
+    """A face QIT refused: gmsh on QIT's edge vertices (`_fallback_face`, conformal with its
+    neighbours) or, for a face that shares no edge or corner with another (``alone``), also
+    gmsh's own mesh of the face at the same size (`_gmsh_own_face`); the one with the larger
+    share of angles within 60 +- 10 deg is kept (its name in ``rep.mesher``, both shares in
+    ``rep.choice``). Appends the kept interior nodes to the registry; returns triangles."""
+    n0 = len(node_x)
+    try:
+        tris = _fallback_face(model, f, loops, opt, label, node_x, node_face, node_uv, rep)
+        fb = angle_share(np.array(node_x), tris)
+    except QitError as exc:
+        if not alone:
+            raise
+        tris, fb, why = None, -1.0, exc
+    if not alone:
+        return tris
+    try:
+        x, uv, own = _gmsh_own_face(model.faces[f], opt.size)
+    except MeshError as exc:
+        if tris is None:
+            raise QitError(f"{why}; gmsh's own mesh of the face failed too: {exc}") from exc
+        rep.choice = f"gmsh's own mesh of the face failed: {exc}"
+        return tris
+    gm = angle_share(x, own)
+    rep.choice = (f"within 60 +- 10 deg: gmsh on QIT's edge vertices "
+                  f"{'failed' if fb < 0 else f'{100 * fb:.0f} %'}, gmsh's own mesh of the face {100 * gm:.0f} %")
+    if tris is not None and fb >= gm:
+        return tris
+    del node_x[n0:], node_face[n0:], node_uv[n0:]
+    node_x.extend(x)
+    node_face.extend([f] * len(x))
+    node_uv.extend(uv)
+    rep.mesher = "gmsh-face"
+    rep.edge_vertices = 0
+    return own + n0
+
+
+def _gmsh_own_face(face, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """gmsh's own mesh of one face (Frontal-Delaunay on the face through OCC, size ``size``,
+    `cadbridge.mesh.generate.mesh_cad`), its nodes moved onto S(u, v) at their feet on the
+    surface (`cadbridge.nurbs.project.project_to_surface`). Returns x (N, 3),
+    uv (N, 2) and triangles (T, 3), counter-clockwise about Su x Sv."""
+    import tempfile
+    from pathlib import Path
+
+    from cadbridge.iges import write_iges
+    from cadbridge.mesh.generate import mesh_cad
+    from cadbridge.nurbs.project import project_to_surface
+
+    with tempfile.TemporaryDirectory() as td:
+        p = Path(td) / "face.igs"
+        write_iges([face], p)
+        m = mesh_cad(p, element="tri", size=size, parametric=False)
+    if len(m.triangles) == 0:
+        raise MeshError("gmsh made no triangles on the face")
+    s = face.surface
+    pr = project_to_surface(s, m.nodes)
+    uv = np.column_stack([pr.u, pr.v])
+    x = s.evaluate(uv[:, 0], uv[:, 1])
+    tris = m.triangles.astype(np.int64)
+    d = s.derivatives(*uv[tris].mean(axis=1).T, order=1)
+    tn = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
+    if np.sum(np.einsum("kj,kj->k", tn, np.cross(d[:, 1, 0], d[:, 0, 1])) < 0) > len(tris) / 2:
+        tris = tris[:, [0, 2, 1]]
+    return x, uv, tris
+
+
 def _n_folded(s, uv: np.ndarray, x: np.ndarray, tris: np.ndarray) -> int:
     """Triangles whose 3D normal is against Su x Sv at their (u, v) centroid."""
     u0, u1, v0, v1 = s.domain
@@ -1389,35 +1480,83 @@ def _n_folded(s, uv: np.ndarray, x: np.ndarray, tris: np.ndarray) -> int:
     return int(np.sum(np.einsum("kj,kj->k", tn, np.cross(d[:, 1, 0], d[:, 0, 1])) <= 0))
 
 
-def _interpolate_pattern(p: np.ndarray, r: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Eqs. 19-20: pattern coordinates at points q (E, 2) by area coordinates in the Delaunay
-    triangle (of the points p (N, 2) with pattern coordinates r (N, 2)) containing q; a point
-    outside the hull takes the nearest-vertex triangle whose area coordinates are least
-    negative (linear extrapolation). Candidates are the triangles around the 3 nearest
-    vertices, so no point-location walk is needed."""
-    dt = Delaunay(p)
-    simp = dt.simplices
-    inc_t = np.repeat(np.arange(len(simp)), 3)
-    inc_v = simp.ravel()
+def _lattice_cells(ij: list[tuple[int, int]]) -> np.ndarray:
+    """(T, 3) indices (CCW in the pattern) of the lattice triangles whose three vertices were
+    computed: up cells (i, j), (i+1, j), (i, j+1) and down cells (i+1, j), (i+1, j+1), (i, j+1)."""
+    idx = {tuple(k): n for n, k in enumerate(ij)}
+    out = []
+    for (i, j), n in idx.items():
+        a, b, c = idx.get((i + 1, j)), idx.get((i, j + 1)), idx.get((i + 1, j + 1))
+        if a is not None and b is not None:
+            out.append((n, a, b))
+            if c is not None:
+                out.append((a, c, b))
+    return np.array(out, dtype=np.int64).reshape(-1, 3)
+
+
+def _interpolate_pattern(x: np.ndarray, uv: np.ndarray, r: np.ndarray, cells: np.ndarray, qx: np.ndarray,
+                         quv: np.ndarray, R: float, k: int = 6) -> np.ndarray:
+    """Eqs. 19-20: pattern coordinates (E, 2) of the edge vertices (3D qx (E, 3), parameters
+    quv (E, 2)) by area coordinates, in (u, v), in the lattice cell that contains them
+    (``cells`` (T, 3) into the lattice vertices x (N, 3), uv (N, 2), pattern r (N, 2)). The
+    cells are the images of the pattern's own triangles, so the map is the lattice's
+    piecewise-linear one, one-to-one wherever the lattice is; a triangulation made in
+    (u, v) instead (a Delaunay) joins, where the parametrisation is distorted, vertices
+    that the pattern orders the other way, and its map folds (on clustered knots the edge
+    loop came out folded or self-crossing). A vertex in no cell takes the cell whose least
+    area coordinate is largest (linear extrapolation); where cells overlap (a lattice that
+    ran over itself), the one nearest the pattern's centre. Candidates: the cells around the
+    k lattice vertices nearest in 3D. Area coordinates in (u, v) are still first-order in
+    the cell's size, so the point is then refined by trilateration: the lattice was built
+    with chords |x_c - x_a| = |r_c - r_a| (AIP with the chord polish), so the pattern point
+    whose distances to those k vertices (the ones within 2R of it in the pattern) are their
+    3D chords to the edge vertex, weights 1/chord^2 (Gauss-Newton; kept where it fits better)."""
+    inc_t = np.repeat(np.arange(len(cells)), 3)
+    inc_v = cells.ravel()
     order = np.argsort(inc_v, kind="stable")
     inc_v, inc_t = inc_v[order], inc_t[order]
-    start = np.searchsorted(inc_v, np.arange(len(p) + 1))
-    _, near = cKDTree(p).query(q, k=min(3, len(p)))
-    near = np.atleast_2d(near).reshape(len(q), -1)
+    start = np.searchsorted(inc_v, np.arange(len(x) + 1))
+    used = np.unique(inc_v)
+    _, near = cKDTree(x[used]).query(qx, k=min(k, len(used)))
+    near = used[np.asarray(near).reshape(len(qx), -1)]
     cand = [np.unique(np.concatenate([inc_t[start[v]:start[v + 1]] for v in row])) for row in near]
     width = max(len(c) for c in cand)
     ct = np.array([np.pad(c, (0, width - len(c)), mode="edge") for c in cand])  # (E, W)
-    a, b, c = p[simp[ct, 0]], p[simp[ct, 1]], p[simp[ct, 2]]  # (E, W, 2)
-    v0, v1, v2 = b - a, c - a, q[:, None] - a
+    a = uv[cells[ct, 0]]
+    v0, v1, v2 = uv[cells[ct, 1]] - a, uv[cells[ct, 2]] - a, quv[:, None] - a  # (E, W, 2)
     den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
     den = np.where(np.abs(den) > 0, den, np.inf)
     l1 = (v2[..., 0] * v1[..., 1] - v2[..., 1] * v1[..., 0]) / den
     l2 = (v0[..., 0] * v2[..., 1] - v0[..., 1] * v2[..., 0]) / den
     lam = np.stack([1 - l1 - l2, l1, l2], axis=-1)  # (E, W, 3)
-    best = np.argmax(lam.min(axis=-1), axis=1)
-    rows = np.arange(len(q))
-    tri = ct[rows, best]
-    return np.einsum("ki,kij->kj", lam[rows, best], r[simp[tri]])
+    # a cell that contains the vertex, nearest the lattice's centre (where the lattice
+    # overlaps itself, the part the front made first); else the least-outside one
+    least = lam.min(axis=-1)
+    ring = np.linalg.norm(r[cells[ct]].mean(axis=2), axis=-1) / R
+    best = np.argmax(np.where(least >= -1e-9, 1e6 - ring, least), axis=1)
+    rows = np.arange(len(qx))
+    q = np.einsum("ki,kij->kj", lam[rows, best], r[cells[ct[rows, best]]])
+    # trilateration (Gauss-Newton on |q - r_i| = |qx - x_i|)
+    q0 = q
+    d = np.linalg.norm(x[near] - qx[:, None], axis=2)  # (E, k)
+    rn = r[near]
+    w = np.where(np.linalg.norm(rn - q[:, None], axis=2) <= 2.0 * R, 1.0 / np.maximum(d, 1e-3 * R) ** 2, 0.0)
+    for _ in range(20):
+        dv = q[:, None] - rn
+        ln = np.maximum(np.linalg.norm(dv, axis=2), 1e-300)
+        J = dv / ln[..., None]  # (E, k, 2)
+        res = ln - d
+        A = np.einsum("ek,eki,ekj->eij", w, J, J)
+        b = np.einsum("ek,eki,ek->ei", w, J, res)
+        step = np.linalg.solve(A + 1e-12 * np.eye(2), b[..., None])[..., 0]
+        q = q - step
+        if np.abs(step).max() < 1e-9 * R:
+            break
+
+    def misfit(p):
+        return np.einsum("ek,ek->e", w, (np.linalg.norm(p[:, None] - rn, axis=2) - d) ** 2)
+
+    return np.where((misfit(q) <= misfit(q0))[:, None], q, q0)
 
 
 class _EdgeDistance:
@@ -1460,7 +1599,9 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
     all its faces with QIT (default size: bounding-box diagonal / 20, as gmsh's default).
     Raises `MeshError` (one line) for what QIT does not do: quads, structured meshes,
     crease lines inside faces (``embed_curves``). Faces QIT refuses are meshed by gmsh on
-    QIT's edge vertices (``qit_mesh(..., fallback=True)``, named in the progress output)."""
+    QIT's edge vertices, or by gmsh's own mesh where that is better on a face alone
+    (``qit_mesh(..., fallback=True)``); each such face is named, with the way it went, in a
+    warning and in ``mesh.notes`` (the notes the CLI prints)."""
     from pathlib import Path
 
     from cadbridge.formats import read_cad
@@ -1469,7 +1610,7 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
 
     path = Path(path)
     if element != "tri":
-        raise MeshError("QIT makes triangles only: use --element tri with --mesher qit")
+        raise MeshError("QIT makes triangles only: --element quad needs --mesher gmsh")
     if structured:
         raise MeshError("QIT makes unstructured meshes: --structured needs --mesher gmsh")
     if not path.is_file():
@@ -1488,7 +1629,10 @@ def mesh_cad_qit(path, *, size: float | None = None, element: str = "tri", struc
     import warnings
 
     for r in reports:
-        if r.mesher == "gmsh":
-            warnings.warn(f"{r.refused.split(';')[0]}; meshing it with gmsh on QIT's edge vertices", stacklevel=2)
+        if r.mesher != "qit":
+            how = "gmsh on QIT's edge vertices" if r.mesher == "gmsh" else "gmsh's own mesh of the face"
+            note = f"{r.refused.split(';')[0]}; meshing it with {how}" + (f" ({r.choice})" if r.choice else "")
+            mesh.notes.append(f"mesh: {note}")
+            warnings.warn(note, stacklevel=2)
     mesh.name = path.stem
     return mesh

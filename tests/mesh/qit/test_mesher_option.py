@@ -32,9 +32,21 @@ def test_mesh_cad_dispatch_and_default():
     assert "node_face" not in g.point_data
 
 
+def test_mesher_qit_implies_triangles(tmp_path, capsys):
+    """Reference: the same command with --element tri (the mesh read back by meshio)."""
+    out, ref = tmp_path / "implied.msh", tmp_path / "explicit.msh"
+    assert main(["mesh", str(HOLE), "--mesher", "qit", "--size", "5", "-o", str(out)]) == 0
+    assert main(["mesh", str(HOLE), "--mesher", "qit", "--element", "tri", "--size", "5", "-o", str(ref)]) == 0
+    back, want = read_mesh(out), read_mesh(ref)
+    assert len(back.quads) == 0 and len(back.triangles) == len(want.triangles) > 0
+    assert np.array_equal(back.nodes, want.nodes)
+
+
 def test_qit_refuses_quads_and_names_a_bad_face(tmp_path, capsys):
-    assert main(["mesh", str(HOLE), "--mesher", "qit", "--size", "5", "-o", str(tmp_path / "x.msh")]) == 2
-    assert "QIT makes triangles only" in capsys.readouterr().err
+    assert main(["mesh", str(HOLE), "--mesher", "qit", "--element", "quad", "--size", "5",
+                 "-o", str(tmp_path / "x.msh")]) == 2
+    err = capsys.readouterr().err
+    assert "QIT makes triangles only" in err and len(err.strip().splitlines()) == 1
     # a flat triangle as a bilinear patch: the edge u = 0 collapsed to a point (Jacobian 0)
     cp = [[(0, 0, 0), (0, 0, 0)], [(50, 0, 0), (50, 50, 0)]]
     bad = tmp_path / "pole.igs"
