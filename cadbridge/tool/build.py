@@ -555,7 +555,8 @@ def tools_from_mesh(
     if cn is not None and meshed_per_face:  # cadbridge's own mesh: its nodes onto their feet
         from cadbridge.tool.onto_cad import onto_cad
 
-        mesh, moved = onto_cad(mesh, cn.projection.foot, cn.distance, cn.status, model.size())
+        mesh, moved = onto_cad(mesh, cn.projection.foot, cn.distance, cn.status, model.size(), node_face=cn.face,
+                               element_face=cn.element_face)
         if len(moved):
             node_dist = node_dist.copy()
             node_dist[moved.nodes] = 0.0

@@ -8,9 +8,13 @@ is taken at the node's foot on the trimmed face (`cadbridge.normals.cad.cad_norm
 node left where gmsh put it carries a normal from another point. `onto_cad` moves such nodes
 to their feet: node and normal then belong to the same point of the CAD.
 
-A node is moved only where its projection converged or ended on a face boundary, where it is
-more than ``SNAP_REL`` x model size from its foot, and where no element around it turns over
-by the move (its normal reversed); otherwise it stays where the mesher put it.
+A node is moved only where its foot lies on a trim boundary (status ``ON_BOUNDARY``: the node
+is beside its trimmed face, not above or below it), more than ``SNAP_REL`` x model size away,
+on the face of every element around it (off its own face, not nearer to another one), and
+where no element around it turns over by the move (its normal reversed); otherwise it stays
+where the mesher put it. Nodes above or below their face (a converged foot) are not moved:
+on ANSA's OCC131-3, 17 nodes along a fold 0.0008 mm off their face, moved onto it, carried
+normals 0.04 deg off OCC's at the same points (the fold's two sheets meet there).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cadbridge.cad.search import CONVERGED, ON_BOUNDARY
+from cadbridge.cad.search import ON_BOUNDARY
 from cadbridge.mesh.mesh import Mesh
 
 __all__ = ["SNAP_REL", "MovedNodes", "moved_note", "onto_cad"]
@@ -47,14 +51,22 @@ def _element_normals(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return np.cross(x[cells[:, 2]] - x[cells[:, 0]], x[cells[:, 3]] - x[cells[:, 1]])
 
 
-def onto_cad(mesh: Mesh, foot: np.ndarray, distance: np.ndarray, status: np.ndarray, size: float
-             ) -> tuple[Mesh, MovedNodes]:
+def onto_cad(mesh: Mesh, foot: np.ndarray, distance: np.ndarray, status: np.ndarray, size: float, *,
+             node_face: np.ndarray, element_face: list[np.ndarray]) -> tuple[Mesh, MovedNodes]:
     """``mesh`` with its nodes farther than ``SNAP_REL`` x ``size`` from their ``foot`` (N, 3)
-    on the trimmed CAD moved there (``distance`` (N,), ``status`` (N,) of the projection,
-    `cadbridge.cad.search.Projection`). A move that would reverse an element's normal (its
-    area vector against the one before, per element around the node) is not made. Returns
-    (the mesh, unchanged where nothing moves, and a `MovedNodes`)."""
-    off = (distance > SNAP_REL * size) & np.isin(status, (CONVERGED, ON_BOUNDARY)) & np.isfinite(distance)
+    on a trim boundary of the CAD moved there (``distance`` (N,), ``status`` (N,), ``node_face`` (N,) of
+    the projection, `cadbridge.cad.search.Projection`), where every element around the node
+    lies on the node's face (``element_face``: per block (E_b,), the face of each element). A
+    move that would reverse an element's normal (its area vector against the one before, per
+    element around the node) is not made. Returns (the mesh, unchanged where nothing moves,
+    and a `MovedNodes`)."""
+    off = (distance > SNAP_REL * size) & (status == ON_BOUNDARY) & np.isfinite(distance)
+    if not off.any():
+        return mesh, MovedNodes(np.zeros(0, dtype=np.int64), np.zeros(0))
+    for b, ef in zip(mesh.cells, element_face):  # off another element's face: left where it is
+        c = np.asarray(b.data)
+        other = np.asarray(ef)[:, None] != np.asarray(node_face)[c]
+        off[c[other]] = False
     if not off.any():
         return mesh, MovedNodes(np.zeros(0, dtype=np.int64), np.zeros(0))
     x = np.asarray(mesh.nodes, dtype=float)

@@ -95,28 +95,39 @@ def test_a_users_mesh_keeps_its_nodes(pushed):
 
 
 def test_a_move_that_turns_an_element_over_is_not_made():
-    """Two triangles in z = 0 wound +z: a foot across the opposite edge would reverse the
-    first's area vector, so that node stays; a foot that keeps both +z is taken; a node
-    within SNAP_REL x size of its foot, or whose projection failed, is left alone."""
+    """Two triangles in z = 0 wound +z, each node's foot on a trim boundary of face 0: a foot
+    across the opposite edge would reverse the first's area vector, so that node stays; a foot
+    that keeps both +z is taken. Left alone: a node within SNAP_REL x size of its foot, one
+    whose projection failed, one above its face (a converged foot), and one whose foot is on
+    another face than an element around it."""
     x = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
     mesh = Mesh(nodes=x, cells=[CellBlock("triangle", np.array([[0, 1, 2], [1, 3, 2]]))])
-    status = np.full(4, CONVERGED, dtype=np.int8)
+    status = np.full(4, ON_BOUNDARY, dtype=np.int8)
+    face, elements = np.zeros(4, dtype=np.int64), [np.zeros(2, dtype=np.int64)]
     foot = x.copy()
     foot[2] = [0.6, -0.5, 0.0]  # across edge 0-1: triangle (0, 1, 2) would face -z
     dist = np.linalg.norm(foot - x, axis=1)
-    out, moved = onto_cad(mesh, foot, dist, status, size=1.0)
+    out, moved = onto_cad(mesh, foot, dist, status, 1.0, node_face=face, element_face=elements)
     assert out is mesh and len(moved) == 0 and moved.kept == 1
 
     foot[2] = [0.0, 0.9, 0.0]
     foot[3] = [1.0, 1.0, 0.5 * SNAP_REL]  # on the CAD already
-    status[1] = ON_BOUNDARY
     foot[1] = [1.05, 0.0, 0.0]
     status[0], foot[0] = FAILED, [0.0, 0.0, 0.3]
     dist = np.linalg.norm(foot - x, axis=1)
-    out, moved = onto_cad(mesh, foot, dist, status, size=1.0)
+    out, moved = onto_cad(mesh, foot, dist, status, 1.0, node_face=face, element_face=elements)
     assert moved.nodes.tolist() == [1, 2] and np.allclose(moved.distance, [0.05, 0.1])
     assert np.array_equal(out.nodes[[1, 2]], foot[[1, 2]]) and np.array_equal(out.nodes[[0, 3]], x[[0, 3]])
     assert np.array_equal(mesh.nodes, x)  # the input mesh is not changed
     tri = out.cells[0].data
     area_z = np.cross(out.nodes[tri[:, 1]] - out.nodes[tri[:, 0]], out.nodes[tri[:, 2]] - out.nodes[tri[:, 0]])[:, 2]
     assert np.all(area_z > 0)
+
+    above = status.copy()
+    above[1] = CONVERGED  # node 1 above its face: stays
+    _, moved = onto_cad(mesh, foot, dist, above, 1.0, node_face=face, element_face=elements)
+    assert moved.nodes.tolist() == [2]
+    other = face.copy()
+    other[2] = 1  # node 2's foot on face 1, its elements on face 0: stays
+    _, moved = onto_cad(mesh, foot, dist, status, 1.0, node_face=other, element_face=elements)
+    assert moved.nodes.tolist() == [1]
