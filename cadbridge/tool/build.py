@@ -290,8 +290,11 @@ def rule_shape_errors(tool: ToolResult, err, model, project_trimmed) -> dict[str
     a sample is the larger of its |surface error| and its boundary error
     (`cadbridge.tool.accuracy`; as `cadbridge.tool.refine` measures it). ``err`` (the
     `ToolErrors` of those samples) gives the tool's own rule; for the other rule the patches
-    are built again and only the samples of the elements whose coefficients change are
-    measured again (the others are the same points)."""
+    are built again, and a sample whose point moves by d can change its shape error by at
+    most d (a distance to a set is 1-Lipschitz): only the samples whose own error + d could
+    exceed the largest own error - d over all samples are measured again, and the maximum
+    is exact. (On PRO20359-L2, one CATIA V4 face of 112 046 samples, measuring every changed
+    sample again took 29 s, as long as the first measure.)"""
     from cadbridge.nagata import EDGE_RULES, NagataMesh
     from cadbridge.tool.accuracy import tool_errors
 
@@ -310,13 +313,22 @@ def rule_shape_errors(tool: ToolResult, err, model, project_trimmed) -> dict[str
         changed[nm.tri_global] = np.any(other.tri_coefficients != nm.tri_coefficients, axis=(1, 2))
         changed[nm.quad_global] = np.any(other.quad_coefficients != nm.quad_coefficients, axis=(1, 2))
         g = tool.grid
-        surface, boundary = np.array(err.surface, dtype=float), np.array(err.boundary, dtype=float)
+        own = np.maximum(np.abs(np.asarray(err.surface, dtype=float)), np.asarray(err.boundary, dtype=float))
         rows = np.flatnonzero(changed[g["element"]])
+        if not len(rows):
+            out[rule] = float(own.max()) if len(own) else 0.0
+            continue
+        moved = np.linalg.norm(other.evaluate(g["element"][rows], g["eta"][rows], g["zeta"][rows])[0]
+                               - g["points"][rows], axis=1)
+        low = own.copy()
+        low[rows] = np.maximum(own[rows] - moved, 0.0)  # the other rule's error is at least this
+        best = float(low.max())
+        rows = rows[own[rows] + moved > best]  # the others cannot hold the maximum
         if len(rows):
             e = tool_errors(other, g["element"][rows], g["eta"][rows], g["zeta"][rows], tool.element_face, model,
                             project_trimmed)
-            surface[rows], boundary[rows] = e.surface, e.boundary
-        out[rule] = shape(surface, boundary)
+            best = max(best, shape(e.surface, e.boundary))
+        out[rule] = best
     return out
 
 
