@@ -25,6 +25,7 @@ import numpy as np
 
 from cadbridge.cad.search import ON_BOUNDARY
 from cadbridge.mesh.mesh import Mesh
+from cadbridge.mesh.topology import element_normals
 
 __all__ = ["SNAP_REL", "MovedNodes", "moved_note", "onto_cad"]
 
@@ -42,13 +43,6 @@ class MovedNodes:
 
     def __len__(self) -> int:
         return len(self.nodes)
-
-
-def _element_normals(x: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """Area vectors (E, 3) of triangles (E, 3) or quads (E, 4) (cross product of the diagonals)."""
-    if cells.shape[1] == 3:
-        return np.cross(x[cells[:, 1]] - x[cells[:, 0]], x[cells[:, 2]] - x[cells[:, 0]])
-    return np.cross(x[cells[:, 2]] - x[cells[:, 0]], x[cells[:, 3]] - x[cells[:, 1]])
 
 
 def onto_cad(mesh: Mesh, foot: np.ndarray, distance: np.ndarray, status: np.ndarray, size: float, *,
@@ -73,25 +67,20 @@ def onto_cad(mesh: Mesh, foot: np.ndarray, distance: np.ndarray, status: np.ndar
     new = x.copy()
     new[off] = foot[off]
     kept = np.zeros(len(x), dtype=bool)
+    conn = mesh.padded()  # (E, 4), triangles padded with -1
+    corner = conn >= 0
+    before = element_normals(mesh, unit=False)  # area vectors, the elements' own winding
     for _ in range(4):  # undoing one node's move can turn over an element of a neighbour's
-        turned = False
-        for b in mesh.cells:
-            c = np.asarray(b.data)
-            touched = off[c].any(axis=1)
-            if not touched.any():
-                continue
-            c = c[touched]
-            before, after = _element_normals(x, c), _element_normals(new, c)
-            over = np.einsum("ij,ij->i", before, after) <= 0.0
-            if over.any():
-                back = np.unique(c[over])
-                back = back[off[back]]
-                new[back] = x[back]
-                off[back] = False
-                kept[back] = True
-                turned = True
-        if not turned:
+        touched = np.any(off[np.where(corner, conn, 0)] & corner, axis=1)
+        after = element_normals(replace(mesh, nodes=new), unit=False)
+        over = touched & (np.einsum("ij,ij->i", before, after) <= 0.0)
+        if not over.any():
             break
+        back = np.unique(conn[over][corner[over]])
+        back = back[off[back]]
+        new[back] = x[back]
+        off[back] = False
+        kept[back] = True
     moved = np.flatnonzero(off)
     if not len(moved):
         return mesh, MovedNodes(moved, np.zeros(0), int(kept.sum()))

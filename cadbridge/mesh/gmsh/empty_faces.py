@@ -501,8 +501,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
         raise MeshError(f"{label}: {name}: its boundary crosses itself in (u, v) (after cutting the "
                         f"cusp strips narrower than {eps:.3g}); cannot mesh it in parameter space")
     # the outer loop first (largest area in (u, v)), as the fallback mesher expects
-    area = [0.5 * float(np.sum(lp[:, 0] * np.roll(lp[:, 1], -1) - np.roll(lp[:, 0], -1) * lp[:, 1]))
-            for lp in uv_loops]
+    area = [_signed_area(lp) for lp in uv_loops]
     order = sorted(range(len(uv_loops)), key=lambda i: -abs(area[i]))
     kept_loops = [kept_loops[i] for i in order]
     uv_loops = [uv_loops[i] for i in order]
