@@ -31,8 +31,8 @@ from cadbridge.cad.model import Model
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.edits import isocurve
 
-__all__ = ["CreaseLine", "crease_lines", "inner_crease_knots", "seam_side", "sliver_side", "straddling_elements",
-           "SLIVER_BAND"]
+__all__ = ["CreaseLine", "along_crease_lines", "crease_lines", "inner_crease_knots", "seam_side", "sliver_side",
+           "straddling_elements", "SLIVER_BAND"]
 
 SLIVER_BAND = 1e-4
 """A face band narrower than this x model size beside a knot line makes it no crease (the
@@ -97,6 +97,41 @@ def inner_crease_knots(surface, band: float, angle: float = 1e-6) -> tuple[np.nd
     ku, kv = surface.crease_knots(angle)
     return tuple(np.array([t for t in k if not sliver_side(surface, d, float(t), band)], dtype=float)
                  for d, k in (("u", ku), ("v", kv)))
+
+
+def along_crease_lines(model: Model, face: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K,) bool: mesh edges from ``a`` to ``b`` (K, 3) that run along a crease line of their
+    face ``face`` (K,): both ends on its surface (within `SLIVER_BAND` x model size) at
+    one crease knot (`inner_crease_knots`) of one direction, within 1e-9 x the parameter
+    range (nodes on an embedded crease line are snapped there by the projection).
+
+    Such an edge is no straddle where its elements carry the crease's two normals at one
+    end only: the normal jump along a knot line varies, and where it crosses the crease
+    angle between the edge's ends (the fuselage of bug28366: 5.00 degrees at the ends of
+    its knot lines, 4.86 between) the edge is the crease fading below that angle, as at
+    a sharp edge between faces."""
+    from cadbridge.nurbs.project import project_to_surface
+
+    out = np.zeros(len(face), dtype=bool)
+    band = SLIVER_BAND * model.size()
+    for f in np.unique(face):  # loop over the few faces with such edges
+        if f < 0:
+            continue
+        s = model.faces[int(f)].surface
+        ku, kv = inner_crease_knots(s, band)
+        if not (len(ku) or len(kv)):
+            continue
+        sel = np.flatnonzero(face == f)
+        pa, pb = project_to_surface(s, a[sel]), project_to_surface(s, b[sel])
+        near = (pa.distance <= band) & (pb.distance <= band)
+        u0, u1, v0, v1 = s.domain
+        on = np.zeros(len(sel), dtype=bool)
+        for knots, ta, tb, rng in ((ku, pa.u, pb.u, u1 - u0), (kv, pa.v, pb.v, v1 - v0)):
+            if len(knots):
+                tol = 1e-9 * rng
+                on |= ((np.abs(ta[:, None] - knots[None]) <= tol) & (np.abs(tb[:, None] - knots[None]) <= tol)).any(axis=1)
+        out[sel] = near & on
+    return out
 
 
 def seam_side(pc: np.ndarray, lo: float, hi: float) -> np.ndarray:

@@ -48,11 +48,12 @@ class GuardTrips:
         return bool(len(self.straddling) or len(self.reversed) or len(self.folded))
 
 
-def guard_trips(nm, straddling=None, element_face=None) -> GuardTrips:
+def guard_trips(nm, straddling=None, element_face=None, model=None) -> GuardTrips:
     """The `GuardTrips` of the `NagataMesh` ``nm``: ``straddling`` the element ids found
     straddling on the CAD (`cadbridge.heal.creases.straddling_elements`, tool numbering),
-    ``element_face`` (E,) the face of each element (see `_straddling_ids`)."""
-    strad = _straddling_ids(nm, straddling, element_face)
+    ``element_face`` (E,) the face of each element and ``model`` its CAD (see
+    `_straddling_ids`)."""
+    strad = _straddling_ids(nm, straddling, element_face, model)
     turned = np.setdiff1d(reversed_normal_elements(nm), strad)
     return GuardTrips(strad, turned.astype(np.int64), folded_elements(nm).astype(np.int64))
 
@@ -247,7 +248,7 @@ def build_tool(
         inv = np.empty_like(remap)
         inv[remap] = np.arange(len(remap))
         straddling = inv[np.asarray(straddling, dtype=np.int64)]
-    trips = guard_trips(nm, straddling, ef)
+    trips = guard_trips(nm, straddling, ef, model)
     tool = ToolResult(name, mesh, normals, corner_normals, source, nm, {}, {}, node_face, node_distance, ef,
                       _guard_lines(trips, ef, model), trips)
     if measure:
@@ -394,11 +395,13 @@ def reversed_normal_elements(nm, max_angle_deg: float = REVERSAL_DEG) -> np.ndar
         out.append(glob[(dots < c).any(axis=(1, 2))])
     return np.sort(np.concatenate(out)) if out else np.zeros(0, dtype=np.int64)
 
-def _straddling_ids(nm, straddling, element_face=None) -> np.ndarray:
+def _straddling_ids(nm, straddling, element_face=None, model=None) -> np.ndarray:
     """Sorted element ids that straddle a crease: the given ones (CAD check) and the elements
     on an edge with several corner normals at one end only (`NagataMesh.half_crease_edges`)
-    whose elements lie on one face (on a face border such an edge is a sharp edge fading
-    below the crease angle along its length, not a straddle)."""
+    whose elements lie on one face, unless the edge runs along a crease line of that face
+    (``model`` given, `cadbridge.heal.creases.along_crease_lines`). On a face border, or
+    along a crease line, such an edge is a sharp edge fading below the crease angle along
+    its length, not a straddle."""
     ids = [np.asarray(straddling if straddling is not None else [], dtype=np.int64)]
     if len(nm.half_crease_edges):
         topo = nm.edges
@@ -411,7 +414,13 @@ def _straddling_ids(nm, straddling, element_face=None) -> np.ndarray:
             hi = np.full(len(topo["edges"]), -1)
             np.minimum.at(lo, edge, ef)
             np.maximum.at(hi, edge, ef)
-            el = el[lo[edge] == hi[edge]]
+            one = lo[edge] == hi[edge]
+            if model is not None and one.any():
+                from cadbridge.heal.creases import along_crease_lines
+
+                ends = topo["edges"][edge[one]]
+                one[np.flatnonzero(one)] = ~along_crease_lines(model, ef[one], nm.nodes[ends[:, 0]], nm.nodes[ends[:, 1]])
+            el = el[one]
         ids.append(el)
     return np.unique(np.concatenate(ids))
 

@@ -249,3 +249,52 @@ def test_straddling_counts_only_where_the_crease_is_sharp():
     face = np.zeros(len(uv), dtype=np.int64)
     got = straddling_elements([tri], model, face, uv[:, 0], uv[:, 1])
     np.testing.assert_array_equal(got, [1])
+
+
+def _fading_ridge(path: Path) -> Path:
+    """One face, degree (1, 2) over 20 x 20: an arch 8 high in y (quadratic) with a ridge along
+    the C0 knot line u = 1 (x = 10), 0.8 high at its ends and 0 in the control net's middle:
+    the normal jump across the line is above the 5-degree crease angle at its ends and below
+    it in between (the class of bug28366's fuselage, whose knot lines jump by 5.00 degrees
+    at their ends, 4.86 between)."""
+    from cadbridge.cad.model import Face
+    from cadbridge.iges.writer import write_iges
+    from cadbridge.nurbs.surface import NurbsSurface
+
+    h, arch = [0.8, 0.0, 0.8], [0.0, 8.0, 0.0]
+    cp = [[[10.0 * i, 10.0 * j, arch[j] + (h[j] if i == 1 else 0.0)] for j in range(3)] for i in range(3)]
+    s = NurbsSurface(1, 2, [0, 0, 1, 2, 2], [0, 0, 0, 1, 1, 1], cp)
+    write_iges([Face(s, de=1)], path)
+    return path
+
+
+def test_along_crease_lines(model):
+    """Edges between two points of the crease line u = 2 run along it; an edge from the
+    line to a point off it does not (reference: the exact surface points S(2, v), S(1.4, v))."""
+    from cadbridge.heal.creases import along_crease_lines
+
+    s = model.faces[0].surface
+    a = s.evaluate(np.array([2.0, 2.0, 2.0]), np.array([0.2, 0.2, 0.5]))
+    b = s.evaluate(np.array([2.0, 1.4, 2.0]), np.array([0.4, 0.3, 0.5]) + np.array([0.0, 0.0, 0.3]))
+    assert along_crease_lines(model, np.zeros(3, dtype=np.int64), a, b).tolist() == [True, False, True]
+
+
+def test_crease_fading_below_the_angle_inside_a_face(tmp_path):
+    """A crease line whose jump crosses the crease angle along its length: the mesh edges on it
+    carry two normals at one end only, which is the crease fading, not a straddle (the old
+    guard refused the file after refining). The precondition is measured on the exact surface
+    (the jump at v = 0, 0.5, 1), and the tool converts with every node on the ridge surface
+    (reference: the analytic surface: the arch 16 v (1 - v) plus the ridge, linear in x from
+    0 at x = 0 and 20 to its quadratic height at x = 10, v = y / 20)."""
+    cad = _fading_ridge(tmp_path / "ridge.igs")
+    s = read_iges(cad).faces[0].surface
+    jump = np.degrees(s.knot_jump("u", 1.0, np.array([0.0, 0.5, 1.0])))
+    assert jump[0] > 5.0 > jump[1] and jump[2] > 5.0
+    out = tmp_path / "out"
+    assert main(["convert", str(cad), "-o", str(out), "--element", "tri", "--size", "2"]) == EXIT_OK
+    m = meshio.read(next(out.glob("*_mesh.vtu")))
+    x = m.points
+    v = x[:, 1] / 20.0
+    ridge = 0.8 * (1 - v) ** 2 + 0.8 * v ** 2
+    z = 16.0 * v * (1 - v) + ridge * (1.0 - np.abs(x[:, 0] - 10.0) / 10.0)
+    np.testing.assert_allclose(x[:, 2], z, atol=1e-9)
