@@ -209,6 +209,9 @@ def _face_loops(g, s: int) -> list[tuple]:
         if ct < 0:
             tags, xyz = tags[::-1], xyz[::-1]
         n = len(tags) - 1  # segments of this curve
+        # a degenerate curve (a pole or apex: one vertex at both ends, no node between) is one
+        # segment of zero length in 3D that no subdivision splits: even for the quad split
+        even = n % 2 == 0 or (p0 == p1 and len(nt) == 0)
         if cur is None:
             cur, first_tag = _Loop(), tags[0]
         for j in range(n):  # all but the last node (the next curve starts there)
@@ -216,7 +219,7 @@ def _face_loops(g, s: int) -> list[tuple]:
             cur.xyz.append(xyz[j])
             cur.uv.append(uv[j])
             cur.k.append(j)
-            cur.even.append(n % 2 == 0)
+            cur.even.append(even)
         prev_uv = uv[-1]
         # the loop closed: back at its first node, and in (u, v) too (a closed curve around a
         # periodic face, e.g. a cylinder's circle before its seam, ends where it began in 3D
@@ -272,11 +275,15 @@ def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
     return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
 
 
-def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float) -> tuple[np.ndarray, list[tuple[int, float]]]:
+def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float,
+               tags: np.ndarray | None = None) -> tuple[np.ndarray, list[tuple[int, float]]]:
     """Cut the zero-width strips off one loop (module docs, step 2).
 
-    xyz (n, 3) loop nodes, corner (n,) bool (curve end points). Returns the kept node indices
-    in loop order and, per strip, (cusp node index, strip length along the loop)."""
+    xyz (n, 3) loop nodes, corner (n,) bool (curve end points), tags (n,) their mesh node tags.
+    Returns the kept node indices in loop order and, per strip, (cusp node index, strip length
+    along the loop). A chain never zips onto the same mesh nodes: a seam the loop runs down and
+    back up (a cone's, from its apex) is no strip but the face's closure, a period apart in
+    (u, v)."""
     n = len(xyz)
     keep = np.ones(n, dtype=bool)
     strips = []
@@ -296,14 +303,14 @@ def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float) -> tuple[np.ndar
             if sa + seg[a] <= sb + seg[nb]:
                 other = [(b - j) % n for j in range(0 if b == p else -1, 4)]  # chain B near the rung
                 d = _point_segment_distance(xyz[na], xyz[other[:-1]], xyz[other[1:]]).min()
-                if d > eps:
+                if d > eps or (tags is not None and tags[na] in tags[other]):
                     break
                 sa += seg[a]
                 a = na
             else:
                 other = [(a + j) % n for j in range(0 if a == p else -1, 4)]  # chain A near the rung
                 d = _point_segment_distance(xyz[nb], xyz[other[:-1]], xyz[other[1:]]).min()
-                if d > eps:
+                if d > eps or (tags is not None and tags[nb] in tags[other]):
                     break
                 sb += seg[nb]
                 b = nb
@@ -480,7 +487,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
                                 f"gmsh's quad subdivision; cannot make all-quad elements there")
             use = k % 2 == 0
         sel = np.flatnonzero(use)
-        keep, strips = _zip_cusps(xyz[sel], (k[sel] == 0), eps)
+        keep, strips = _zip_cusps(xyz[sel], (k[sel] == 0), eps, np.asarray(tags)[sel])
         sel = sel[keep]
         for p, length in strips:
             x = xyz[np.flatnonzero(use)[p]]

@@ -339,3 +339,58 @@ def test_a_crescent_face_is_filled_between_its_circles(tmp_path, element):
     assert count.max() == 2
     if element == "quad":
         assert [len(c[0]) for c in elems] == [4]
+
+
+@pytest.mark.parametrize("element", ["tri", "quad"])
+def test_a_cleared_cone_face_with_its_apex_is_filled(element):
+    """A cone's lateral face: its loop runs down the seam from the apex (a degenerate curve: one
+    vertex at both ends, no node between), round the base and back up the seam. The seam's two
+    passes are the same mesh nodes, no cusp strip (the old zipper cut them off: "the gmsh
+    fallback made no triangles"), and the degenerate curve counts as even for gmsh's all-quad
+    subdivision (the old reading refused it: "a boundary curve has an odd number of
+    segments"). References: the analytic cone r = r1 (1 - z / h) for every new node; the
+    elements close up with the base disc's."""
+    pytest.importorskip("gmsh")
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
+    from cadbridge.mesh.gmsh.session import GmshSession
+
+    r1, h = 3.0, 6.0
+    with GmshSession() as sess:
+        g = sess.gmsh
+        g.model.occ.addCone(0, 0, 0, 0, 0, h, r1, 0.0)
+        g.model.occ.synchronize()
+        sess.set("Mesh.MeshSizeMax", 1.0)
+        lateral = next(t for _, t in g.model.getEntities(2) if g.model.getType(2, t) == "Cone")
+        if element == "quad":
+            sess.set("Mesh.RecombineAll", 1)
+            sess.set("Mesh.SubdivisionAlgorithm", 1)
+        g.model.mesh.generate(2)
+        g.model.mesh.clear([(2, lateral)])
+        notes = fill_empty_faces(g, [t for _, t in g.model.getEntities(2)], size=0.5 if element == "quad" else 1.0,
+                                 curvature_elements=0, element=element, subdivided=element == "quad", label="cone")
+        assert len(notes) == 1 and "without elements" in notes[0]
+        tags, xyz, _ = g.model.mesh.getNodes()
+        index = np.full(int(max(tags)) + 1, -1)
+        index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
+        xyz = np.asarray(xyz).reshape(-1, 3)
+        elems = []
+        for _, s in g.model.getEntities(2):
+            et, _, en = g.model.mesh.getElements(2, s)
+            for t, nodes in zip(et, en):
+                elems.append(index[np.asarray(nodes, dtype=np.int64)].reshape(-1, 3 if t == 2 else 4))
+                if s == lateral:
+                    assert (t == 3) == (element == "quad")  # all quads after subdivision
+        inner, _, _ = g.model.mesh.getNodes(2, lateral)
+        inner_x = xyz[index[np.asarray(inner, dtype=np.int64)]]
+    assert len(inner_x) > 50
+    np.testing.assert_allclose(np.hypot(inner_x[:, 0], inner_x[:, 1]), r1 * (1 - inner_x[:, 2] / h), atol=1e-12)
+    # at the apex (a segment in (u, v), one node in 3D) elements lose corners, as
+    # `cadbridge.mesh.cleanup.merge_close_nodes` takes them: collapsed ones dropped, a quad with
+    # one collapsed edge a triangle
+    kept = []
+    for c in elems:
+        for row in c.tolist():
+            r = [a for i, a in enumerate(row) if a != row[i - 1]]
+            if len(set(r)) == len(r) >= 3:
+                kept.append(np.array([r]))
+    assert _closed_and_consistent(kept)
