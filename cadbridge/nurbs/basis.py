@@ -16,6 +16,7 @@ __all__ = ["find_span", "basis_funs", "ders_basis_funs", "validate_knots", "find
            "ders1_basis_one"]
 
 
+_SCAN_MAX = 8  # `find_span_one` counts knots instead of bisecting up to this many interior knots
 _MIN_SPAN = 1e-300  # shorter non-empty knot spans make 1 / span overflow in the recurrences
 
 
@@ -159,7 +160,17 @@ def ders_basis_funs(span: np.ndarray, u: np.ndarray, p: int, knots: np.ndarray, 
 # kernel can allocate them once per block of points.
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def find_span_one(knots, p, n_ctrl, x):  # pragma: no cover - compiled
-    """Span index as ``find_span``: largest i in [p, n_ctrl - 1] with knots[i] <= x, else p."""
+    """Span index as ``find_span``: largest i in [p, n_ctrl - 1] with knots[i] <= x, else p.
+
+    Up to `_SCAN_MAX` interior knots (a few spans: Bezier patches, most CAD faces) the span is
+    p plus the count of knots[p+1 .. n_ctrl-1] <= x, without branches (sorted knots: the
+    same index; a NaN x gives p either way): random parameters make the binary search's
+    branches unpredictable, which cost more than the few comparisons (bench_kernel.py)."""
+    if n_ctrl - p - 1 <= _SCAN_MAX:
+        s = p
+        for i in range(p + 1, n_ctrl):
+            s += knots[i] <= x
+        return s
     lo, hi = p, n_ctrl - 1
     if x >= knots[hi]:
         return hi
@@ -246,7 +257,43 @@ def ders1_basis_one(span, x, p, knots, left, right, nb, out):  # pragma: no cove
     place in nb (A2.2), then the last step gives both the degree p values and the derivatives
     p (N_{j-1,p-1} / d_{j-1} - N_{j,p-1} / d_j), d_r = right[r+1] + left[p-r] (the knot
     differences ndu[p, r] of A2.3): the same operations in the same order as ``ders_basis_one``,
-    bit-identical results. Scratch: left/right/nb (p+1,); out (2, p+1)."""
+    bit-identical results. Scratch: left/right/nb (p+1,); out (2, p+1).
+
+    Degrees 1 and 2 are written out in scalars (the same operations in the same order; the
+    scratch arrays are not used): the loops and scratch traffic cost as much as the
+    arithmetic at these degrees."""
+    if p == 1:
+        # r = 0 of the last step with nb[0] = 1: temp = inv = 1 / d_0
+        l1 = x - knots[span]
+        r1 = knots[span + 1] - x
+        inv = 1.0 / (r1 + l1)
+        out[0, 0] = 0.0 + r1 * inv
+        out[0, 1] = l1 * inv
+        out[1, 0] = (-inv * 1.0) * 1
+        out[1, 1] = (inv * 1.0) * 1
+        return
+    if p == 2:
+        l1 = x - knots[span]
+        r1 = knots[span + 1] - x
+        temp = 1.0 / (r1 + l1)
+        nb0 = 0.0 + r1 * temp  # degree 1 functions (the j = 1 pass)
+        nb1 = l1 * temp
+        l2 = x - knots[span - 1]
+        r2 = knots[span + 2] - x
+        den = r1 + l2  # d_0
+        temp = nb0 / den
+        out[0, 0] = 0.0 + r1 * temp
+        saved = l2 * temp
+        inv0 = 1.0 / den
+        out[1, 0] = (-inv0 * nb0) * 2
+        den = r2 + l1  # d_1
+        temp = nb1 / den
+        out[0, 1] = saved + r2 * temp
+        out[0, 2] = l1 * temp
+        inv1 = 1.0 / den
+        out[1, 1] = (inv0 * nb0 + -inv1 * nb1) * 2
+        out[1, 2] = (inv1 * nb1) * 2
+        return
     nb[0] = 1.0
     for j in range(1, p):
         left[j] = x - knots[span + 1 - j]
