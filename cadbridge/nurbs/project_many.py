@@ -88,6 +88,7 @@ class SurfacePack:
         self.closed = np.array([[m.closed_u, m.closed_v] for m in self.samples], dtype=np.bool_).reshape(s, 2)
         self.size = np.array([max(m.size, 1e-300) for m in self.samples], dtype=float)
         self.has_pole = np.array([any(pole_edges(m)) for m in self.samples], dtype=bool)
+        self.box = np.array([x.bbox() for x in self.surfaces], dtype=float).reshape(s, 2, 3)  # control-net boxes
 
         def flat(arrays):
             off = np.zeros(len(arrays) + 1, dtype=np.int64)
@@ -426,39 +427,78 @@ def project_to_surfaces(pack: SurfacePack, which, points, *, uv0=None, tol: floa
             getattr(out, name)[order] = getattr(res, name)
         return out
     multi = ~pack.single[sid]
-    rows_m, faces_m, piece_k = [], [], []
-    if np.any(multi):  # surfaces with internal creases: every pair on each smooth piece
-        for f in np.unique(sid[multi]):
-            rows = order[sid == f]
-            ids = pack.pieces[int(f)]
-            rows_m.append(np.repeat(rows, len(ids)))
-            piece_k.append(np.tile(ids, len(rows)))
-            faces_m.append(int(f))
-        keep = ~multi
-        order, sid = order[keep], sid[keep]
-        pr = np.concatenate(rows_m)
-        order = np.concatenate([order, pr])
-        sid = np.concatenate([sid, np.concatenate(piece_k)])
-        o2 = np.argsort(sid, kind="stable")
-        order, sid = order[o2], sid[o2]
-    p = np.ascontiguousarray(pts[order])
-    start = None if uv0 is None else np.asarray(uv0, dtype=float).reshape(m, 2)[order]
-    res, _ = _sorted_pairs(pack, sid, p, tol, max_iter, start)
-    single = pack.single[np.minimum(sid, len(pack.single) - 1)] & (sid < len(pack.single))
-    for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
-        getattr(out, name)[order[single]] = getattr(res, name)[single]
+    start = None if uv0 is None else np.asarray(uv0, dtype=float).reshape(m, 2)
+    if not np.any(multi):
+        res, _ = _sorted_pairs(pack, sid, np.ascontiguousarray(pts[order]), tol, max_iter,
+                               None if start is None else start[order])
+        for name in _FIELDS:
+            getattr(out, name)[order] = getattr(res, name)
+        return out
+    # surfaces with internal creases: each pair on its smooth pieces (`nearest_of_pieces`),
+    # nearest piece box first; another piece only where its control-net box (which holds the
+    # piece: convex hull, weights > 0) is not farther than that first foot: a farther piece
+    # cannot hold the nearest foot nor tie with it (the result is that of every piece)
+    rows_m, piece_m, lb_m, faces_m = [], [], [], []
+    for f in np.unique(sid[multi]):
+        rows = order[sid == f]
+        ids = pack.pieces[int(f)]
+        lo, hi = pack.box[ids, 0], pack.box[ids, 1]  # (K, 3)
+        gap = np.maximum(np.maximum(lo[None] - pts[rows, None], pts[rows, None] - hi[None]), 0.0)
+        rows_m.append(np.repeat(rows, len(ids)))
+        piece_m.append(np.tile(ids, len(rows)))
+        lb_m.append(np.linalg.norm(gap, axis=2).ravel())
+        faces_m.append(int(f))
+    rows_m, piece_m, lb_m = np.concatenate(rows_m), np.concatenate(piece_m), np.concatenate(lb_m)
+    # the first piece of each pair: least box distance (pairs are grouped by row)
+    grp = np.flatnonzero(np.concatenate([[True], rows_m[1:] != rows_m[:-1]]))
+    key = np.lexsort((lb_m, rows_m))
+    first_pick = key[np.searchsorted(rows_m[key], rows_m[grp])]
+    done = np.zeros(len(rows_m), dtype=bool)
+    done[first_pick] = True
+    single = ~multi
+    r_rows = np.concatenate([order[single], rows_m[first_pick]])
+    r_sid = np.concatenate([sid[single], piece_m[first_pick]])
+    results = {}  # pair index in rows_m -> (result, position)
+
+    def run(rows, ids):
+        if not len(rows):
+            return SurfaceProjection(*(np.zeros((0, 3) if name in ("foot", "normal") else 0) for name in _FIELDS)), \
+                np.zeros(0, dtype=np.int64)
+        o = np.argsort(ids, kind="stable")
+        rows, ids = rows[o], ids[o]
+        st = None if start is None else start[rows]
+        res, _ = _sorted_pairs(pack, ids, np.ascontiguousarray(pts[rows]), tol, max_iter, st)
+        back = np.empty(len(o), dtype=np.int64)
+        back[o] = np.arange(len(o))
+        return res, back
+
+    res1, back1 = run(r_rows, r_sid)
+    ns = int(single.sum())
+    for name in _FIELDS:
+        getattr(out, name)[order[single]] = getattr(res1, name)[back1[:ns]]
+    d1 = np.full(m, np.inf)
+    pos1 = back1[ns:]
+    d1[rows_m[first_pick]] = np.where(res1.status[pos1] == FAILED, np.inf, res1.distance[pos1])
+    d1 = np.where(np.isfinite(d1), d1, np.inf)
+    psize = pack.size[piece_m]
+    more = ~done & ~(lb_m > d1[rows_m] * (1.0 + 1e-9) + 1e-9 * psize)
+    res2, back2 = run(rows_m[more], piece_m[more])
+    fill = SurfaceProjection(np.full(len(rows_m), np.nan), np.full(len(rows_m), np.nan), np.full((len(rows_m), 3), np.nan),
+                             np.full(len(rows_m), np.inf), np.full((len(rows_m), 3), np.nan),
+                             np.full(len(rows_m), FAILED, dtype=np.int8), np.zeros(len(rows_m), dtype=np.int32))
+    for name in _FIELDS:
+        getattr(fill, name)[first_pick] = getattr(res1, name)[pos1]
+        getattr(fill, name)[more] = getattr(res2, name)[back2]
     for f in faces_m:  # nearest over the pieces (`nearest_of_pieces`: feet on crease lines)
         ids = pack.pieces[f]
-        parts = []
-        for i in ids:
-            sel = np.flatnonzero(sid == i)  # rows of this piece, in the order of their points
-            sel = sel[np.argsort(order[sel], kind="stable")]
-            parts.append(SurfaceProjection(*(getattr(res, name)[sel] for name in
-                                             ("u", "v", "foot", "distance", "normal", "status", "iterations"))))
-        rows = np.sort(order[sid == ids[0]])
+        sel = np.flatnonzero(np.isin(piece_m, ids))
+        rows = rows_m[sel[::len(ids)]]
+        o = np.argsort(rows, kind="stable")
+        parts = [SurfaceProjection(*(getattr(fill, name)[sel[j::len(ids)][o]] for name in _FIELDS))
+                 for j in range(len(ids))]
         r = nearest_of_pieces(pack.faces_of[f], [pack.surfaces[i] for i in ids], parts)
-        for name in ("u", "v", "foot", "distance", "normal", "status", "iterations"):
-            getattr(out, name)[rows] = getattr(r, name)
+        for name in _FIELDS:
+            getattr(out, name)[rows[o]] = getattr(r, name)
     return out
 
 
