@@ -18,7 +18,7 @@ from cadbridge.iges.globals import (F_AUTHOR, F_FILE_NAME, F_ORGANIZATION, F_PRE
 from cadbridge.iges.lexer import split_sections
 from cadbridge.cad.model import Diagnostic, Face, Model
 
-__all__ = ["read_iges", "read_iges_string"]
+__all__ = ["curve_preferences", "read_iges", "read_iges_string"]
 
 
 def read_iges(path: str | PathLike) -> Model:
@@ -27,6 +27,27 @@ def read_iges(path: str | PathLike) -> Model:
     path = Path(path)
     data = path.read_bytes()
     return read_iges_string(data.decode("latin-1"), filename=path.name)
+
+
+def curve_preferences(path: str | PathLike) -> dict[int, int]:
+    """The preferred representation (PREF, IGES 5.3 4.32: 0 unspecified, 1 parameter space,
+    2 model space, 3 equal) of every 142 curve on a surface in the IGES file, by DE number;
+    -1 where the field cannot be read."""
+    path = Path(path)
+    text = path.read_bytes().decode("latin-1")
+    secs = split_sections(text, path.name)
+    g = parse_global(secs.global_, path.name)
+    entries = parse_directory(secs.directory, path.name)
+    b = Builder(entries, secs.parameter, g.pdelim, g.rdelim, path.name, [])
+    out = {}
+    for e in entries.values():  # loop over the file's entities (a yardstick's read, not the reader's)
+        if e.entity_type != 142:
+            continue
+        try:
+            out[e.de] = int(float(b.params(e.de).tokens[5].text or 0))
+        except (IgesError, IndexError, ValueError):
+            out[e.de] = -1
+    return out
 
 
 def read_iges_string(text: str, filename: str = "<string>") -> Model:

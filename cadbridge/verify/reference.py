@@ -55,12 +55,16 @@ class OccFace:
     bbox: np.ndarray
 
 
-def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> TopoDS_Shape:
+def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True,
+                   surface_curves: int | None = None) -> TopoDS_Shape:
     """Read an IGES file with IGESControl_Reader and return OneShape() (all roots); a STEP
     file with STEPControl_Reader (lengths in mm).
 
     ``keep_continuity`` sets read.iges.bspline.continuity = 0, so OCC does not split C0
-    B-spline surfaces into C1 pieces (its default, 1, does).
+    B-spline surfaces into C1 pieces (its default, 1, does). ``surface_curves``: OCC's
+    read.surfacecurve.mode for the read (-2: the parameter-space curves of every 142, -3:
+    the model-space ones; None: OCC's default 0, which honours PREF, but not always:
+    `cadbridge.verify.soundness._file_preference`).
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -80,9 +84,12 @@ def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> 
         return shape
     reader = IGESControl_Reader()  # registers the read.iges.* statics
     old = Interface_Static.IVal_s("read.iges.bspline.continuity")
+    old_curves = Interface_Static.IVal_s("read.surfacecurve.mode")
     try:
         if keep_continuity:
             Interface_Static.SetIVal_s("read.iges.bspline.continuity", 0)
+        if surface_curves is not None:
+            Interface_Static.SetIVal_s("read.surfacecurve.mode", int(surface_curves))
         status = reader.ReadFile(path)
         if status != IFSelect_RetDone:
             raise OccReadError(f"{path}: OpenCASCADE could not read the file (IFSelect status {status})")
@@ -90,6 +97,7 @@ def occ_read_shape(path: str | os.PathLike, *, keep_continuity: bool = True) -> 
             raise OccReadError(f"{path}: OpenCASCADE transferred no root entity")
     finally:
         Interface_Static.SetIVal_s("read.iges.bspline.continuity", old)
+        Interface_Static.SetIVal_s("read.surfacecurve.mode", old_curves)
     shape = reader.OneShape()
     if shape.IsNull():
         raise OccReadError(f"{path}: OpenCASCADE produced an empty shape")
@@ -106,9 +114,11 @@ def _occ_read_step(path: str) -> TopoDS_Shape:
     return shape
 
 
-def occ_read(path: str | os.PathLike, *, keep_continuity: bool = True) -> list[OccFace]:
-    """All faces of an IGES or STEP file as OCC reads them, in TopExp_Explorer order."""
-    shape = occ_read_shape(path, keep_continuity=keep_continuity)
+def occ_read(path: str | os.PathLike, *, keep_continuity: bool = True,
+             surface_curves: int | None = None) -> list[OccFace]:
+    """All faces of an IGES or STEP file as OCC reads them, in TopExp_Explorer order
+    (options as `occ_read_shape`)."""
+    shape = occ_read_shape(path, keep_continuity=keep_continuity, surface_curves=surface_curves)
     faces: list[OccFace] = []
     exp = TopExp_Explorer(shape, TopAbs_FACE)
     while exp.More():

@@ -2,7 +2,8 @@
 
 `tool_soundness(cad, tool_files)` reads the IGES file with OCC (`occ_read`, lengths in mm;
 the copy the mesher reads, `cadbridge.heal.mesh_source`, so faces cadbridge re-read from
-their model-space trim curves are trimmed the same way for OCC) and the ``.nagata`` tool
+their model-space trim curves are trimmed the same way for OCC; trims from the curves the
+file's 142s prefer where they all prefer the same, `_file_preference`) and the ``.nagata`` tool
 files `convert` wrote (`cadbridge.io.toolfile.read_toolfile`, scaled from the file's units
 to mm), and measures three things, all independent of cadbridge's own error estimates:
 
@@ -256,6 +257,27 @@ def _tool_arrays(tools, to_mm: float):
     return cat(nodes, (3,)), cat(normals, (3,)), cat(candidate, ()).astype(bool), cat(nag, (3,)), cat(flat, (3,))
 
 
+def _file_preference(path) -> int | None:
+    """OCC's read.surfacecurve.mode that reads an IGES file's trims as its 142 curves say, where
+    they all say the same: -2 (parameter space) where every PREF is 1, -3 (model space) where
+    every one is 2; None (OCC's default) otherwise, and for other formats. OCC's default may
+    take the other curve: on ANSA's OCC131-1 (PREF 1, a loop of 112 parametric splines 0.004
+    mm from its model-space curves) it bounds the face by the model-space curves, up to 0.004
+    mm inside the one the file prefers, which OCC builds, valid by BRepCheck, when told to."""
+    from cadbridge.formats import cad_format
+
+    if str(path).lower().endswith(".brep") or cad_format(path) != "iges":
+        return None
+    from cadbridge.iges import IgesError
+    from cadbridge.iges.reader import curve_preferences
+
+    try:
+        prefs = set(curve_preferences(path).values())
+    except IgesError:
+        return None
+    return {frozenset({1}): -2, frozenset({2}): -3}.get(frozenset(prefs))
+
+
 def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], *, max_samples: int = 2000
                    ) -> SoundnessReport:
     """Checks (a), (b), (c) of the module docstring for the tool files ``convert`` wrote from ``cad``."""
@@ -265,7 +287,7 @@ def tool_soundness(cad: str | os.PathLike, tool_files: list[str | os.PathLike], 
 
     model = read_cad(cad)
     with mesh_source(cad, model) as src:
-        faces = occ_read(src)
+        faces = occ_read(src, surface_curves=_file_preference(src))
     to_mm = float(model.units.to_mm)
     if not faces:
         return SoundnessReport(float("nan"), to_mm, DIST_REL, failures=["OCC reads no face"])

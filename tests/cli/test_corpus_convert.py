@@ -60,20 +60,12 @@ FAST_REFUSAL = "occt_Disc_HPME.igs"
 # quad, occt_PRO20358-X28_CATIAV4.igs quad (72 s beside other jobs, 39 s alone) and
 # occt_PRO20359-L2_CATIAV4.igs quad convert soundly within this test's limit.
 KNOWN_FAILURES: dict[tuple[str, str], str] = {
-    # cadbridge reads the 112 pcurves (PREF = 1, preferred) that OCC's reading leaves for the 3D
-    # trims; the file's two disagree by 0.004 mm, above the soundness tolerance (docs/one_geometry.md)
-    ('occt_OCC131-1_ANSA9.igs', 'quad'):
-        'converted (nodes off the CAD: 2.84e-05 x size (tolerance 9e-06))',
-    ('occt_OCC131-1_ANSA9.igs', 'tri'):
-        'converted (nodes off the CAD: 2.84e-05 x size (tolerance 9e-06))',
-    # STEP: meshing failures (gmsh on periodic and cusp faces, the straddle guard on the
-    # fuselage); the timeouts are the benchmark's 60 s (docs/step.md). b1 (trj6) and b2 timed out
-    # in reading until 2026-12-06 19:40 (the loop searches); their lines are from
-    # `python benchmarks/corpus.py --only trj10_b2 trj6_b1` then
-    ('bug28366_fuselage.stp', 'quad'):
-        'timeout',
-    ('bug28366_fuselage.stp', 'tri'):
-        'failed: exit 1: prodname: mesh straddles a crease: elements 1106, 1108, 1118, 1159, 1294, 1296, 1338, 1342, 1484, 1496 (and 6 more) (1-based, 16 in all) have corners on both sides of a crease line or ',
+    # STEP: meshing failures (gmsh on periodic and cusp faces); the timeouts are the
+    # benchmark's 60 s (docs/step.md). b1 (trj6) and b2 timed out in reading until
+    # 2026-12-06 19:40 (the loop searches); their lines are from
+    # `python benchmarks/corpus.py --only trj10_b2 trj6_b1` then. (OCC131-1 converts soundly
+    # since the check reads it as its PREF says, the fuselage since a crease fading below the
+    # crease angle along its knot line is no straddle: 2026-12-07.)
     ('trj10_b2-oc-214.stp', 'quad'):
         'failed: exit 1: 31 of 21578 mesh nodes are further than 0.0206 from the CAD (or could not be projected): node 19986 at (-21.8214, -11.6503, 61) distance 1.26331, node 16538 at (-23.7593, -8.71069, 3) ',
     ('trj10_b2-oc-214.stp', 'tri'):
