@@ -78,10 +78,12 @@ def wipe(tree: Path) -> None:
 
 
 def timed(cmd: list[str], env: dict) -> tuple[float, float, int, str]:
-    """(wall s, CPU s, exit code, stderr) of one child process."""
+    """(wall s, CPU s, exit code, stderr) of one child process, run in the tree of
+    ``env["PYTHONPATH"]`` (`python -m` puts the working directory first on sys.path)."""
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    run = subprocess.run(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    run = subprocess.run(cmd, env=env, cwd=env["PYTHONPATH"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True)
     wall = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
@@ -120,6 +122,11 @@ def main() -> None:
         tmp = Path(tmp)
         trees = {"before": tmp / "before", "after": tmp / "after"}
         refs = {k: clone(ref, trees[k]) for k, ref in (("before", a.before), ("after", a.after))}
+        for k, tree in trees.items():  # the package each run imports is the clone's
+            where = subprocess.run([sys.executable, "-c", "import cadbridge; print(cadbridge.__file__)"],
+                                   env=env_for(tree), cwd=tree, capture_output=True, text=True, check=True).stdout
+            if not Path(where.strip()).is_relative_to(tree):
+                raise RuntimeError(f"{k}: cadbridge imported from {where.strip()}, not from {tree}")
         lines.append(f"before = {a.before} ({refs['before']}), after = {a.after} ({refs['after']}); python "
                      f"{sys.version.split()[0]}, {os.cpu_count()} cores")
         rows = []
