@@ -12,7 +12,8 @@ slowest first; a kernel compiled by one process is loaded, not compiled again, b
 
 A warm-up never fails an install: a listed kernel that is gone or takes other types now (a
 stale list: the job compiles it on first use, as without a warm-up) is reported and skipped;
-the exit code is 1 only if no kernel compiled at all (numba itself cannot compile).
+the exit code is 1 only if numba itself cannot compile (no listed kernel compiled, and
+neither does a one-line function).
 ``cadbridge warmup --record`` re-records the list after kernels or their call sites change
 (a cold `cadbridge ushape` in a temporary cache; the test `tests/cli/test_warmup.py` says when
 the list no longer covers the job).
@@ -175,7 +176,21 @@ def cmd_warmup(args: argparse.Namespace) -> int:
     done = len(results) - len(failed)
     say(f"compiled {done - cached} kernels ({cached} already in the cache, {len(failed)} failed) in "
         f"{time.perf_counter() - t0:.1f} s")
-    return EXIT_CHECK_FAILED if results and done == 0 else EXIT_OK
+    if results and done == 0 and not _numba_compiles():
+        print("cadbridge warmup: error: numba cannot compile here (a one-line function failed too)", file=sys.stderr)
+        return EXIT_CHECK_FAILED
+    return EXIT_OK
+
+
+def _numba_compiles() -> bool:
+    """Whether numba compiles at all in this process (a stale list fails every entry, a broken
+    numba fails this too)."""
+    try:
+        import numba
+
+        return numba.njit(lambda x: x + 1)(1) == 2
+    except Exception:  # noqa: BLE001 - any failure means: it does not
+        return False
 
 
 def register(sub, fmt) -> None:
