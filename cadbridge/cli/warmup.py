@@ -165,8 +165,7 @@ def cmd_warmup(args: argparse.Namespace) -> int:
         return EXIT_BAD_INPUT
     if not args.quiet:
         print(f"cadbridge warmup: compiling {len(KERNELS)} numerical kernels in {jobs} process"
-              f"{'es' if jobs > 1 else ''} (once per install; about {sum(e[3] for e in KERNELS) / jobs:.0f} s)",
-              file=sys.stderr, flush=True)
+              f"{'es' if jobs > 1 else ''} (once per install)", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     results = compile_kernels(list(KERNELS), jobs)
     failed = [(name, err) for name, _, _, err in results if err]
