@@ -46,6 +46,18 @@ _GENERIC_SAFETY = 2.0  # factor on the sampled chord estimate of curves without 
 
 # ---------------------------------------------------------------------------------------
 # curve derivatives (compiled for NURBS curves: the trim loops' Newton steps call them often)
+#
+# One type per kernel argument, so that each kernel compiles once (the first run's compile
+# time, `cadbridge.common.jit`): curve nets, knots and maps enter read-only (NurbsCurve's
+# arrays are; the packs below are frozen likewise), and a constant passed from one kernel to
+# another is written np.int64(k) / np.bool_(b) (a bare literal is typed Literal[int](k) by
+# numba and compiles the callee once more per value).
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` (a fresh array owned by the caller) made read-only, as the curves' own arrays."""
+    a.setflags(write=False)
+    return a
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -147,8 +159,8 @@ def _tcurve_ders_one(pw, knots, p, rational, mp, x, d, ndu, left, right, a, nd, 
     if d >= 2:
         y20 = out[2, 0] * mp[1] + out[2, 1] * mp[2]
         y21 = out[2, 0] * mp[3] + out[2, 1] * mp[4]
-    n00, n10, n20 = _chain_one(mp, 7, y00, y10, y20)
-    n01, n11, n21 = _chain_one(mp, 12, y01, y11, y21)
+    n00, n10, n20 = _chain_one(mp, np.int64(7), y00, y10, y20)
+    n01, n11, n21 = _chain_one(mp, np.int64(12), y01, y11, y21)
     for j in range(2):
         o = 17 + 6 * j
         if mp[o] == 0.0:
@@ -187,7 +199,7 @@ def _kernel_form(c):
     base, pm = getattr(c, "base", None), getattr(c, "packed_map", None)
     if pm is None or not isinstance(base, NurbsCurve) or base.dim != 2:
         return None
-    form = (base._pw, base.knots, base.degree, base.rational, np.ascontiguousarray(pm(), dtype=float))
+    form = (base._pw, base.knots, base.degree, base.rational, _frozen(np.array(pm(), dtype=float)))
     c.__dict__["_kernel_form"] = form
     return form
 
@@ -199,7 +211,7 @@ def _trim_newton_one(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cknots, cde
     from ti: f(t) = (C - P).C', C = S(c(t)), f' = C'.C' + (C - P).C'' (C'.C' where f' <= 0),
     t wrapped (closed curve) or clamped, until a step moves C by at most eps1. Returns t."""
     for _ in range(max_iter):
-        _tcurve_ders_one(cpw, cknots, cdeg, crat, cmap, ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
+        _tcurve_ders_one(cpw, cknots, cdeg, crat, cmap, ti, np.int64(2), cndu, cl, cr, ca, cnd, caw, cd)
         uu = min(max(cd[0, 0], u0), u1)
         vv = min(max(cd[0, 1], v0), v1)
         ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
@@ -328,7 +340,7 @@ def _bezier_bounds_kernel(hpw, knots, p, ta, tb, pa, pb, fact, tm, band, graph):
     h = np.empty(p + 1)
     net = np.empty((p + 1, 2))
     for i in range(ta.shape[0]):
-        _curve_ders_one(hpw, knots, p, False, ta[i], p, ndu, left, right, a, nd, aw, d)
+        _curve_ders_one(hpw, knots, p, np.bool_(False), ta[i], p, ndu, left, right, a, nd, aw, d)
         dt = tb[i] - ta[i]
         for k in range(p + 1):
             h[k] = dt ** k / fact[k]
@@ -414,7 +426,7 @@ def _refine_kernel(cpw, knots, deg, rat, hpw, fact, tm, t, p, target, lmax, max_
         for k in range(nb):
             tmid[k] = 0.5 * (t[bi[k]] + t[bi[k] + 1])
         out = np.empty((nb, 1, dim))
-        _curve_ders_kernel(cpw, knots, deg, rat, tmid, 0, out)
+        _curve_ders_kernel(cpw, knots, deg, rat, tmid, np.int64(0), out)
         pm = np.empty((nb, 2))
         ta_l = np.empty(nb)
         tb_r = np.empty(nb)
@@ -756,11 +768,11 @@ class LoopBoundary:
                 cpw_off = np.concatenate([[0], np.cumsum([w.size for w in pws])]).astype(np.int64)
                 k_off = np.concatenate([[0], np.cumsum([k.size for k in kns])]).astype(np.int64)
                 self._pack = (np.ascontiguousarray(self.curve, dtype=np.int64), np.ascontiguousarray(self.ta),
-                              np.ascontiguousarray(self.tb), np.concatenate([w.ravel() for w in pws]), cpw_off,
-                              np.array([w.shape[1] - 1 for w in pws], dtype=np.int64), np.concatenate(kns), k_off,
-                              np.array([f[2] for f in forms], dtype=np.int64),
+                              np.ascontiguousarray(self.tb), _frozen(np.concatenate([w.ravel() for w in pws])),
+                              cpw_off, np.array([w.shape[1] - 1 for w in pws], dtype=np.int64),
+                              _frozen(np.concatenate(kns)), k_off, np.array([f[2] for f in forms], dtype=np.int64),
                               np.array([bool(f[3]) for f in forms], dtype=np.bool_),
-                              np.ascontiguousarray(np.stack([f[4] for f in forms])))
+                              _frozen(np.stack([f[4] for f in forms])))
         return self._pack
 
     def contains(self, uv: np.ndarray, tol: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -823,7 +835,7 @@ def _lens_pair(cpw, knots, deg, rat, cmap, ta, tb, ax, ay, bx, by, px, py, size,
     eps = 1e-15 * (size + max(abs(ax), abs(ay)))
     if mid:
         for _ in range(max_iter):
-            _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 1, ndu, left, right, sa, nd, aw, cd)
+            _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, np.int64(1), ndu, left, right, sa, nd, aw, cd)
             g = (cd[0, 0] - ax) * ex + (cd[0, 1] - ay) * ey - sp
             gp = cd[1, 0] * ex + cd[1, 1] * ey
             if g < 0:
@@ -836,12 +848,12 @@ def _lens_pair(cpw, knots, deg, rat, cmap, ta, tb, ax, ay, bx, by, px, py, size,
             if (abs(g) <= eps or hi - lo <= 4e-16 * (abs(hi) + abs(lo)) or abs(tn - t) * abs(gp) <= eps):
                 break
             t = tn
-    _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 0, ndu, left, right, sa, nd, aw, cd)
+    _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, np.int64(0), ndu, left, right, sa, nd, aw, cd)
     f = (cd[0, 0] - ax) * nx + (cd[0, 1] - ay) * ny
     lens = mid and npp * f > 0 and abs(npp) < abs(f)
     # distance to the arc: Newton on (C - p).C' from the chord's abscissa (or the near end)
     for _ in range(8):
-        _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 2, ndu, left, right, sa, nd, aw, cd)
+        _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, np.int64(2), ndu, left, right, sa, nd, aw, cd)
         rx, ry = cd[0, 0] - px, cd[0, 1] - py
         g = rx * cd[1, 0] + ry * cd[1, 1]
         c11 = cd[1, 0] * cd[1, 0] + cd[1, 1] * cd[1, 1]
@@ -853,7 +865,7 @@ def _lens_pair(cpw, knots, deg, rat, cmap, ta, tb, ax, ay, bx, by, px, py, size,
         t = tn
         if not moved:
             break
-    _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, 0, ndu, left, right, sa, nd, aw, cd)
+    _tcurve_ders_one(cpw, knots, deg, rat, cmap, t, np.int64(0), ndu, left, right, sa, nd, aw, cd)
     rx, ry = cd[0, 0] - px, cd[0, 1] - py
     dd = np.sqrt(rx * rx + ry * ry)
     da = np.sqrt((ax - px) ** 2 + (ay - py) ** 2)
@@ -1145,7 +1157,7 @@ def _trim_pairs_kernel(spw, sku, skv, p, q, srat, u0, u1, v0, v1, cpw, cpw_off, 
                               cclosed[c], pts[i, 0], pts[i, 1], pts[i, 2], t[i], eps1, max_iter, scratch, der, cndu,
                               cl, cr, ca, cnd, caw, cd)
         t[i] = ti
-        _tcurve_ders_one(pw, kn, cdeg[c], crat[c], cmaps[c], ti, 2, cndu, cl, cr, ca, cnd, caw, cd)
+        _tcurve_ders_one(pw, kn, cdeg[c], crat[c], cmaps[c], ti, np.int64(2), cndu, cl, cr, ca, cnd, caw, cd)
         uu = min(max(cd[0, 0], u0), u1)
         vv = min(max(cd[0, 1], v0), v1)
         ders2_one(spw, sku, skv, p, q, srat, uu, vv, scratch, der)
@@ -1361,13 +1373,13 @@ def _pack_curves(curves: list, samples: list, size: float):
         return packed, renum, ()
     pws = [np.ascontiguousarray(forms[j][0], dtype=float) for j in idx]
     kns = [np.ascontiguousarray(forms[j][1], dtype=float) for j in idx]
-    cargs = (np.concatenate([w.ravel() for w in pws]),
+    cargs = (_frozen(np.concatenate([w.ravel() for w in pws])),
              np.concatenate([[0], np.cumsum([w.size for w in pws])]).astype(np.int64),
-             np.array([w.shape[1] - 1 for w in pws], dtype=np.int64), np.concatenate(kns),
+             np.array([w.shape[1] - 1 for w in pws], dtype=np.int64), _frozen(np.concatenate(kns)),
              np.concatenate([[0], np.cumsum([k.size for k in kns])]).astype(np.int64),
              np.array([forms[j][2] for j in idx], dtype=np.int64),
              np.array([bool(forms[j][3]) for j in idx], dtype=np.bool_),
-             np.ascontiguousarray(np.stack([forms[j][4] for j in idx])),
+             _frozen(np.stack([forms[j][4] for j in idx])),
              np.array([float(curves[j].domain[0]) for j in idx]), np.array([float(curves[j].domain[1]) for j in idx]),
              np.array([_closed(samples[j][1], size) for j in idx], dtype=np.bool_))
     return packed, renum, cargs

@@ -29,7 +29,7 @@ __all__ = ["COMMANDS", "EXIT_BAD_INPUT", "EXIT_CHECK_FAILED", "EXIT_OK", "PROGRE
 # ``register(sub, fmt) -> None`` that adds its parser with ``set_defaults(func=...)``; its
 # command functions raise `UsageError` (exit 2) or `CheckFailed` (exit 1) with one line.
 COMMANDS: tuple[str, ...] = ("inspect", "verify", "mesh", "normals", "nagata", "convert", "ushape", "map", "fit",
-                             "quality")
+                             "quality", "warmup")
 
 
 def build_parser() -> argparse.ArgumentParser:

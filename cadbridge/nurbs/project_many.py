@@ -93,8 +93,10 @@ class SurfacePack:
         def flat(arrays):
             off = np.zeros(len(arrays) + 1, dtype=np.int64)
             off[1:] = np.cumsum([a.size for a in arrays])
-            data = np.concatenate([np.ravel(a) for a in arrays]) if arrays else np.zeros(0)
-            return np.ascontiguousarray(data, dtype=float), off
+            data = np.ascontiguousarray(np.concatenate([np.ravel(a) for a in arrays]) if arrays else np.zeros(0),
+                                        dtype=float)
+            data.setflags(write=False)  # read-only as the surfaces' own nets: ders2_one & co compile once
+            return data, off
 
         self.pw, self.pw_off = flat([x._pw for x in self.surfaces])
         self.ku, self.ku_off = flat([x.knots_u for x in self.surfaces])
