@@ -178,6 +178,37 @@ def _largest_gap(data) -> float:
     return max((ends[i][1].Distance(ends[(i + 1) % n][0]) for i in range(n)), default=0.0)
 
 
+def _one_vertex_degenerated(wire) -> tuple[object, int]:
+    """``wire`` with each degenerated edge's two vertices made one (its first, its tolerance
+    grown to cover the second), and how many edges that changed.
+
+    A trim piece along a pole side of its surface is a closed edge: one vertex at both ends.
+    `ShapeFix_Wire.FixConnected` joins each end to its neighbour with a new vertex of its own
+    where the neighbour's end is near but not on it, so the edge ends with two vertices at one
+    point; `ShapeFix_Wire.FixDegenerated` marks it degenerated as it is. gmsh then cannot make
+    the face's loop: "Could not fix wire in surface" where it sews, "The 1D mesh seems not to
+    be forming a closed loop" where not (trj8_b1-ec-214.stp, a B-spline dome's pole)."""
+    from OCP.BRep import BRep_Builder, BRep_Tool
+    from OCP.ShapeBuild import ShapeBuild_ReShape
+    from OCP.TopAbs import TopAbs_EDGE, TopAbs_FORWARD
+    from OCP.TopExp import TopExp, TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    reshape = ShapeBuild_ReShape()
+    merged = 0
+    ex = TopExp_Explorer(wire, TopAbs_EDGE)
+    while ex.More():  # loop over the wire's edges
+        e = TopoDS.Edge_s(ex.Current())
+        ex.Next()
+        a, b = TopExp.FirstVertex_s(e), TopExp.LastVertex_s(e)
+        if BRep_Tool.Degenerated_s(e) and not a.IsSame(b):
+            gap = BRep_Tool.Pnt_s(a).Distance(BRep_Tool.Pnt_s(b))
+            BRep_Builder().UpdateVertex(a, max(BRep_Tool.Tolerance_s(a), gap + BRep_Tool.Tolerance_s(b)))
+            reshape.Replace(b.Oriented(TopAbs_FORWARD), a.Oriented(TopAbs_FORWARD))
+            merged += 1
+    return (TopoDS.Wire_s(reshape.Apply(wire)) if merged else wire), merged
+
+
 def _face(face: Face, tol: float, resolution: float = 0.0, width: float = 0.0) -> tuple[object, list[str], bool]:
     """The OCC face of one model face, the fixes OCC's healing made on it, and whether
     `BRepCheck_Analyzer` finds it valid. ``tol``: the
@@ -237,7 +268,10 @@ def _face(face: Face, tol: float, resolution: float = 0.0, width: float = 0.0) -
             fixes.append(f"{name}: degenerate edge added (pole or apex)")
         if fw.FixLacking():
             fixes.append(f"{name}: lacking edge added")
-        builder.Add(occ, fw.Wire())
+        wire, merged = _one_vertex_degenerated(fw.Wire())
+        if merged:
+            fixes.append(f"{name}: the two vertices of {merged} degenerate edge(s) made one")
+        builder.Add(occ, wire)
     BRepLib.BuildCurves3d_s(occ, tol)  # approximations of S(c(t)): the mesher puts its nodes back on S(c(t))
     ff = ShapeFix_Face(occ)
     if ff.FixOrientation():  # Perform() alone leaves a clockwise outer loop as it is

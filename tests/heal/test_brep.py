@@ -184,3 +184,72 @@ def test_trim_pieces_apart_beyond_the_trim_tolerance_stay_apart():
     piece, not a tolerance: the wire is not closed over it."""
     brep = model_brep(_plate_with_gaps(1.0))
     assert not any("closed" in fix for fix in brep.faces[0].fixes), brep.faces[0].fixes
+
+
+def _dome_with_pole(gap: float):
+    """A quarter cone (B-spline, degree 2 x 1: its row v = 1 of poles is the apex (0, 0, 15)),
+    trimmed by its (u, v) square with the pole side as a trim piece of its own, the pieces
+    next to it ending ``gap`` short of v = 1 (OCC's vertices there near, not on, the apex)."""
+    from cadbridge.cad.model import Face, Model, Trim, TrimLoop
+    from cadbridge.nurbs.curve import NurbsCurve
+    from cadbridge.nurbs.surface import NurbsSurface
+
+    def line(p, q):
+        return NurbsCurve(1, [0, 0, 1, 1], [p, q])
+
+    rim, apex = [[20, 0, 0], [20, 20, 0], [0, 20, 0]], [0, 0, 15]
+    s = NurbsSurface(2, 1, [0, 0, 0, 1, 1, 1], [0, 0, 1, 1], [[p, apex] for p in rim])
+    loop = TrimLoop([line((1, 1), (0, 1)), line((0, 1 - gap), (0, 0)), line((0, 0), (1, 0)), line((1, 0), (1, 1 - gap))])
+    return Model(faces=[Face(surface=s, de=1, trims=Trim(loop, []))])
+
+
+def test_a_pole_side_trim_piece_keeps_one_vertex():
+    """Class: a trim piece along a pole side of its surface (a closed edge) whose neighbours end
+    near, not on, the pole: OCC's `ShapeFix_Wire.FixConnected` gave each of its ends a vertex of
+    its own, and gmsh then stopped with "Could not fix wire in surface 1" (sewing) or "The 1D
+    mesh seems not to be forming a closed loop" (trj8_b1-ec-214.stp: its model route failed
+    on every attempt). References: OCC's topology (the degenerated edge has one vertex) and its
+    geometry of the built face: the mesh's area is OCC's area of the face (`BRepGProp`) and
+    every node lies on OCC's surface (`GeomAPI_ProjectPointOnSurf`)."""
+    import gmsh
+    from OCP.BRep import BRep_Tool
+    from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
+    from OCP.gp import gp_Pnt
+    from OCP.TopAbs import TopAbs_EDGE
+    from OCP.TopExp import TopExp, TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    model = _dome_with_pole(4e-8)  # the apex vertices ~1e-6 apart: within tolerance, not the same point
+    brep = model_brep(model)
+    (face,) = faces(brep.shape)
+    degenerated = []
+    ex = TopExp_Explorer(face, TopAbs_EDGE)
+    while ex.More():  # loop over the face's (few) edges
+        e = TopoDS.Edge_s(ex.Current())
+        ex.Next()
+        if BRep_Tool.Degenerated_s(e):
+            degenerated.append(TopExp.FirstVertex_s(e).IsSame(TopExp.LastVertex_s(e)))
+    assert degenerated and all(degenerated), degenerated
+    surface = BRep_Tool.Surface_s(face)
+    for sew in (1, 0):  # the model route's attempts: gmsh sews the B-rep again, or not
+        with brep_source(model) as (path, _):
+            gmsh.initialize(readConfigFiles=False)
+            try:
+                gmsh.option.setNumber("General.Terminal", 0)
+                gmsh.option.setNumber("Geometry.OCCSewFaces", sew)
+                gmsh.option.setNumber("Geometry.Tolerance", SEW_TOLERANCE_MM)
+                gmsh.option.setNumber("Mesh.MeshSizeMax", 2.0)
+                gmsh.model.occ.importShapes(str(path))
+                gmsh.model.occ.synchronize()
+                gmsh.model.mesh.generate(2)
+                _, xyz, _ = gmsh.model.mesh.getNodes()
+                xyz = np.asarray(xyz).reshape(-1, 3)
+                etypes, _, enodes = gmsh.model.mesh.getElements(2)
+                tri = np.asarray(enodes[list(etypes).index(2)], dtype=np.int64).reshape(-1, 3) - 1
+            finally:
+                gmsh.finalize()
+        a, b, c = xyz[tri[:, 0]], xyz[tri[:, 1]], xyz[tri[:, 2]]
+        area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+        assert area == pytest.approx(_area(face), rel=0.01)  # flat triangles of a 2 mm mesh on a 20 mm cone: ~0.3 % short
+        off = [GeomAPI_ProjectPointOnSurf(gp_Pnt(*p), surface).LowerDistance() for p in xyz.tolist()]
+        assert max(off) <= 1e-6 * model.size()

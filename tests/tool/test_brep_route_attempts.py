@@ -3,10 +3,11 @@ and projector), and the B-rep built once for all refinement rounds.
 
 Two classes of defect, each on two files of ../shared/cad_corpus/step (skipped when absent):
 
-* gmsh's second sewing of the B-rep cadbridge already sewed leaves a face a wire gmsh cannot
-  close ("Could not fix wire in surface N"; K1 from CADDS trj5_k1-tc-203 and NIST's
-  bug29241, at both sewing tolerances): the B-rep is then imported unsewn
-  (`cadbridge.tool.meshing._mesh_model_brep`'s third attempt).
+* a trim piece along a pole side of its surface became a degenerated edge with two vertices
+  (`cadbridge.heal.brep._one_vertex_degenerated`), whose wire gmsh could not close ("Could not
+  fix wire in surface N" at both sewing tolerances; K1 from CADDS trj5_k1-tc-203 and NIST's
+  bug29241, which were meshed by `cadbridge.tool.meshing._mesh_model_brep`'s third attempt,
+  unsewn): with one vertex, the first attempt (sewn at the mesher's tolerance) meshes them.
 * gmsh's mesh of a face closed around a pole has triangles with two corners on one node
   (trj5_k1-tc-203 imported unsewn, trj4_s1-ai-214 sewn): no area, dropped on collection as the
   node merge drops the triangles it collapses (`cadbridge.mesh.generate._collect`).
@@ -88,15 +89,16 @@ def _check_against_occ(mesh, path: Path, conforming: bool = True) -> None:
 
 
 @pytest.mark.parametrize("name", [KTC.name, pytest.param(NIST.name, marks=pytest.mark.slow)])
-def test_a_brep_gmsh_cannot_import_sewn_is_meshed_unsewn(name):
-    """Both sewing tolerances fail in gmsh's import ("Could not fix wire"); the third attempt
-    meshes the same B-rep unsewn, and the mesh covers OCC's faces once."""
+def test_pole_side_trim_pieces_are_meshed_at_the_first_attempt(name):
+    """Both files' pole-side degenerated edges got one vertex each; gmsh then imports the B-rep
+    sewn at the first attempt (before: "Could not fix wire" at both sewing tolerances, meshed
+    unsewn), and the mesh covers OCC's faces once."""
     path = _need(STEP / name)
     model, excursions = read_healed(path)
     mesh, tried = _mesh_model_brep(model, [], dict(element="tri", embed_curves=[]))
     assert mesh is not None and tried == []
-    failed = [n for n in mesh.notes if "could not be meshed" in n]
-    assert len(failed) == 2 and all("Could not fix wire" in n for n in failed)
+    assert not [n for n in mesh.notes if "could not be meshed" in n]
+    assert any("degenerate edge(s) made one" in n for n in mesh.notes)
     _check_against_occ(mesh, path)
 
 
