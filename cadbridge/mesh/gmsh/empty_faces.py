@@ -15,9 +15,11 @@ For each such face this module:
 2. *zips* cusps: from a loop corner, the two boundary chains are walked side by side while
    each next node lies within ``eps`` (3D) of the other chain, ``eps`` = 4 x the largest
    distance between a boundary node and the surface at its (u, v) (the file's own
-   curve-to-surface disagreement) and at least 1/8 of the element size; that strip has no width within the CAD's accuracy and
-   is cut off the loop (left open: a crack of width <= eps, reported in the notes), since
-   triangles across it would have random windings;
+   curve-to-surface disagreement), or, where the strip is the face's own material (a spike,
+   not a notch of its outside), at least 1/8 of the element size; that strip has no width
+   within the CAD's accuracy and is cut off the loop (left open: a crack of width <= eps,
+   reported in the notes), since triangles across it would have random windings (a notch cut
+   off would be meshed over, outside the face);
 3. checks that the remaining loops are simple in (u, v) (else a `MeshError` naming the face);
 4. triangulates them with gmsh's Frontal-Delaunay in (u, v) scaled by the mean |S_u|, |S_v|
    (`cadbridge.mesh.gmsh.planar.mesh_loops_in_parameter_space`), boundary nodes fixed,
@@ -275,11 +277,57 @@ def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
     return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
 
 
+def _zip_walk(xyz: np.ndarray, seg: np.ndarray, keep: np.ndarray, p: int, eps: float,
+              tags: np.ndarray | None) -> tuple[int, int, float, float, float]:
+    """Walk the two chains of a loop from corner ``p`` side by side while each next node lies
+    within ``eps`` of the other chain (`_zip_cusps`): (a, b, sa, sb, w), the last node zipped
+    forward (chain A) and backward (chain B), the arc length walked on each and the largest
+    distance of a zipped node from the other chain (the strip's width)."""
+    n = len(xyz)
+    a, b = p, p
+    sa = sb = w = 0.0
+    steps = 0
+    while steps < n - 4:  # at least 3 nodes stay out of the strip
+        na, nb = (a + 1) % n, (b - 1) % n
+        if not (keep[na] and keep[nb]):
+            break  # another strip's nodes
+        # advance the chain that is behind in arc length; its next node must lie within
+        # eps of the other chain's segments near the current rung
+        if sa + seg[a] <= sb + seg[nb]:
+            other = [(b - j) % n for j in range(0 if b == p else -1, 4)]  # chain B near the rung
+            d = _point_segment_distance(xyz[na], xyz[other[:-1]], xyz[other[1:]]).min()
+            if d > eps or (tags is not None and tags[na] in tags[other]):
+                break
+            sa += seg[a]
+            a = na
+            w = max(w, d)
+        else:
+            other = [(a + j) % n for j in range(0 if a == p else -1, 4)]  # chain A near the rung
+            d = _point_segment_distance(xyz[nb], xyz[other[:-1]], xyz[other[1:]]).min()
+            if d > eps or (tags is not None and tags[nb] in tags[other]):
+                break
+            sb += seg[nb]
+            b = nb
+            w = max(w, d)
+        steps += 1
+    return a, b, sa, sb, w
+
+
 def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float,
-               tags: np.ndarray | None = None) -> tuple[np.ndarray, list[tuple[int, float]]]:
+               tags: np.ndarray | None = None, *, strip_eps: float = 0.0, uv: np.ndarray | None = None,
+               material_left: bool = True) -> tuple[np.ndarray, list[tuple[int, float]]]:
     """Cut the zero-width strips off one loop (module docs, step 2).
 
     xyz (n, 3) loop nodes, corner (n,) bool (curve end points), tags (n,) their mesh node tags.
+    Every strip narrower than ``eps`` (the CAD's accuracy) is cut; one up to ``strip_eps`` wide
+    only where it is the face's own material (a spike), judged in (u, v) (``uv`` (n, 2), the
+    face's material on the left of the loop if ``material_left``): the cut-off polygon (the
+    strip's nodes closed by the new edge) winds as the loop's material does, or crosses itself
+    (its sides run together). A notch (the face's outside running into it: a simple cut-off
+    polygon wound the other way) is cut only within ``eps``: cut wider, the fill covers the
+    notch, outside the face (trj10_b2-oc-214's plane: a 48 degree notch cut 1.4 mm deep at
+    ``strip_eps`` = 1.3, a node 0.087 off every face). Without ``uv`` every strip up to
+    max(eps, strip_eps) is cut.
     Returns the kept node indices in loop order and, per strip, (cusp node index, strip length
     along the loop). A chain never zips onto the same mesh nodes: a seam the loop runs down and
     back up (a cone's, from its apex) is no strip but the face's closure, a period apart in
@@ -288,33 +336,17 @@ def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float,
     keep = np.ones(n, dtype=bool)
     strips = []
     seg = np.linalg.norm(np.roll(xyz, -1, axis=0) - xyz, axis=1)  # seg[i]: node i -> i + 1
+    wide = max(eps, strip_eps)
     for p in np.flatnonzero(corner):  # loop over the (few) corners
         if not keep[p]:
             continue
-        a, b = p, p  # last zipped node forward (chain A) and backward (chain B)
-        sa = sb = 0.0  # arc length walked on each chain
-        steps = 0
-        while steps < n - 4:  # at least 3 nodes stay out of the strip
-            na, nb = (a + 1) % n, (b - 1) % n
-            if not (keep[na] and keep[nb]):
-                break  # another strip's nodes
-            # advance the chain that is behind in arc length; its next node must lie within
-            # eps of the other chain's segments near the current rung
-            if sa + seg[a] <= sb + seg[nb]:
-                other = [(b - j) % n for j in range(0 if b == p else -1, 4)]  # chain B near the rung
-                d = _point_segment_distance(xyz[na], xyz[other[:-1]], xyz[other[1:]]).min()
-                if d > eps or (tags is not None and tags[na] in tags[other]):
-                    break
-                sa += seg[a]
-                a = na
-            else:
-                other = [(a + j) % n for j in range(0 if a == p else -1, 4)]  # chain A near the rung
-                d = _point_segment_distance(xyz[nb], xyz[other[:-1]], xyz[other[1:]]).min()
-                if d > eps or (tags is not None and tags[nb] in tags[other]):
-                    break
-                sb += seg[nb]
-                b = nb
-            steps += 1
+        a, b, sa, sb, w = _zip_walk(xyz, seg, keep, p, wide, tags)
+        if w > eps and uv is not None and a != p and b != p:
+            cut = np.array([(b + j) % n for j in range((a - b) % n + 1)])  # b .. p .. a
+            # a notch (a simple cut-off polygon wound against the material): the CAD's accuracy
+            # only; a strip whose sides cross in (u, v) runs together and is cut (a lens face)
+            if (_signed_area(uv[cut]) > 0) != material_left and not _segments_cross([uv[cut]]):
+                a, b, sa, sb, _ = _zip_walk(xyz, seg, keep, p, eps, tags)
         if a != p and b != p:
             # nodes strictly between b and a (through p) leave the loop: b -> a becomes an edge
             j = (b + 1) % n
@@ -458,6 +490,44 @@ def _interior_sizes(g, s: int, box: np.ndarray, scale: np.ndarray, h: float, siz
     return uv * scale, np.minimum(minimum_filter(hs, size=3, mode="nearest").ravel(), h)
 
 
+def _kept_loops(loops: list[tuple], *, coarse: bool, eps: float, strip_eps: float, cut: list | None,
+                notches: bool, what: str) -> tuple[list[tuple], list[str], int]:
+    """The loop nodes a face is meshed on: (kept loops (tags, xyz, uv, sel), one note per cusp
+    strip cut, the number of boundary nodes left to trim-loop excursions ``cut``). All loop
+    nodes, or after the quad subdivision (``coarse``) every other node per curve, without the
+    cusp strips (`_zip_cusps`: narrower than ``eps``, or than ``strip_eps`` where they are the
+    face's material, or with ``notches`` False wherever they are) and the excursions' nodes.
+    ``loops`` as `_face_loops` gives them."""
+    from cadbridge.mesh.gmsh.loop_cuts import drop_mask
+
+    kept_loops, notes_strip, n_cut = [], [], 0
+    areas = [_signed_area(lp[2]) for lp in loops]
+    outer = int(np.argmax(np.abs(areas)))
+    for i, (tags, xyz, uv, k, even) in enumerate(loops):
+        use = np.ones(len(tags), dtype=bool)
+        if coarse:
+            if not np.all(even):
+                raise MeshError(f"{what}: a boundary curve has an odd number of segments after "
+                                f"gmsh's quad subdivision; cannot make all-quad elements there")
+            use = k % 2 == 0
+        sel = np.flatnonzero(use)
+        # the face's material lies inside its outer loop and outside its holes
+        keep, strips = _zip_cusps(xyz[sel], (k[sel] == 0), eps, np.asarray(tags)[sel], strip_eps=strip_eps,
+                                  uv=uv[sel] if notches else None, material_left=(areas[i] > 0) == (i == outer))
+        sel = sel[keep]
+        for p, length in strips:
+            x = xyz[np.flatnonzero(use)[p]]
+            notes_strip.append(f"{length:.3g} long at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})")
+        if cut:  # trim-loop excursions: their nodes stay on the neighbour only
+            drop = drop_mask(cut, xyz[sel])
+            n_cut += int(drop.sum())
+            sel = sel[~drop]
+        if len(sel) < 3:
+            continue  # the whole loop is a zero-width strip
+        kept_loops.append((tags, xyz, uv, sel))
+    return kept_loops, notes_strip, n_cut
+
+
 def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,
                label: str, cut: list | None = None, strip_fraction: float = STRIP_FRACTION,
                size_at=None) -> str:
@@ -472,41 +542,25 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     box = np.array([all_uv.min(axis=0), all_uv.max(axis=0)])
     diag = float(np.linalg.norm(all_xyz.max(axis=0) - all_xyz.min(axis=0)))
     h, scale = _face_size(g, s, box, size, curvature_elements)
-    eps = max(EPS_FACTOR * dev, strip_fraction * h, 1e-9 * diag)
+    eps = max(EPS_FACTOR * dev, 1e-9 * diag)  # the CAD's accuracy: every strip this narrow is cut
+    strip_eps = strip_fraction * h  # the face's own material this narrow is cut too
     coarse = element == "quad" and subdivided
     if coarse:
         h *= 2.0  # split in two below
     loops, pinches = _joined_at_touching_corners(loops, max(EPS_FACTOR * dev, 1e-9 * diag))
-    # the nodes meshed on: all loop nodes, or (after subdivision) every other node per curve
-    kept_loops, notes_strip, n_cut = [], [], 0
-    for tags, xyz, uv, k, even in loops:
-        use = np.ones(len(tags), dtype=bool)
-        if coarse:
-            if not np.all(even):
-                raise MeshError(f"{label}: {name}: a boundary curve has an odd number of segments after "
-                                f"gmsh's quad subdivision; cannot make all-quad elements there")
-            use = k % 2 == 0
-        sel = np.flatnonzero(use)
-        keep, strips = _zip_cusps(xyz[sel], (k[sel] == 0), eps, np.asarray(tags)[sel])
-        sel = sel[keep]
-        for p, length in strips:
-            x = xyz[np.flatnonzero(use)[p]]
-            notes_strip.append(f"{length:.3g} long at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})")
-        if cut:  # trim-loop excursions: their nodes stay on the neighbour only
-            from cadbridge.mesh.gmsh.loop_cuts import drop_mask
-
-            drop = drop_mask(cut, xyz[sel])
-            n_cut += int(drop.sum())
-            sel = sel[~drop]
-        if len(sel) < 3:
-            continue  # the whole loop is a zero-width strip
-        kept_loops.append((tags, xyz, uv, sel))
+    kept_loops, notes_strip, n_cut = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut,
+                                                 notches=True, what=f"{label}: {name}")
+    if kept_loops and _segments_cross([uv[sel] for tags, xyz, uv, sel in kept_loops]):
+        # a notch whose sides cross in (u, v) has no width the (u, v) mesh can keep: cut like a
+        # spike (a sliver face 7e-4 mm wide whose two curves cross, trj10_b2-oc-214)
+        kept_loops, notes_strip, n_cut = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut,
+                                                     notches=False, what=f"{label}: {name}")
     if not kept_loops:
-        raise MeshError(f"{label}: {name}: the face has no width within the CAD's accuracy ({eps:.3g})")
+        raise MeshError(f"{label}: {name}: the face has no width within the CAD's accuracy ({max(eps, strip_eps):.3g})")
     uv_loops = [uv[sel] for tags, xyz, uv, sel in kept_loops]
     if _segments_cross(uv_loops):
         raise MeshError(f"{label}: {name}: its boundary crosses itself in (u, v) (after cutting the "
-                        f"cusp strips narrower than {eps:.3g}); cannot mesh it in parameter space")
+                        f"cusp strips narrower than {max(eps, strip_eps):.3g}); cannot mesh it in parameter space")
     # the outer loop first (largest area in (u, v)), as the fallback mesher expects
     area = [_signed_area(lp) for lp in uv_loops]
     order = sorted(range(len(uv_loops)), key=lambda i: -abs(area[i]))
@@ -554,7 +608,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
         note += (f"; a hole touching another loop at {len(pinches)} point(s) joined to it there: "
                  + "; ".join(f"({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})" for x in pinches))
     if notes_strip:
-        note += (f"; {len(notes_strip)} cusp strip(s) narrower than {eps:.2g} (where two boundary curves run "
+        note += (f"; {len(notes_strip)} cusp strip(s) narrower than {max(eps, strip_eps):.2g} (where two boundary curves run "
                  f"together within the CAD's accuracy) left open: " + "; ".join(notes_strip))
     return note
 
