@@ -528,11 +528,78 @@ def _kept_loops(loops: list[tuple], *, coarse: bool, eps: float, strip_eps: floa
     return kept_loops, notes_strip, n_cut
 
 
+def _mesh_kept_loops(g, s: int, kept_loops: list[tuple], *, coarse: bool, h: float, scale: np.ndarray,
+                     box: np.ndarray, element: str, size_at, what: str):
+    """Mesh surface ``s`` in its scaled (u, v) on the nodes ``kept_loops`` (`_kept_loops`) at
+    size ``h``: gmsh's Frontal-Delaunay (`mesh_planar_loops`), Blossom-recombined for quads,
+    split into quads after the subdivision (``coarse``, `_split_to_quads`), inverted elements
+    smoothed out (`_untangled`). Where the split leaves the face (an inner node outside its
+    loops, or an element still inverted: a thin curved face, whose chords between every other
+    boundary node cut across it), its inner nodes are bent towards the boundary curves
+    (`_bent_to_boundary`) if that mends it. Returns (loop node tags (L,), uv (N, 2): the L loop
+    nodes first, triangles (T, 3), quads (Q, 4), counter-clockwise in (u, v), `_untangled`'s
+    count, whether the nodes were bent)."""
+    from cadbridge.mesh.gmsh.planar import mesh_planar_loops
+
+    uv_loops = [uv[sel] for tags, xyz, uv, sel in kept_loops]
+    # the outer loop first (largest area in (u, v)), as the fallback mesher expects
+    area = [_signed_area(lp) for lp in uv_loops]
+    order = sorted(range(len(uv_loops)), key=lambda i: -abs(area[i]))
+    kept_loops = [kept_loops[i] for i in order]
+    uv_loops = [uv_loops[i] for i in order]
+    point_sizes = []
+    for lp in uv_loops:
+        q = lp * scale
+        seg = np.linalg.norm(np.roll(q, -1, axis=0) - q, axis=1)
+        point_sizes.append(np.minimum(0.5 * (seg + np.roll(seg, 1)), h))
+    interior = None if size_at is None else _interior_sizes(g, s, box, scale, h, size_at, 2.0 if coarse else 1.0)
+    uv, tris, quads = mesh_planar_loops(uv_loops, scale, h, what, point_sizes=point_sizes,
+                                        recombine=element == "quad", interior_sizes=interior)
+    loop_tags = np.concatenate([tags[sel] for tags, xyz, uv_, sel in kept_loops])
+    if not coarse:
+        uv, tangled = _untangled(uv, scale, tris, quads, len(loop_tags))
+        return loop_tags, uv, tris, quads, tangled, False
+    loop_tags, split, quads, shift = _split_to_quads(uv, tris, quads, kept_loops, len(loop_tags))
+    tris = np.zeros((0, 3), dtype=np.int64)
+    uv, tangled = _untangled(split, scale, tris, quads, len(loop_tags))
+    if tangled >= 0 and not _outside_own_boundary(uv, tris, quads, len(loop_tags)):
+        return loop_tags, uv, tris, quads, tangled, False
+    bent, bent_tangled = _untangled(_bent_to_boundary(split, quads, len(loop_tags), shift), scale, tris, quads,
+                                    len(loop_tags))
+    if bent_tangled < 0 or _outside_own_boundary(bent, tris, quads, len(loop_tags)):
+        return loop_tags, uv, tris, quads, tangled, False  # no better: as split (the caller's checks report it)
+    return loop_tags, bent, tris, quads, bent_tangled, True
+
+
+def _outside_own_boundary(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, n_loop: int) -> bool:
+    """True if an interior node (index >= ``n_loop`` of uv (N, 2)) lies outside the region
+    the elements' boundary edges (those of one element only: the face's loops) bound, by the
+    even-odd rule (`cadbridge.cad.trims.polygon_contains` per loop): S(u, v) there is off the
+    trimmed face."""
+    from cadbridge.cad.trims import polygon_contains
+
+    if len(uv) <= n_loop:
+        return False
+    edges = np.concatenate([np.stack([c[:, k], c[:, (k + 1) % c.shape[1]]], axis=1)
+                            for c in (tris, quads) if len(c) for k in range(c.shape[1])])
+    key = np.sort(edges, axis=1)
+    _, first, count = np.unique(key[:, 0] * len(uv) + key[:, 1], return_index=True, return_counts=True)
+    nxt = dict(edges[first[count == 1]].tolist())  # boundary edge a -> b, wound like the elements
+    inside = np.zeros(len(uv) - n_loop, dtype=bool)
+    while nxt:  # walk each boundary loop (a few)
+        start = next(iter(nxt))
+        loop, a = [start], nxt.pop(start)
+        while a != start and a in nxt:
+            loop.append(a)
+            a = nxt.pop(a)
+        if len(loop) >= 3:
+            inside ^= polygon_contains(uv[n_loop:], uv[loop])
+    return not bool(inside.all())
+
+
 def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,
                label: str, cut: list | None = None, strip_fraction: float = STRIP_FRACTION,
                size_at=None) -> str:
-    from cadbridge.mesh.gmsh.planar import mesh_planar_loops
-
     name = _label(g, s)
     loops = _face_loops(g, s)
     all_uv = np.concatenate([lp[2] for lp in loops])
@@ -548,38 +615,27 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     if coarse:
         h *= 2.0  # split in two below
     loops, pinches = _joined_at_touching_corners(loops, max(EPS_FACTOR * dev, 1e-9 * diag))
-    kept_loops, notes_strip, n_cut = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut,
-                                                 notches=True, what=f"{label}: {name}")
-    if kept_loops and _segments_cross([uv[sel] for tags, xyz, uv, sel in kept_loops]):
-        # a notch whose sides cross in (u, v) has no width the (u, v) mesh can keep: cut like a
-        # spike (a sliver face 7e-4 mm wide whose two curves cross, trj10_b2-oc-214)
-        kept_loops, notes_strip, n_cut = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut,
-                                                     notches=False, what=f"{label}: {name}")
-    if not kept_loops:
-        raise MeshError(f"{label}: {name}: the face has no width within the CAD's accuracy ({max(eps, strip_eps):.3g})")
-    uv_loops = [uv[sel] for tags, xyz, uv, sel in kept_loops]
-    if _segments_cross(uv_loops):
-        raise MeshError(f"{label}: {name}: its boundary crosses itself in (u, v) (after cutting the "
-                        f"cusp strips narrower than {max(eps, strip_eps):.3g}); cannot mesh it in parameter space")
-    # the outer loop first (largest area in (u, v)), as the fallback mesher expects
-    area = [_signed_area(lp) for lp in uv_loops]
-    order = sorted(range(len(uv_loops)), key=lambda i: -abs(area[i]))
-    kept_loops = [kept_loops[i] for i in order]
-    uv_loops = [uv_loops[i] for i in order]
-    point_sizes = []
-    for lp in uv_loops:
-        q = lp * scale
-        seg = np.linalg.norm(np.roll(q, -1, axis=0) - q, axis=1)
-        point_sizes.append(np.minimum(0.5 * (seg + np.roll(seg, 1)), h))
-    interior = None if size_at is None else _interior_sizes(g, s, box, scale, h, size_at, 2.0 if coarse else 1.0)
-    uv, tris, quads = mesh_planar_loops(uv_loops, scale, h, f"{label}: {name}", point_sizes=point_sizes,
-                                        recombine=element == "quad", interior_sizes=interior)
-    loop_tags = np.concatenate([tags[sel] for tags, xyz, uv_, sel in kept_loops])
-    if coarse:
-        loop_tags, uv, quads = _split_to_quads(uv, tris, quads, kept_loops, len(loop_tags))
-        tris = np.zeros((0, 3), dtype=np.int64)
+    def zipped(coarse: bool):  # the loops meshed on, with the cusp strips cut
+        kept, notes, n = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut, notches=True,
+                                     what=f"{label}: {name}")
+        if kept and _segments_cross([uv[sel] for tags, xyz, uv, sel in kept]):
+            # a notch whose sides cross in (u, v) has no width the (u, v) mesh can keep: cut like
+            # a spike (a sliver face 7e-4 mm wide whose two curves cross, trj10_b2-oc-214)
+            kept, notes, n = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut,
+                                         notches=False, what=f"{label}: {name}")
+        if not kept:
+            raise MeshError(f"{label}: {name}: the face has no width within the CAD's accuracy "
+                            f"({max(eps, strip_eps):.3g})")
+        if _segments_cross([uv[sel] for tags, xyz, uv, sel in kept]):
+            raise MeshError(f"{label}: {name}: its boundary crosses itself in (u, v) (after cutting the "
+                            f"cusp strips narrower than {max(eps, strip_eps):.3g}); cannot mesh it in parameter space")
+        return kept, notes, n
+
+    kept_loops, notes_strip, n_cut = zipped(coarse)
+    loop_tags, uv, tris, quads, tangled, bent = _mesh_kept_loops(
+        g, s, kept_loops, coarse=coarse, h=h, scale=scale, box=box, element=element, size_at=size_at,
+        what=f"{label}: {name}")
     n_loop = len(loop_tags)
-    uv, tangled = _untangled(uv, scale, tris, quads, n_loop)
     interior_uv = uv[n_loop:]
     xyz_new = np.asarray(g.model.getValue(2, s, interior_uv.ravel().tolist()), dtype=float).reshape(-1, 3) \
         if len(interior_uv) else np.zeros((0, 3))
@@ -601,6 +657,9 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     if cut:
         note = (f"mesh: {name} meshed in its (u, v) on gmsh's boundary nodes ({what}) without its trim-loop "
                 f"excursion ({n_cut} boundary nodes left to the neighbour, a crack <= {max(e.chord for e in cut):.3g})")
+    if bent:
+        note += (" (the quads split from its mesh on every other boundary node left the face: their inner nodes "
+                 "bent towards the boundary curves)")
     if tangled:
         note += f" ({tangled} element(s) inverted in (u, v) smoothed out)" if tangled > 0 else \
             f" ({-tangled} element(s) inverted in (u, v) that smoothing could not repair)"
@@ -637,8 +696,9 @@ def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_lo
     node between them (gmsh's subdivision node); other edges get a new node at the (u, v)
     midpoint. uv (N, 2): the n_loop coarse loop nodes first. Returns (loop tags (L,): the
     coarse then the fine boundary nodes, uv (M, 2): those L first, then the old interior
-    nodes and the new ones, quads (Q, 4)), wound as the elements were."""
-    coarse_tags, fine_tags, fine_uv = [], [], []
+    nodes and the new ones, quads (Q, 4)) wound as the elements were, shift (F, 2): each fine
+    node's offset from the midpoint of its coarse chord, in loop-tag order)."""
+    coarse_tags, fine_tags, fine_uv, chord_mid = [], [], [], []
     mid_of: dict[tuple[int, int], int] = {}  # coarse boundary segment (local ids) -> fine node id
     off = 0
     for tags, xyz, luv, sel in kept_loops:
@@ -651,6 +711,7 @@ def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_lo
                 mid_of[(off + j, off + (j + 1) % m)] = mid_of[(off + (j + 1) % m, off + j)] = len(fine_tags)
                 fine_tags.append(int(tags[f]))
                 fine_uv.append(luv[f])
+                chord_mid.append(0.5 * (luv[a] + luv[b]))
         off += m
     n_fine = len(fine_tags)
     n_int = len(uv) - n_loop
@@ -682,7 +743,38 @@ def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_lo
     uv_all = np.concatenate([uv[:n_loop], np.asarray(fine_uv, dtype=float).reshape(-1, 2), uv[n_loop:],
                              np.asarray(new_uv, dtype=float).reshape(-1, 2)])
     tags_all = np.concatenate([*coarse_tags, np.asarray(fine_tags, dtype=np.int64)])
-    return tags_all, uv_all, np.asarray(out, dtype=np.int64).reshape(-1, 4)
+    shift = (np.asarray(fine_uv, dtype=float) - np.asarray(chord_mid, dtype=float)).reshape(-1, 2)
+    return tags_all, uv_all, np.asarray(out, dtype=np.int64).reshape(-1, 4), shift
+
+
+def _bent_to_boundary(uv: np.ndarray, quads: np.ndarray, n_loop: int, shift: np.ndarray) -> np.ndarray:
+    """The split quads (`_split_to_quads`: uv (N, 2), its ``n_loop`` boundary nodes first, the
+    coarse then the fine ones) with their inner nodes moved by the harmonic extension of the
+    boundary's bend: each fine node lies ``shift`` (F, 2) off the midpoint of its coarse chord
+    (the coarse nodes 0), and every inner node moves by the mean of its edge neighbours' moves
+    (the graph Laplacian solved with those boundary values), as high-order meshes are curved
+    to their boundary. On a 2 mm wide ring whose coarse chords cut 2 mm into its hole, the
+    split's inner nodes lay 0.6 mm in the hole; bent, they lie in the ring."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    n = len(uv)
+    if n <= n_loop:
+        return uv
+    e = np.concatenate([quads[:, [k, (k + 1) % 4]] for k in range(4)])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = np.concatenate([e, e[:, ::-1]])
+    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    lap = (coo_matrix((np.asarray(adj.sum(axis=1)).ravel(), (np.arange(n), np.arange(n))), shape=(n, n))
+           - adj).tocsr()
+    move = np.zeros((n, 2))
+    move[n_loop - len(shift):n_loop] = shift
+    inner = np.arange(n_loop, n)
+    rhs = -lap[inner][:, :n_loop] @ move[:n_loop]
+    move[inner] = np.asarray(spsolve(lap[inner][:, inner].tocsc(), rhs)).reshape(-1, 2)
+    out = uv.copy()
+    out[inner] += move[inner]
+    return out
 
 
 def _flip_needed(g, s: int, tri_t: np.ndarray, quad_t: np.ndarray, uv: np.ndarray, tris: np.ndarray,

@@ -145,6 +145,51 @@ def test_a_face_with_a_narrow_notch_is_filled_without_covering_it(element):
     assert area == pytest.approx(_signed_area(poly), rel=1e-9)
 
 
+# --- the quad split on a thin curved face -----------------------------------------------------
+# class of defect: after gmsh's all-quad subdivision the fill meshes every other boundary node
+# and splits the elements into quads; on a face thinner than the sagitta of those coarse
+# chords (trj10_b2-oc-214's ring z = 3, 2 mm wide at radius 26, chords 2 mm deep) the split's
+# inner nodes lay in the hole (0.6 mm off every face)
+
+
+def test_a_thin_ring_filled_in_quads_keeps_its_nodes_in_the_ring():
+    # reference: the analytic annulus 26 <= r <= 28 (z = 0): every node of the filled face in
+    # it, all quads, and no quad inverted (every corner turns the same way). The circles have 16
+    # and 20 segments (as the file's ring): chords between every other node 2.0 and 1.4 mm deep
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
+    from cadbridge.mesh.gmsh.session import GmshSession
+
+    pytest.importorskip("gmsh")
+    with GmshSession() as sess:
+        g = sess.gmsh
+        outer = g.model.occ.addDisk(0, 0, 0, 28.0, 28.0)
+        inner = g.model.occ.addDisk(0, 0, 0, 26.0, 26.0)
+        (ring,), _ = g.model.occ.cut([(2, outer)], [(2, inner)])
+        g.model.occ.synchronize()
+        for _, c in g.model.getBoundary([ring]):  # 8 and 10 segments, 16 and 20 after the subdivision
+            radius = float(np.hypot(*np.asarray(g.model.getValue(1, abs(c), [0.0]))[:2]))
+            g.model.mesh.setTransfiniteCurve(abs(c), (8 if radius < 27.0 else 10) + 1)
+        sess.set("Mesh.RecombineAll", 1)
+        sess.set("Mesh.SubdivisionAlgorithm", 1)
+        g.model.mesh.generate(2)
+        g.model.mesh.clear([ring])
+        notes = fill_empty_faces(g, [ring[1]], size=10.0, curvature_elements=0, element="quad", subdivided=True,
+                                 label="ring")
+        assert len(notes) == 1
+        tags, xyz, _ = g.model.mesh.getNodes()
+        index = np.full(int(max(tags)) + 1, -1)
+        index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
+        xyz = np.asarray(xyz).reshape(-1, 3)
+        et, _, en = g.model.mesh.getElements(2, ring[1])
+    assert [int(t) for t in et] == [3]  # quads only
+    quads = index[np.asarray(en[0], dtype=np.int64)].reshape(-1, 4)
+    r = np.hypot(xyz[np.unique(quads), 0], xyz[np.unique(quads), 1])
+    assert r.min() >= 26.0 - 1e-9 and r.max() <= 28.0 + 1e-9, (r.min(), r.max())
+    p = xyz[quads]
+    turn = np.cross(np.roll(p, -1, axis=1) - p, p - np.roll(p, 1, axis=1))[..., 2]  # (Q, 4) corner turns
+    assert np.all(turn > 0) or np.all(turn < 0)
+
+
 def test_segments_cross_sees_a_bow_tie():
     assert _segments_cross([np.array([[0, 0], [1, 1], [1, 0], [0, 1]], dtype=float)])
     assert not _segments_cross([np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)])
