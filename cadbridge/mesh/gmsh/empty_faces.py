@@ -15,9 +15,11 @@ For each such face this module:
 2. *zips* cusps: from a loop corner, the two boundary chains are walked side by side while
    each next node lies within ``eps`` (3D) of the other chain, ``eps`` = 4 x the largest
    distance between a boundary node and the surface at its (u, v) (the file's own
-   curve-to-surface disagreement) and at least 1/8 of the element size; that strip has no width within the CAD's accuracy and
-   is cut off the loop (left open: a crack of width <= eps, reported in the notes), since
-   triangles across it would have random windings;
+   curve-to-surface disagreement), or, where the strip is the face's own material (a spike,
+   not a notch of its outside), at least 1/8 of the element size; that strip has no width
+   within the CAD's accuracy and is cut off the loop (left open: a crack of width <= eps,
+   reported in the notes), since triangles across it would have random windings (a notch cut
+   off would be meshed over, outside the face);
 3. checks that the remaining loops are simple in (u, v) (else a `MeshError` naming the face);
 4. triangulates them with gmsh's Frontal-Delaunay in (u, v) scaled by the mean |S_u|, |S_v|
    (`cadbridge.mesh.gmsh.planar.mesh_loops_in_parameter_space`), boundary nodes fixed,
@@ -275,11 +277,57 @@ def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
     return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
 
 
+def _zip_walk(xyz: np.ndarray, seg: np.ndarray, keep: np.ndarray, p: int, eps: float,
+              tags: np.ndarray | None) -> tuple[int, int, float, float, float]:
+    """Walk the two chains of a loop from corner ``p`` side by side while each next node lies
+    within ``eps`` of the other chain (`_zip_cusps`): (a, b, sa, sb, w), the last node zipped
+    forward (chain A) and backward (chain B), the arc length walked on each and the largest
+    distance of a zipped node from the other chain (the strip's width)."""
+    n = len(xyz)
+    a, b = p, p
+    sa = sb = w = 0.0
+    steps = 0
+    while steps < n - 4:  # at least 3 nodes stay out of the strip
+        na, nb = (a + 1) % n, (b - 1) % n
+        if not (keep[na] and keep[nb]):
+            break  # another strip's nodes
+        # advance the chain that is behind in arc length; its next node must lie within
+        # eps of the other chain's segments near the current rung
+        if sa + seg[a] <= sb + seg[nb]:
+            other = [(b - j) % n for j in range(0 if b == p else -1, 4)]  # chain B near the rung
+            d = _point_segment_distance(xyz[na], xyz[other[:-1]], xyz[other[1:]]).min()
+            if d > eps or (tags is not None and tags[na] in tags[other]):
+                break
+            sa += seg[a]
+            a = na
+            w = max(w, d)
+        else:
+            other = [(a + j) % n for j in range(0 if a == p else -1, 4)]  # chain A near the rung
+            d = _point_segment_distance(xyz[nb], xyz[other[:-1]], xyz[other[1:]]).min()
+            if d > eps or (tags is not None and tags[nb] in tags[other]):
+                break
+            sb += seg[nb]
+            b = nb
+            w = max(w, d)
+        steps += 1
+    return a, b, sa, sb, w
+
+
 def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float,
-               tags: np.ndarray | None = None) -> tuple[np.ndarray, list[tuple[int, float]]]:
+               tags: np.ndarray | None = None, *, strip_eps: float = 0.0, uv: np.ndarray | None = None,
+               material_left: bool = True) -> tuple[np.ndarray, list[tuple[int, float]]]:
     """Cut the zero-width strips off one loop (module docs, step 2).
 
     xyz (n, 3) loop nodes, corner (n,) bool (curve end points), tags (n,) their mesh node tags.
+    Every strip narrower than ``eps`` (the CAD's accuracy) is cut; one up to ``strip_eps`` wide
+    only where it is the face's own material (a spike), judged in (u, v) (``uv`` (n, 2), the
+    face's material on the left of the loop if ``material_left``): the cut-off polygon (the
+    strip's nodes closed by the new edge) winds as the loop's material does, or crosses itself
+    (its sides run together). A notch (the face's outside running into it: a simple cut-off
+    polygon wound the other way) is cut only within ``eps``: cut wider, the fill covers the
+    notch, outside the face (trj10_b2-oc-214's plane: a 48 degree notch cut 1.4 mm deep at
+    ``strip_eps`` = 1.3, a node 0.087 off every face). Without ``uv`` every strip up to
+    max(eps, strip_eps) is cut.
     Returns the kept node indices in loop order and, per strip, (cusp node index, strip length
     along the loop). A chain never zips onto the same mesh nodes: a seam the loop runs down and
     back up (a cone's, from its apex) is no strip but the face's closure, a period apart in
@@ -288,33 +336,17 @@ def _zip_cusps(xyz: np.ndarray, corner: np.ndarray, eps: float,
     keep = np.ones(n, dtype=bool)
     strips = []
     seg = np.linalg.norm(np.roll(xyz, -1, axis=0) - xyz, axis=1)  # seg[i]: node i -> i + 1
+    wide = max(eps, strip_eps)
     for p in np.flatnonzero(corner):  # loop over the (few) corners
         if not keep[p]:
             continue
-        a, b = p, p  # last zipped node forward (chain A) and backward (chain B)
-        sa = sb = 0.0  # arc length walked on each chain
-        steps = 0
-        while steps < n - 4:  # at least 3 nodes stay out of the strip
-            na, nb = (a + 1) % n, (b - 1) % n
-            if not (keep[na] and keep[nb]):
-                break  # another strip's nodes
-            # advance the chain that is behind in arc length; its next node must lie within
-            # eps of the other chain's segments near the current rung
-            if sa + seg[a] <= sb + seg[nb]:
-                other = [(b - j) % n for j in range(0 if b == p else -1, 4)]  # chain B near the rung
-                d = _point_segment_distance(xyz[na], xyz[other[:-1]], xyz[other[1:]]).min()
-                if d > eps or (tags is not None and tags[na] in tags[other]):
-                    break
-                sa += seg[a]
-                a = na
-            else:
-                other = [(a + j) % n for j in range(0 if a == p else -1, 4)]  # chain A near the rung
-                d = _point_segment_distance(xyz[nb], xyz[other[:-1]], xyz[other[1:]]).min()
-                if d > eps or (tags is not None and tags[nb] in tags[other]):
-                    break
-                sb += seg[nb]
-                b = nb
-            steps += 1
+        a, b, sa, sb, w = _zip_walk(xyz, seg, keep, p, wide, tags)
+        if w > eps and uv is not None and a != p and b != p:
+            cut = np.array([(b + j) % n for j in range((a - b) % n + 1)])  # b .. p .. a
+            # a notch (a simple cut-off polygon wound against the material): the CAD's accuracy
+            # only; a strip whose sides cross in (u, v) runs together and is cut (a lens face)
+            if (_signed_area(uv[cut]) > 0) != material_left and not _segments_cross([uv[cut]]):
+                a, b, sa, sb, _ = _zip_walk(xyz, seg, keep, p, eps, tags)
         if a != p and b != p:
             # nodes strictly between b and a (through p) leave the loop: b -> a becomes an edge
             j = (b + 1) % n
@@ -458,55 +490,58 @@ def _interior_sizes(g, s: int, box: np.ndarray, scale: np.ndarray, h: float, siz
     return uv * scale, np.minimum(minimum_filter(hs, size=3, mode="nearest").ravel(), h)
 
 
-def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,
-               label: str, cut: list | None = None, strip_fraction: float = STRIP_FRACTION,
-               size_at=None) -> str:
-    from cadbridge.mesh.gmsh.planar import mesh_planar_loops
+def _kept_loops(loops: list[tuple], *, coarse: bool, eps: float, strip_eps: float, cut: list | None,
+                notches: bool, what: str) -> tuple[list[tuple], list[str], int]:
+    """The loop nodes a face is meshed on: (kept loops (tags, xyz, uv, sel), one note per cusp
+    strip cut, the number of boundary nodes left to trim-loop excursions ``cut``). All loop
+    nodes, or after the quad subdivision (``coarse``) every other node per curve, without the
+    cusp strips (`_zip_cusps`: narrower than ``eps``, or than ``strip_eps`` where they are the
+    face's material, or with ``notches`` False wherever they are) and the excursions' nodes.
+    ``loops`` as `_face_loops` gives them."""
+    from cadbridge.mesh.gmsh.loop_cuts import drop_mask
 
-    name = _label(g, s)
-    loops = _face_loops(g, s)
-    all_uv = np.concatenate([lp[2] for lp in loops])
-    all_xyz = np.concatenate([lp[1] for lp in loops])
-    on = np.asarray(g.model.getValue(2, s, all_uv.ravel().tolist()), dtype=float).reshape(-1, 3)
-    dev = float(np.linalg.norm(on - all_xyz, axis=1).max())
-    box = np.array([all_uv.min(axis=0), all_uv.max(axis=0)])
-    diag = float(np.linalg.norm(all_xyz.max(axis=0) - all_xyz.min(axis=0)))
-    h, scale = _face_size(g, s, box, size, curvature_elements)
-    eps = max(EPS_FACTOR * dev, strip_fraction * h, 1e-9 * diag)
-    coarse = element == "quad" and subdivided
-    if coarse:
-        h *= 2.0  # split in two below
-    loops, pinches = _joined_at_touching_corners(loops, max(EPS_FACTOR * dev, 1e-9 * diag))
-    # the nodes meshed on: all loop nodes, or (after subdivision) every other node per curve
     kept_loops, notes_strip, n_cut = [], [], 0
-    for tags, xyz, uv, k, even in loops:
+    areas = [_signed_area(lp[2]) for lp in loops]
+    outer = int(np.argmax(np.abs(areas)))
+    for i, (tags, xyz, uv, k, even) in enumerate(loops):
         use = np.ones(len(tags), dtype=bool)
         if coarse:
             if not np.all(even):
-                raise MeshError(f"{label}: {name}: a boundary curve has an odd number of segments after "
+                raise MeshError(f"{what}: a boundary curve has an odd number of segments after "
                                 f"gmsh's quad subdivision; cannot make all-quad elements there")
             use = k % 2 == 0
         sel = np.flatnonzero(use)
-        keep, strips = _zip_cusps(xyz[sel], (k[sel] == 0), eps, np.asarray(tags)[sel])
+        # the face's material lies inside its outer loop and outside its holes
+        keep, strips = _zip_cusps(xyz[sel], (k[sel] == 0), eps, np.asarray(tags)[sel], strip_eps=strip_eps,
+                                  uv=uv[sel] if notches else None, material_left=(areas[i] > 0) == (i == outer))
         sel = sel[keep]
         for p, length in strips:
             x = xyz[np.flatnonzero(use)[p]]
             notes_strip.append(f"{length:.3g} long at ({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})")
         if cut:  # trim-loop excursions: their nodes stay on the neighbour only
-            from cadbridge.mesh.gmsh.loop_cuts import drop_mask
-
             drop = drop_mask(cut, xyz[sel])
             n_cut += int(drop.sum())
             sel = sel[~drop]
         if len(sel) < 3:
             continue  # the whole loop is a zero-width strip
         kept_loops.append((tags, xyz, uv, sel))
-    if not kept_loops:
-        raise MeshError(f"{label}: {name}: the face has no width within the CAD's accuracy ({eps:.3g})")
+    return kept_loops, notes_strip, n_cut
+
+
+def _mesh_kept_loops(g, s: int, kept_loops: list[tuple], *, coarse: bool, h: float, scale: np.ndarray,
+                     box: np.ndarray, element: str, size_at, what: str):
+    """Mesh surface ``s`` in its scaled (u, v) on the nodes ``kept_loops`` (`_kept_loops`) at
+    size ``h``: gmsh's Frontal-Delaunay (`mesh_planar_loops`), Blossom-recombined for quads,
+    split into quads after the subdivision (``coarse``, `_split_to_quads`), inverted elements
+    smoothed out (`_untangled`). Where the split leaves the face (an inner node outside its
+    loops, or an element still inverted: a thin curved face, whose chords between every other
+    boundary node cut across it), its inner nodes are bent towards the boundary curves
+    (`_bent_to_boundary`) if that mends it. Returns (loop node tags (L,), uv (N, 2): the L loop
+    nodes first, triangles (T, 3), quads (Q, 4), counter-clockwise in (u, v), `_untangled`'s
+    count, whether the nodes were bent)."""
+    from cadbridge.mesh.gmsh.planar import mesh_planar_loops
+
     uv_loops = [uv[sel] for tags, xyz, uv, sel in kept_loops]
-    if _segments_cross(uv_loops):
-        raise MeshError(f"{label}: {name}: its boundary crosses itself in (u, v) (after cutting the "
-                        f"cusp strips narrower than {eps:.3g}); cannot mesh it in parameter space")
     # the outer loop first (largest area in (u, v)), as the fallback mesher expects
     area = [_signed_area(lp) for lp in uv_loops]
     order = sorted(range(len(uv_loops)), key=lambda i: -abs(area[i]))
@@ -518,14 +553,89 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
         seg = np.linalg.norm(np.roll(q, -1, axis=0) - q, axis=1)
         point_sizes.append(np.minimum(0.5 * (seg + np.roll(seg, 1)), h))
     interior = None if size_at is None else _interior_sizes(g, s, box, scale, h, size_at, 2.0 if coarse else 1.0)
-    uv, tris, quads = mesh_planar_loops(uv_loops, scale, h, f"{label}: {name}", point_sizes=point_sizes,
+    uv, tris, quads = mesh_planar_loops(uv_loops, scale, h, what, point_sizes=point_sizes,
                                         recombine=element == "quad", interior_sizes=interior)
     loop_tags = np.concatenate([tags[sel] for tags, xyz, uv_, sel in kept_loops])
+    if not coarse:
+        uv, tangled = _untangled(uv, scale, tris, quads, len(loop_tags))
+        return loop_tags, uv, tris, quads, tangled, False
+    loop_tags, split, quads, shift = _split_to_quads(uv, tris, quads, kept_loops, len(loop_tags))
+    tris = np.zeros((0, 3), dtype=np.int64)
+    uv, tangled = _untangled(split, scale, tris, quads, len(loop_tags))
+    if tangled >= 0 and not _outside_own_boundary(uv, tris, quads, len(loop_tags)):
+        return loop_tags, uv, tris, quads, tangled, False
+    bent, bent_tangled = _untangled(_bent_to_boundary(split, quads, len(loop_tags), shift), scale, tris, quads,
+                                    len(loop_tags))
+    if bent_tangled < 0 or _outside_own_boundary(bent, tris, quads, len(loop_tags)):
+        return loop_tags, uv, tris, quads, tangled, False  # no better: as split (the caller's checks report it)
+    return loop_tags, bent, tris, quads, bent_tangled, True
+
+
+def _outside_own_boundary(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, n_loop: int) -> bool:
+    """True if an interior node (index >= ``n_loop`` of uv (N, 2)) lies outside the region
+    the elements' boundary edges (those of one element only: the face's loops) bound, by the
+    even-odd rule (`cadbridge.cad.trims.polygon_contains` per loop): S(u, v) there is off the
+    trimmed face."""
+    from cadbridge.cad.trims import polygon_contains
+
+    if len(uv) <= n_loop:
+        return False
+    edges = np.concatenate([np.stack([c[:, k], c[:, (k + 1) % c.shape[1]]], axis=1)
+                            for c in (tris, quads) if len(c) for k in range(c.shape[1])])
+    key = np.sort(edges, axis=1)
+    _, first, count = np.unique(key[:, 0] * len(uv) + key[:, 1], return_index=True, return_counts=True)
+    nxt = dict(edges[first[count == 1]].tolist())  # boundary edge a -> b, wound like the elements
+    inside = np.zeros(len(uv) - n_loop, dtype=bool)
+    while nxt:  # walk each boundary loop (a few)
+        start = next(iter(nxt))
+        loop, a = [start], nxt.pop(start)
+        while a != start and a in nxt:
+            loop.append(a)
+            a = nxt.pop(a)
+        if len(loop) >= 3:
+            inside ^= polygon_contains(uv[n_loop:], uv[loop])
+    return not bool(inside.all())
+
+
+def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str, subdivided: bool,
+               label: str, cut: list | None = None, strip_fraction: float = STRIP_FRACTION,
+               size_at=None) -> str:
+    name = _label(g, s)
+    loops = _face_loops(g, s)
+    all_uv = np.concatenate([lp[2] for lp in loops])
+    all_xyz = np.concatenate([lp[1] for lp in loops])
+    on = np.asarray(g.model.getValue(2, s, all_uv.ravel().tolist()), dtype=float).reshape(-1, 3)
+    dev = float(np.linalg.norm(on - all_xyz, axis=1).max())
+    box = np.array([all_uv.min(axis=0), all_uv.max(axis=0)])
+    diag = float(np.linalg.norm(all_xyz.max(axis=0) - all_xyz.min(axis=0)))
+    h, scale = _face_size(g, s, box, size, curvature_elements)
+    eps = max(EPS_FACTOR * dev, 1e-9 * diag)  # the CAD's accuracy: every strip this narrow is cut
+    strip_eps = strip_fraction * h  # the face's own material this narrow is cut too
+    coarse = element == "quad" and subdivided
     if coarse:
-        loop_tags, uv, quads = _split_to_quads(uv, tris, quads, kept_loops, len(loop_tags))
-        tris = np.zeros((0, 3), dtype=np.int64)
+        h *= 2.0  # split in two below
+    loops, pinches = _joined_at_touching_corners(loops, max(EPS_FACTOR * dev, 1e-9 * diag))
+    def zipped(coarse: bool):  # the loops meshed on, with the cusp strips cut
+        kept, notes, n = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut, notches=True,
+                                     what=f"{label}: {name}")
+        if kept and _segments_cross([uv[sel] for tags, xyz, uv, sel in kept]):
+            # a notch whose sides cross in (u, v) has no width the (u, v) mesh can keep: cut like
+            # a spike (a sliver face 7e-4 mm wide whose two curves cross, trj10_b2-oc-214)
+            kept, notes, n = _kept_loops(loops, coarse=coarse, eps=eps, strip_eps=strip_eps, cut=cut,
+                                         notches=False, what=f"{label}: {name}")
+        if not kept:
+            raise MeshError(f"{label}: {name}: the face has no width within the CAD's accuracy "
+                            f"({max(eps, strip_eps):.3g})")
+        if _segments_cross([uv[sel] for tags, xyz, uv, sel in kept]):
+            raise MeshError(f"{label}: {name}: its boundary crosses itself in (u, v) (after cutting the "
+                            f"cusp strips narrower than {max(eps, strip_eps):.3g}); cannot mesh it in parameter space")
+        return kept, notes, n
+
+    kept_loops, notes_strip, n_cut = zipped(coarse)
+    loop_tags, uv, tris, quads, tangled, bent = _mesh_kept_loops(
+        g, s, kept_loops, coarse=coarse, h=h, scale=scale, box=box, element=element, size_at=size_at,
+        what=f"{label}: {name}")
     n_loop = len(loop_tags)
-    uv, tangled = _untangled(uv, scale, tris, quads, n_loop)
     interior_uv = uv[n_loop:]
     xyz_new = np.asarray(g.model.getValue(2, s, interior_uv.ravel().tolist()), dtype=float).reshape(-1, 3) \
         if len(interior_uv) else np.zeros((0, 3))
@@ -547,6 +657,9 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
     if cut:
         note = (f"mesh: {name} meshed in its (u, v) on gmsh's boundary nodes ({what}) without its trim-loop "
                 f"excursion ({n_cut} boundary nodes left to the neighbour, a crack <= {max(e.chord for e in cut):.3g})")
+    if bent:
+        note += (" (the quads split from its mesh on every other boundary node left the face: their inner nodes "
+                 "bent towards the boundary curves)")
     if tangled:
         note += f" ({tangled} element(s) inverted in (u, v) smoothed out)" if tangled > 0 else \
             f" ({-tangled} element(s) inverted in (u, v) that smoothing could not repair)"
@@ -554,7 +667,7 @@ def _fill_face(g, s: int, *, size: float, curvature_elements: int, element: str,
         note += (f"; a hole touching another loop at {len(pinches)} point(s) joined to it there: "
                  + "; ".join(f"({x[0]:.4g}, {x[1]:.4g}, {x[2]:.4g})" for x in pinches))
     if notes_strip:
-        note += (f"; {len(notes_strip)} cusp strip(s) narrower than {eps:.2g} (where two boundary curves run "
+        note += (f"; {len(notes_strip)} cusp strip(s) narrower than {max(eps, strip_eps):.2g} (where two boundary curves run "
                  f"together within the CAD's accuracy) left open: " + "; ".join(notes_strip))
     return note
 
@@ -583,8 +696,9 @@ def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_lo
     node between them (gmsh's subdivision node); other edges get a new node at the (u, v)
     midpoint. uv (N, 2): the n_loop coarse loop nodes first. Returns (loop tags (L,): the
     coarse then the fine boundary nodes, uv (M, 2): those L first, then the old interior
-    nodes and the new ones, quads (Q, 4)), wound as the elements were."""
-    coarse_tags, fine_tags, fine_uv = [], [], []
+    nodes and the new ones, quads (Q, 4)) wound as the elements were, shift (F, 2): each fine
+    node's offset from the midpoint of its coarse chord, in loop-tag order)."""
+    coarse_tags, fine_tags, fine_uv, chord_mid = [], [], [], []
     mid_of: dict[tuple[int, int], int] = {}  # coarse boundary segment (local ids) -> fine node id
     off = 0
     for tags, xyz, luv, sel in kept_loops:
@@ -597,6 +711,7 @@ def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_lo
                 mid_of[(off + j, off + (j + 1) % m)] = mid_of[(off + (j + 1) % m, off + j)] = len(fine_tags)
                 fine_tags.append(int(tags[f]))
                 fine_uv.append(luv[f])
+                chord_mid.append(0.5 * (luv[a] + luv[b]))
         off += m
     n_fine = len(fine_tags)
     n_int = len(uv) - n_loop
@@ -628,7 +743,38 @@ def _split_to_quads(uv: np.ndarray, tris: np.ndarray, quads: np.ndarray, kept_lo
     uv_all = np.concatenate([uv[:n_loop], np.asarray(fine_uv, dtype=float).reshape(-1, 2), uv[n_loop:],
                              np.asarray(new_uv, dtype=float).reshape(-1, 2)])
     tags_all = np.concatenate([*coarse_tags, np.asarray(fine_tags, dtype=np.int64)])
-    return tags_all, uv_all, np.asarray(out, dtype=np.int64).reshape(-1, 4)
+    shift = (np.asarray(fine_uv, dtype=float) - np.asarray(chord_mid, dtype=float)).reshape(-1, 2)
+    return tags_all, uv_all, np.asarray(out, dtype=np.int64).reshape(-1, 4), shift
+
+
+def _bent_to_boundary(uv: np.ndarray, quads: np.ndarray, n_loop: int, shift: np.ndarray) -> np.ndarray:
+    """The split quads (`_split_to_quads`: uv (N, 2), its ``n_loop`` boundary nodes first, the
+    coarse then the fine ones) with their inner nodes moved by the harmonic extension of the
+    boundary's bend: each fine node lies ``shift`` (F, 2) off the midpoint of its coarse chord
+    (the coarse nodes 0), and every inner node moves by the mean of its edge neighbours' moves
+    (the graph Laplacian solved with those boundary values), as high-order meshes are curved
+    to their boundary. On a 2 mm wide ring whose coarse chords cut 2 mm into its hole, the
+    split's inner nodes lay 0.6 mm in the hole; bent, they lie in the ring."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    n = len(uv)
+    if n <= n_loop:
+        return uv
+    e = np.concatenate([quads[:, [k, (k + 1) % 4]] for k in range(4)])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    e = np.concatenate([e, e[:, ::-1]])
+    adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    lap = (coo_matrix((np.asarray(adj.sum(axis=1)).ravel(), (np.arange(n), np.arange(n))), shape=(n, n))
+           - adj).tocsr()
+    move = np.zeros((n, 2))
+    move[n_loop - len(shift):n_loop] = shift
+    inner = np.arange(n_loop, n)
+    rhs = -lap[inner][:, :n_loop] @ move[:n_loop]
+    move[inner] = np.asarray(spsolve(lap[inner][:, inner].tocsc(), rhs)).reshape(-1, 2)
+    out = uv.copy()
+    out[inner] += move[inner]
+    return out
 
 
 def _flip_needed(g, s: int, tri_t: np.ndarray, quad_t: np.ndarray, uv: np.ndarray, tris: np.ndarray,

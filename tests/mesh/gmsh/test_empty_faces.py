@@ -57,6 +57,139 @@ def test_zip_leaves_a_sharp_real_corner():
     assert strips == [] and len(keep) == len(xyz)
 
 
+# --- notches are not cut beyond the CAD's accuracy ---------------------------------------------
+# class of defect: the h / 8 strip width cut acute notches of a face (its outside running into
+# it, trj10_b2-oc-214's plane z = 45: a 48 degree notch cut 1.4 mm deep), and the fill meshed
+# over the notch, outside the face (a node 0.087 from every face)
+
+
+def _wedge_loop(material_inside: bool):
+    """A counter-clockwise loop (material on its left) with one corner at (0, 0) whose two
+    chains leave it 10 degrees apart, along the x axis and along y = x tan 10 deg (x = 1..10).
+    ``material_inside``: the loop is the wedge itself (a spike of material); else it runs
+    out along the upper chain, round the square [-5, 10] x [-5, 5] and back along the x axis,
+    so the wedge is the material's outside (a notch). Returns xyz (n, 3), uv (n, 2), corners (n,)."""
+    x = np.arange(1, 11, dtype=float)
+    lower = np.column_stack([x, np.zeros(10)])
+    upper = np.column_stack([x, x * math.tan(math.radians(10.0))])
+    if material_inside:
+        uv = np.concatenate([[[0.0, 0.0]], lower, upper[::-1]])
+    else:
+        far = np.array([[10.0, 5.0], [-5.0, 5.0], [-5.0, -5.0], [10.0, -5.0]])
+        uv = np.concatenate([[[0.0, 0.0]], upper, far, lower[::-1]])
+    corner = np.zeros(len(uv), dtype=bool)
+    corner[0] = True
+    return np.column_stack([uv, np.zeros(len(uv))]), uv, corner
+
+
+def test_zip_cuts_a_narrow_spike_of_material_but_not_a_notch():
+    # reference: the hand-built wedge (its width at x is x tan 10 deg = 0.176 x): within
+    # strip_eps = 0.5 up to x = 2 (0.353; x = 3 is 0.53 off). As the face's material (a
+    # spike) it is cut; as its outside (a notch) nothing is cut: the CAD's accuracy eps is 1e-6
+    from cadbridge.mesh.gmsh.empty_faces import _signed_area
+
+    xyz, uv, corner = _wedge_loop(material_inside=True)
+    assert _signed_area(uv) > 0  # material on the left
+    keep, strips = _zip_cusps(xyz, corner, 1e-6, strip_eps=0.5, uv=uv, material_left=True)
+    assert len(strips) == 1 and len(keep) == len(xyz) - 3  # the corner and x = 1 on both chains
+    xyz, uv, corner = _wedge_loop(material_inside=False)
+    assert _signed_area(uv) > 0  # the wedge is the notch of the material on the left
+    keep, strips = _zip_cusps(xyz, corner, 1e-6, strip_eps=0.5, uv=uv, material_left=True)
+    assert strips == [] and len(keep) == len(xyz)
+    keep, strips = _zip_cusps(xyz, corner, 1e-6, strip_eps=0.5)  # without (u, v): cut as before
+    assert len(strips) == 1
+
+
+@pytest.mark.parametrize("element", ["tri", "quad"])
+def test_a_face_with_a_narrow_notch_is_filled_without_covering_it(element):
+    # reference: the analytic polygon (a 10 x 10 square with a slot from (4.85, 10) and
+    # (5.15, 10) down to its tip (5, 2), 2.1 degrees wide): the filled mesh's area is the
+    # polygon's shoelace area (planar elements on a planar, straight-edged face cover it
+    # exactly) and every node lies in the polygon. The slot is narrower than h / 8 (0.125 at
+    # size 1, 0.0625 at 0.5) for its first 3.3 (1.7) mm: cut, the fill covered that much of it
+    from cadbridge.mesh.gmsh.empty_faces import _signed_area, fill_empty_faces
+    from cadbridge.mesh.gmsh.session import GmshSession
+    from matplotlib.path import Path as Polygon
+
+    gmsh = pytest.importorskip("gmsh")
+    poly = np.array([[0, 0], [10, 0], [10, 10], [5.15, 10], [5, 2], [4.85, 10], [0, 10]], dtype=float)
+    with GmshSession() as sess:
+        g = sess.gmsh
+        pts = [g.model.occ.addPoint(x, y, 0.0) for x, y in poly]
+        lines = [g.model.occ.addLine(pts[i], pts[(i + 1) % len(pts)]) for i in range(len(pts))]
+        face = g.model.occ.addPlaneSurface([g.model.occ.addCurveLoop(lines)])
+        g.model.occ.synchronize()
+        sess.set("Mesh.MeshSizeMax", 1.0)
+        if element == "quad":
+            sess.set("Mesh.RecombineAll", 1)
+            sess.set("Mesh.SubdivisionAlgorithm", 1)
+        g.model.mesh.generate(2)
+        g.model.mesh.clear([(2, face)])
+        notes = fill_empty_faces(g, [face], size=0.5 if element == "quad" else 1.0, curvature_elements=0,
+                                 element=element, subdivided=element == "quad", label="slot")
+        assert len(notes) == 1
+        tags, xyz, _ = g.model.mesh.getNodes()
+        index = np.full(int(max(tags)) + 1, -1)
+        index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
+        xyz = np.asarray(xyz).reshape(-1, 3)
+        et, _, en = g.model.mesh.getElements(2, face)
+        elems = [index[np.asarray(n, dtype=np.int64)].reshape(-1, 3 if t == 2 else 4) for t, n in zip(et, en)]
+    used = xyz[np.unique(np.concatenate([e.ravel() for e in elems])), :2]
+    edge_a, edge_b = poly, np.roll(poly, -1, axis=0)
+    t = np.clip(np.einsum("nij,ij->ni", used[:, None] - edge_a, edge_b - edge_a)
+                / np.einsum("ij,ij->i", edge_b - edge_a, edge_b - edge_a), 0.0, 1.0)
+    on_edge = np.linalg.norm(edge_a + t[..., None] * (edge_b - edge_a) - used[:, None], axis=2).min(axis=1) < 1e-9
+    inside = Polygon(poly).contains_points(used) | on_edge
+    assert inside.all(), used[~inside]
+    area = sum(abs(_signed_area(xyz[c, :2])) for e in elems for c in e)
+    assert area == pytest.approx(_signed_area(poly), rel=1e-9)
+
+
+# --- the quad split on a thin curved face -----------------------------------------------------
+# class of defect: after gmsh's all-quad subdivision the fill meshes every other boundary node
+# and splits the elements into quads; on a face thinner than the sagitta of those coarse
+# chords (trj10_b2-oc-214's ring z = 3, 2 mm wide at radius 26, chords 2 mm deep) the split's
+# inner nodes lay in the hole (0.6 mm off every face)
+
+
+def test_a_thin_ring_filled_in_quads_keeps_its_nodes_in_the_ring():
+    # reference: the analytic annulus 26 <= r <= 28 (z = 0): every node of the filled face in
+    # it, all quads, and no quad inverted (every corner turns the same way). The circles have 16
+    # and 20 segments (as the file's ring): chords between every other node 2.0 and 1.4 mm deep
+    from cadbridge.mesh.gmsh.empty_faces import fill_empty_faces
+    from cadbridge.mesh.gmsh.session import GmshSession
+
+    pytest.importorskip("gmsh")
+    with GmshSession() as sess:
+        g = sess.gmsh
+        outer = g.model.occ.addDisk(0, 0, 0, 28.0, 28.0)
+        inner = g.model.occ.addDisk(0, 0, 0, 26.0, 26.0)
+        (ring,), _ = g.model.occ.cut([(2, outer)], [(2, inner)])
+        g.model.occ.synchronize()
+        for _, c in g.model.getBoundary([ring]):  # 8 and 10 segments, 16 and 20 after the subdivision
+            radius = float(np.hypot(*np.asarray(g.model.getValue(1, abs(c), [0.0]))[:2]))
+            g.model.mesh.setTransfiniteCurve(abs(c), (8 if radius < 27.0 else 10) + 1)
+        sess.set("Mesh.RecombineAll", 1)
+        sess.set("Mesh.SubdivisionAlgorithm", 1)
+        g.model.mesh.generate(2)
+        g.model.mesh.clear([ring])
+        notes = fill_empty_faces(g, [ring[1]], size=10.0, curvature_elements=0, element="quad", subdivided=True,
+                                 label="ring")
+        assert len(notes) == 1
+        tags, xyz, _ = g.model.mesh.getNodes()
+        index = np.full(int(max(tags)) + 1, -1)
+        index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
+        xyz = np.asarray(xyz).reshape(-1, 3)
+        et, _, en = g.model.mesh.getElements(2, ring[1])
+    assert [int(t) for t in et] == [3]  # quads only
+    quads = index[np.asarray(en[0], dtype=np.int64)].reshape(-1, 4)
+    r = np.hypot(xyz[np.unique(quads), 0], xyz[np.unique(quads), 1])
+    assert r.min() >= 26.0 - 1e-9 and r.max() <= 28.0 + 1e-9, (r.min(), r.max())
+    p = xyz[quads]
+    turn = np.cross(np.roll(p, -1, axis=1) - p, p - np.roll(p, 1, axis=1))[..., 2]  # (Q, 4) corner turns
+    assert np.all(turn > 0) or np.all(turn < 0)
+
+
 def test_segments_cross_sees_a_bow_tie():
     assert _segments_cross([np.array([[0, 0], [1, 1], [1, 0], [0, 1]], dtype=float)])
     assert not _segments_cross([np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)])
