@@ -511,18 +511,19 @@ def corner_overrides(node_normals: np.ndarray, blocks: list[np.ndarray], corners
 
 def tool_normals(mesh: Mesh, model, method: str, *, tolerance=None, flip=False, allow_far=False, known=None):
     """(node normals, corner normals per block, node face ids | None, node distances | None,
-    element faces per block | None, `CadNormals` | None). ``known``: (mesh, `CadNormals`)
-    computed already by `cadbridge.normals.cad.cad_normals` with its default tolerance and no
-    flip (``allow_far`` and ``orient`` as may be), taken where that mesh is ``mesh`` itself
-    (the adaptive loop's, `cadbridge.tool.refine`: the same call's result, not made twice);
-    nodes beyond the tolerance still raise unless ``allow_far``."""
+    element faces per block | None, `CadNormals` | None). ``known``: a `CadNormals` computed
+    already by `cadbridge.normals.cad.cad_normals` with its default tolerance and no flip
+    (``allow_far`` and ``orient`` as may be), taken where it refers to ``mesh`` itself with
+    no element re-oriented (the adaptive loop's, `cadbridge.tool.refine`: the same call's
+    result, not made twice); nodes beyond the tolerance still raise unless ``allow_far``."""
     blocks = element_blocks(mesh)
     if method == "cad":
         from cadbridge.heal.folds import apply_fold_normals, folds_for
         from cadbridge.normals.cad import cad_normals
 
-        if known is not None and known[0] is mesh and known[1].mesh is None and tolerance is None and not flip:
-            cn = known[1]
+        if (known is not None and known.mesh is mesh and not np.any(known.flipped) and tolerance is None
+                and not flip):
+            cn = known
             if not allow_far:
                 from cadbridge.normals.cad import check_far
 

@@ -731,11 +731,10 @@ def refine_mesh(
         if carriers is None:
             carriers = mesh.nodes
         moved = 0
-        known = None  # (mesh, its CAD normals): `tools_from_mesh` takes them instead of projecting again
+        known = None  # the CAD normals of the mesh: `tools_from_mesh` takes them instead of projecting again
         if inflections:
-            before = mesh
             mesh, moved, cn = _move_onto_inflections(mesh, model, p, actions, progress)
-            known = (before, cn)  # taken only where cn.mesh is None: no element was re-oriented
+            known = cn  # taken where it refers to the mesh the tools are built on (`tool_normals`)
         bad_full: dict[int, str] = {}
         if inflections:  # what one quadratic patch cannot hold: edges across inflections, bad edges
             from cadbridge.tool.inflection_nodes import inadmissible_elements
@@ -743,7 +742,7 @@ def refine_mesh(
 
             if moved:
                 cn = cad_normals(mesh, model, orient=True, allow_far=True)
-                known = (mesh, cn)
+                known = cn
             bad_full = inadmissible_elements(mesh, model, cn, NagataMesh(
                 mesh.nodes, [np.asarray(b.data) for b in mesh.cells], cn.corner_normals, edge_rule=edge_rule))
         tools = tools_from_mesh(mesh, model, method="cad", grid=grid, projector=projector, progress=progress,
