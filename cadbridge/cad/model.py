@@ -188,6 +188,9 @@ class EmptyModelError(ValueError):
     only): the input holds nothing to mesh or project onto (exit code 2 in the CLI)."""
 
 
+_BBOX_KEY = "_cadbridge_bbox"  # Model.bbox's cache in the model's __dict__ (as `cadbridge.cad.search.index_for`)
+
+
 @dataclass
 class Model:
     """What `read_iges` returns.
@@ -233,8 +236,18 @@ class Model:
         """Axis-aligned box of all faces, (2, 3): [min, max] (from the control nets)."""
         if not self.faces:
             raise EmptyModelError(self.empty_reason())
+        # cached on the model for the same surfaces and control nets (held, compared by
+        # identity): `size` is asked ~200 times per convert of the production die, 13 ms each
+        # over its 1 102 faces (2.6 s of CPU) without it
+        key = tuple((f.surface, f.surface.control_points) for f in self.faces)
+        hit = self.__dict__.get(_BBOX_KEY)
+        if hit is not None and len(hit[0]) == len(key) and all(
+                a[0] is b[0] and a[1] is b[1] for a, b in zip(hit[0], key)):
+            return hit[1].copy()
         boxes = np.array([f.surface.bbox() for f in self.faces])
-        return np.array([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
+        box = np.array([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
+        self.__dict__[_BBOX_KEY] = (key, box)
+        return box.copy()
 
     def size(self) -> float:
         """Diagonal of the bounding box (model units); the length scale for tolerances."""

@@ -35,7 +35,7 @@ from cadbridge.nurbs.project_many import project_to_surfaces
 from cadbridge.cad.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, index_for, project_points
 from cadbridge.normals.singular import singular_nodes
 
-__all__ = ["CadNormals", "ProjectionError", "cad_normals"]
+__all__ = ["CadNormals", "ProjectionError", "cad_normals", "check_far"]
 
 
 class ProjectionError(ValueError):
@@ -398,6 +398,12 @@ def _check_far(nodes: np.ndarray, proj: Projection, status: np.ndarray, tol: flo
         far,
         proj.distance[far],
     )
+
+
+def check_far(nodes: np.ndarray, cn: "CadNormals", tol: float) -> None:
+    """The `ProjectionError` `cad_normals` raises without ``allow_far``, for a result ``cn``
+    made with it: the nodes (N, 3) beyond ``tol`` or failed (their projection's status)."""
+    _check_far(nodes, cn.projection, np.asarray(cn.projection.status), tol)
 
 
 @dataclass

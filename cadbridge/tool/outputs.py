@@ -10,14 +10,16 @@ import os
 import shutil
 import tempfile
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
 from cadbridge.tool.build import CadProjector, corner_overrides, element_blocks, grid_rows, sample_divisions, ToolResult
 
-__all__ = ['LISTING_MAX_ELEMENTS', 'OutputFolderError', 'staged_output', 'tool_data', 'write_tool_outputs']
+__all__ = ['LISTING_MAX_ELEMENTS', 'OutputFolderError', 'error_map_jobs', 'staged_output', 'tool_data', 'tool_pictures',
+           'write_error_maps', 'write_tool_outputs']
 
 
 def tool_data(tool: ToolResult, units: str, cad: str | None = None):
@@ -51,10 +53,13 @@ def tool_data(tool: ToolResult, units: str, cad: str | None = None):
 LISTING_MAX_ELEMENTS = 50_000
 
 def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | None, report: bool,
-                       projector: CadProjector | None = None, listings: bool | None = None) -> list[str]:
+                       projector: CadProjector | None = None, listings: bool | None = None,
+                       pictures: bool = True) -> list[str]:
     """Tool file, and with ``report`` the VTUs, PNGs and the per-patch listings (CSV grid,
     coefficient listing, Nagata IGES); ``listings`` None: only for tools of at most
-    `LISTING_MAX_ELEMENTS` elements (True / False: always / never).
+    `LISTING_MAX_ELEMENTS` elements (True / False: always / never). ``pictures`` False leaves
+    the PNGs out (the caller draws them, `tool_pictures`, e.g. beside this in a forked
+    process: `cadbridge.common.fork_jobs`).
 
     Returns the names of the files written (relative to ``folder``).
     """
@@ -71,7 +76,6 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
 
     from cadbridge.io.csvgrid import write_coefficients_listing, write_grid_csv
     from cadbridge.io.nagata_iges import write_nagata_iges
-    from cadbridge.io.plots import plot_error_histogram
     from cadbridge.io.vtu import write_mesh_vtu, write_surface_vtu
 
     g = tool.grid
@@ -90,7 +94,8 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
         write_nagata_iges(tri_c, quad_c, folder / f"{name}_nagata.igs", units=units)
         files += [f"{name}_grid.csv", f"{name}_coefficients.txt", f"{name}_nagata.igs"]
 
-    verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(min(4, sample_divisions(nm, 4)), return_params=True)
+    verts, tris, (pe, peta, pzeta) = nm.refined_triangulation(_vtu_divisions(nm, tool.stats.get("grid")),
+                                                                return_params=True)
     _, vnorm = nm.evaluate(pe, peta, pzeta)
     surface_data = {"normal": vnorm, "element": pe.astype(np.int32)}
     at = grid_rows(g, pe, peta, pzeta) if errors else None
@@ -114,26 +119,67 @@ def write_tool_outputs(tool: ToolResult, folder: Path, units: str, cad: str | No
     write_mesh_vtu(folder / f"{name}_mesh.vtu", mesh.nodes, [(c.type, b) for c, b in zip(mesh.cells, blocks)],
                    point_data=mesh_data, field_data={"normal_source": tool.normal_source})
     files += [f"{name}_nagata.vtu", f"{name}_mesh.vtu"]
-    if errors:
-        u = units.lower()
-        plot_error_histogram(folder / f"{name}_surface_error.png",
-                             {f"Nagata ({tool.normal_source})": np.abs(errors["surface_error"]),
-                              "flat mesh": np.abs(errors["flat_surface_error"])},
-                             xlabel=f"|surface error| [{u}]", title=f"{name}: distance to the underlying CAD surfaces")
-        plot_error_histogram(folder / f"{name}_boundary_error.png", {tool.normal_source: errors["boundary_error"]},
-                             xlabel=f"boundary error [{u}]", title=f"{name}: distance to the trimmed CAD faces")
-        plot_error_histogram(folder / f"{name}_normal_error.png", {tool.normal_source: errors["normal_error"]},
-                             xlabel="normal error [deg]", title=f"{name}: Nagata normal error vs CAD")
-        files += [f"{name}_surface_error.png", f"{name}_boundary_error.png", f"{name}_normal_error.png"]
-        files += write_error_maps(tool, folder, units)
+    if pictures:
+        for name_png, job in tool_pictures(tool, folder, units):
+            job()
+            files.append(name_png)
     return files
 
 
+def _vtu_divisions(nm, grid: int | None) -> int:
+    """Divisions per patch of the Nagata VTU: n = 4 (fewer on big tools, `sample_divisions`),
+    or n + 1 where that divides the error grid's ``grid`` divisions and n does not (5 for the
+    default grid of 10 on small tools), so the VTU's vertices are grid points and carry the grid's
+    errors instead of a second measurement against the CAD (`grid_rows`; i / 5 and 2i / 10
+    are the same double). On the production die's seven 50-element pilot tools that second
+    measurement took 0.3-0.7 s of CPU each."""
+    n = min(4, sample_divisions(nm, 4))
+    return n + 1 if grid and grid % n and grid % (n + 1) == 0 else n
+
+
+def tool_pictures(tool: ToolResult, folder: Path, units: str) -> list[tuple[str, Callable[[], object]]]:
+    """The report pictures of ``tool`` as (file name relative to ``folder``, job that draws
+    it): the three error histograms and the two error maps (`write_error_maps`); none when
+    its grid carries no errors. Each job writes its own file atomically."""
+    from cadbridge.io.plots import plot_error_histogram
+
+    g, name = tool.grid, tool.name
+    names = ("surface_error", "boundary_error", "flat_surface_error", "normal_error")
+    errors = {k: g[k] for k in names if k in g}
+    if not errors:
+        return []
+    u = units.lower()
+    out = [
+        (f"{name}_surface_error.png", partial(
+            plot_error_histogram, folder / f"{name}_surface_error.png",
+            {f"Nagata ({tool.normal_source})": np.abs(errors["surface_error"]),
+             "flat mesh": np.abs(errors["flat_surface_error"])},
+            xlabel=f"|surface error| [{u}]", title=f"{name}: distance to the underlying CAD surfaces")),
+        (f"{name}_boundary_error.png", partial(
+            plot_error_histogram, folder / f"{name}_boundary_error.png", {tool.normal_source: errors["boundary_error"]},
+            xlabel=f"boundary error [{u}]", title=f"{name}: distance to the trimmed CAD faces")),
+        (f"{name}_normal_error.png", partial(
+            plot_error_histogram, folder / f"{name}_normal_error.png", {tool.normal_source: errors["normal_error"]},
+            xlabel="normal error [deg]", title=f"{name}: Nagata normal error vs CAD")),
+    ]
+    return out + error_map_jobs(tool, folder, units)
+
+
 def write_error_maps(tool: ToolResult, folder: Path, units: str) -> list[str]:
+    """``{tool}_shape_error_map.png`` and ``{tool}_normal_error_map.png`` drawn here
+    (`error_map_jobs`). Returns the names written (relative to ``folder``)."""
+    files = []
+    for name, job in error_map_jobs(tool, folder, units):
+        job()
+        files.append(name)
+    return files
+
+
+def error_map_jobs(tool: ToolResult, folder: Path, units: str) -> list[tuple[str, Callable[[], object]]]:
     """``{tool}_shape_error_map.png`` and ``{tool}_normal_error_map.png``: the tool shaded by
     each element's largest |surface error| / normal error on the sample grid
     (``tool.grid``), the worst elements numbered as in the tool file
-    (`cadbridge.io.error_map`). Returns the names written (relative to ``folder``); none
+    (`cadbridge.io.error_map`), as (name relative to ``folder``, job that draws it); none
     when the grid carries no errors.
 
     Cost (wall time, 2 cores shared with other jobs, load about 4.5): on the production die's
@@ -146,7 +192,7 @@ def write_error_maps(tool: ToolResult, folder: Path, units: str) -> list[str]:
 
     g, nm, name, u = tool.grid, tool.nagata, tool.name, units.lower()
     size = float(np.linalg.norm(np.ptp(nm.nodes, axis=0)))
-    files = []
+    jobs = []
     # not labelled: round-off (a flat tool's shape error is ~1e-16 x its size)
     for key, stem, label, unit, negligible, what in (
             ("surface_error", "shape_error_map", f"element's largest |surface error| [{u}]", u, 1e-12 * size,
@@ -156,12 +202,11 @@ def write_error_maps(tool: ToolResult, folder: Path, units: str) -> list[str]:
         if key not in g:
             continue
         values = element_max(g["element"], g[key], nm.n_elements)
-        plot_error_map(folder / f"{name}_{stem}.png", nm, values, label=label, unit=unit, length_unit=u,
-                       negligible=negligible,
-                       title=f"{name}: {what} ({nm.n_elements} element{'s' * (nm.n_elements != 1)}, "
-                             f"{tool.normal_source} normals)")
-        files.append(f"{name}_{stem}.png")
-    return files
+        jobs.append((f"{name}_{stem}.png", partial(
+            plot_error_map, folder / f"{name}_{stem}.png", nm, values, label=label, unit=unit, length_unit=u,
+            negligible=negligible, title=f"{name}: {what} ({nm.n_elements} element{'s' * (nm.n_elements != 1)}, "
+                                         f"{tool.normal_source} normals)")))
+    return jobs
 
 
 class OutputFolderError(OSError):

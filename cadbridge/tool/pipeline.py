@@ -8,6 +8,7 @@ an error never leaves partial output behind. Long stages report to an optional
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -206,10 +207,43 @@ def nagata_from_mesh(
     units = model.units.name if model is not None else "MM"
     result = RunResult(Path(output), tools, notes=healed_notes(excursions) + _moved_notes(tools))
     with staged_output(output) as tmp:
-        for t in tools:
-            progress.stage(f"{t.name}: writing tool file{' and report' if report else ''}")
-            result.files += write_tool_outputs(t, tmp, units, cad, report, projector)
+        pictures = _pictures(tools, tmp, units) if report else {}
+
+        def files() -> None:
+            for t in tools:
+                progress.stage(f"{t.name}: writing tool file{' and report' if report else ''}")
+                result.files += write_tool_outputs(t, tmp, units, cad, report, projector, pictures=False)
+                result.files += [n for n, _ in pictures.get(t.name, [])]
+
+        _write_with_pictures(files, tools, pictures, progress)
     return result
+
+
+def _pictures(tools: list[ToolResult], folder: Path, units: str) -> dict[str, list]:
+    """{tool name: [(file name, job)]} of the tools' report pictures (`outputs.tool_pictures`)."""
+    return {t.name: outputs.tool_pictures(t, folder, units) for t in tools}
+
+
+def _write_with_pictures(files: Callable[[], None], tools: list[ToolResult], pictures: dict[str, list],
+                         progress) -> None:
+    """``files()`` (the tool files, VTUs, listings) here while a forked copy of the process
+    draws the ``pictures`` of `_pictures` (`cadbridge.common.fork_jobs.run_jobs`); this
+    process takes its share of them when its files are written. The largest tools'
+    pictures go first. On the production die the pictures are about 12 s of CPU in
+    matplotlib, the files 4 s."""
+    from cadbridge.common.fork_jobs import run_jobs
+
+    order = sorted(tools, key=lambda t: -t.nagata.n_elements)
+    jobs = [job for t in order for _, job in pictures.get(t.name, [])]
+    jobs[:0] = [job for _, job in pictures.get("adaptive report", [])]  # a map of the largest tool: first
+
+    def first() -> None:
+        files()
+        if jobs:
+            progress.stage(f"drawing the report pictures ({len(jobs)} PNG files)")
+
+    run_jobs(jobs, first=first)
+
 
 
 def convert(
@@ -278,10 +312,16 @@ def convert(
         mesh, notes = adaptive.mesh, healed_notes(excursions) + list(adaptive.mesh.notes)
     else:
         adaptive = None
-        projector = CadProjector(model, progress)
+        # the search index (2-3 s of CPU on the production die) is built on a second thread
+        # while gmsh meshes (gmsh's calls release the GIL); nothing uses it before the mesh is made
+        pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="cadbridge-index")
+        pending = pool.submit(CadProjector, model, progress)
+        pool.shutdown(wait=False)
     stem = Path(cad).stem
 
     def build(m: Mesh) -> list[ToolResult]:  # the tools and their guards; errors vs CAD measured last
+        nonlocal projector
+        projector = projector or pending.result()
         m.name = stem
         return tools_from_mesh(m, model, method=method, grid=grid, tolerance=tolerance, flip=flip,
                                projector=projector, progress=progress, orient=True, meshed_per_face=True,
@@ -289,12 +329,21 @@ def convert(
 
     refined = ""
     if adaptive is None:
-        guarded = guarded_mesh(cad, model, excursions=excursions, build=build, progress=progress, element=element,
-                               size=size, structured=structured, radius_divisions=radius_divisions,
-                               length_divisions=length_divisions, curvature_elements=curvature_elements,
-                               mesher=mesher)
+        projector = None
+        try:
+            guarded = guarded_mesh(cad, model, excursions=excursions, build=build, progress=progress,
+                                   element=element, size=size, structured=structured,
+                                   radius_divisions=radius_divisions, length_divisions=length_divisions,
+                                   curvature_elements=curvature_elements, mesher=mesher)
+        finally:
+            pending.exception()  # the thread has ended before anything else runs (an error of its is raised below)
+        projector = projector or pending.result()
         mesh, tools, notes = guarded.mesh, guarded.tools, guarded.mesh_notes + guarded.notes
         refined = "" if guarded.converged else guarded.failure
+    elif method == "cad" and tolerance is None and not flip:
+        # the loop's tools of its best mesh are what `build` would make of it (the same call
+        # but for the measure, whose grid `measure_tool` keeps where the divisions agree)
+        tools = adaptive.tools
     else:
         tools = build(mesh)
     for t in tools:
@@ -302,17 +351,26 @@ def convert(
     check_tools(tools, allow_worse, refinement=refined)
     result = RunResult(Path(output), tools, notes=notes + _moved_notes(tools))
     with staged_output(output) as tmp:
-        write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
-        result.files.append(f"{mesh.name}_mesh.msh")
-        for t in tools:
-            progress.stage(f"{t.name}: writing tool file and report")
-            result.files += write_tool_outputs(t, tmp, model.units.name, cad, True, projector,
-                                               listings=True if full_report else None)
-            if not full_report and t.nagata.n_elements > outputs.LISTING_MAX_ELEMENTS:
-                result.notes.append(f"{t.name}: {t.nagata.n_elements} elements: grid CSV, coefficient listing and "
-                                    f"Nagata IGES not written (above {outputs.LISTING_MAX_ELEMENTS}; --full-report writes them)")
+        pictures = _pictures(tools, tmp, model.units.name)
         if adaptive is not None:
-            result.files += adaptive.write_report(tmp, model, projector)
+            pictures["adaptive report"] = adaptive.picture_jobs(tmp, model, projector)
+
+        def files() -> None:
+            write_mesh(mesh, tmp / f"{mesh.name}_mesh.msh")
+            result.files.append(f"{mesh.name}_mesh.msh")
+            for t in tools:
+                progress.stage(f"{t.name}: writing tool file and report")
+                result.files += write_tool_outputs(t, tmp, model.units.name, cad, True, projector,
+                                                   listings=True if full_report else None, pictures=False)
+                result.files += [n for n, _ in pictures[t.name]]
+                if not full_report and t.nagata.n_elements > outputs.LISTING_MAX_ELEMENTS:
+                    result.notes.append(f"{t.name}: {t.nagata.n_elements} elements: grid CSV, coefficient listing and "
+                                        f"Nagata IGES not written (above {outputs.LISTING_MAX_ELEMENTS}; --full-report "
+                                        f"writes them)")
+            if adaptive is not None:
+                result.files += adaptive.write_report(tmp, model, projector, pictures=False)
+
+        _write_with_pictures(files, tools, pictures, progress)
     if adaptive is not None:
         result.adaptive = adaptive  # cadbridge.tool.refine.AdaptiveResult (the CLI prints its summary)
         if not adaptive.met:
