@@ -374,15 +374,10 @@ def points_in_faces(rng, model: Model, faces: np.ndarray, spread: float) -> np.n
 
 
 def _clock(fn, repeat: int):
-    """Best of ``repeat`` by wall time: (wall s, CPU s, fn's last result)."""
-    best = (math.inf, math.inf, None)
-    for _ in range(repeat):
-        w, c = time.perf_counter(), time.process_time()
-        out = fn()
-        w, c = time.perf_counter() - w, time.process_time() - c
-        if w < best[0]:
-            best = (w, c, out)
-    return best
+    """Best of ``repeat`` by wall time: (wall s, CPU s, fn's last result) (`timing.best_of`)."""
+    from timing import best_of
+
+    return best_of(fn, repeat)
 
 
 def _load() -> str:

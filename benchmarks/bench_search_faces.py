@@ -78,14 +78,10 @@ def tiled(model: Model, copies: int) -> tuple[Model, np.ndarray]:
 
 
 def _best(fn):
-    best = (math.inf, math.inf, None)
-    for _ in range(REPEAT):
-        w, c = time.perf_counter(), time.process_time()
-        out = fn()
-        w, c = time.perf_counter() - w, time.process_time() - c
-        if w < best[0]:
-            best = (w, c, out)
-    return best
+    """Best of `REPEAT` by wall time (`timing.best_of`)."""
+    from timing import best_of
+
+    return best_of(fn, REPEAT)
 
 
 def main() -> None:

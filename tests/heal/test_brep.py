@@ -147,6 +147,31 @@ def _plate_with_gaps(gap: float):
     return Model(faces=[Face(surface=s, de=1, trims=Trim(loop, []))], resolution=1e-3)
 
 
+def _gmsh_triangles(model, *, size: float, sew: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """gmsh's triangle mesh of `model_brep` (``model``) at ``size``: nodes (N, 3), triangles
+    (T, 3) 0-based. ``sew``: gmsh's Geometry.OCCSewFaces (at `SEW_TOLERANCE_MM`), else gmsh's
+    default."""
+    import gmsh
+
+    with brep_source(model) as (path, _):
+        gmsh.initialize(readConfigFiles=False)
+        try:
+            gmsh.option.setNumber("General.Terminal", 0)
+            if sew is not None:
+                gmsh.option.setNumber("Geometry.OCCSewFaces", sew)
+                gmsh.option.setNumber("Geometry.Tolerance", SEW_TOLERANCE_MM)
+            gmsh.option.setNumber("Mesh.MeshSizeMax", size)
+            gmsh.model.occ.importShapes(str(path))
+            gmsh.model.occ.synchronize()
+            gmsh.model.mesh.generate(2)
+            _, xyz, _ = gmsh.model.mesh.getNodes()
+            etypes, _, enodes = gmsh.model.mesh.getElements(2)
+            tri = np.asarray(enodes[list(etypes).index(2)], dtype=np.int64).reshape(-1, 3) - 1
+        finally:
+            gmsh.finalize()
+    return np.asarray(xyz).reshape(-1, 3), tri
+
+
 def test_trim_pieces_apart_within_the_trim_tolerance_make_a_closed_wire():
     """Class: consecutive trim pieces that miss each other by more than the file's resolution
     but within the face's trim tolerance (CATIA V4's 122 faces: 0.003 mm at resolution 0.001;
@@ -154,28 +179,13 @@ def test_trim_pieces_apart_within_the_trim_tolerance_make_a_closed_wire():
     "Could not fix wire in surface 1"; joined within the trim tolerance, gmsh meshes the face,
     and the mesh has the plate's analytic area (6000 mm^2, to the slivers the three joined
     corners cut: gap x element size / 2 each)."""
-    import gmsh
-
     model = _plate_with_gaps(0.01)
     brep = model_brep(model)
     assert brep.faces[0].valid
     assert any("gaps up to 0.01 closed" in fix for fix in brep.faces[0].fixes), brep.faces[0].fixes
-    with brep_source(model) as (path, _):
-        gmsh.initialize(readConfigFiles=False)
-        try:
-            gmsh.option.setNumber("General.Terminal", 0)
-            gmsh.option.setNumber("Mesh.MeshSizeMax", 10.0)
-            gmsh.model.occ.importShapes(str(path))
-            gmsh.model.occ.synchronize()
-            gmsh.model.mesh.generate(2)
-            _, xyz, _ = gmsh.model.mesh.getNodes()
-            xyz = np.asarray(xyz).reshape(-1, 3)
-            etypes, _, enodes = gmsh.model.mesh.getElements(2)
-            tri = np.asarray(enodes[list(etypes).index(2)], dtype=np.int64).reshape(-1, 3) - 1
-            a, b, c = xyz[tri[:, 0]], xyz[tri[:, 1]], xyz[tri[:, 2]]
-            area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
-        finally:
-            gmsh.finalize()
+    xyz, tri = _gmsh_triangles(model, size=10.0)
+    a, b, c = xyz[tri[:, 0]], xyz[tri[:, 1]], xyz[tri[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
     assert area == pytest.approx(6000.0, abs=3 * 0.5 * 0.01 * 10.0)
 
 
@@ -211,7 +221,6 @@ def test_a_pole_side_trim_piece_keeps_one_vertex():
     on every attempt). References: OCC's topology (the degenerated edge has one vertex) and its
     geometry of the built face: the mesh's area is OCC's area of the face (`BRepGProp`) and
     every node lies on OCC's surface (`GeomAPI_ProjectPointOnSurf`)."""
-    import gmsh
     from OCP.BRep import BRep_Tool
     from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf
     from OCP.gp import gp_Pnt
@@ -232,22 +241,7 @@ def test_a_pole_side_trim_piece_keeps_one_vertex():
     assert degenerated and all(degenerated), degenerated
     surface = BRep_Tool.Surface_s(face)
     for sew in (1, 0):  # the model route's attempts: gmsh sews the B-rep again, or not
-        with brep_source(model) as (path, _):
-            gmsh.initialize(readConfigFiles=False)
-            try:
-                gmsh.option.setNumber("General.Terminal", 0)
-                gmsh.option.setNumber("Geometry.OCCSewFaces", sew)
-                gmsh.option.setNumber("Geometry.Tolerance", SEW_TOLERANCE_MM)
-                gmsh.option.setNumber("Mesh.MeshSizeMax", 2.0)
-                gmsh.model.occ.importShapes(str(path))
-                gmsh.model.occ.synchronize()
-                gmsh.model.mesh.generate(2)
-                _, xyz, _ = gmsh.model.mesh.getNodes()
-                xyz = np.asarray(xyz).reshape(-1, 3)
-                etypes, _, enodes = gmsh.model.mesh.getElements(2)
-                tri = np.asarray(enodes[list(etypes).index(2)], dtype=np.int64).reshape(-1, 3) - 1
-            finally:
-                gmsh.finalize()
+        xyz, tri = _gmsh_triangles(model, size=2.0, sew=sew)
         a, b, c = xyz[tri[:, 0]], xyz[tri[:, 1]], xyz[tri[:, 2]]
         area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
         assert area == pytest.approx(_area(face), rel=0.01)  # flat triangles of a 2 mm mesh on a 20 mm cone: ~0.3 % short

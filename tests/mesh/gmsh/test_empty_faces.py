@@ -128,12 +128,7 @@ def test_a_face_with_a_narrow_notch_is_filled_without_covering_it(element):
         notes = fill_empty_faces(g, [face], size=0.5 if element == "quad" else 1.0, curvature_elements=0,
                                  element=element, subdivided=element == "quad", label="slot")
         assert len(notes) == 1
-        tags, xyz, _ = g.model.mesh.getNodes()
-        index = np.full(int(max(tags)) + 1, -1)
-        index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
-        xyz = np.asarray(xyz).reshape(-1, 3)
-        et, _, en = g.model.mesh.getElements(2, face)
-        elems = [index[np.asarray(n, dtype=np.int64)].reshape(-1, 3 if t == 2 else 4) for t, n in zip(et, en)]
+        xyz, elems = _face_mesh(g, face)
     used = xyz[np.unique(np.concatenate([e.ravel() for e in elems])), :2]
     edge_a, edge_b = poly, np.roll(poly, -1, axis=0)
     t = np.clip(np.einsum("nij,ij->ni", used[:, None] - edge_a, edge_b - edge_a)
@@ -193,6 +188,17 @@ def test_a_thin_ring_filled_in_quads_keeps_its_nodes_in_the_ring():
 def test_segments_cross_sees_a_bow_tie():
     assert _segments_cross([np.array([[0, 0], [1, 1], [1, 0], [0, 1]], dtype=float)])
     assert not _segments_cross([np.array([[0, 0], [1, 0], [1, 1], [0, 1]], dtype=float)])
+
+
+def _face_mesh(g, s: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """gmsh's nodes (N, 3) and the elements of surface ``s``, one (E, 3 or 4) array of indices
+    into them per element type."""
+    tags, xyz, _ = g.model.mesh.getNodes()
+    index = np.full(int(max(tags)) + 1, -1)
+    index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
+    et, _, en = g.model.mesh.getElements(2, s)
+    return (np.asarray(xyz).reshape(-1, 3),
+            [index[np.asarray(n, dtype=np.int64)].reshape(-1, 3 if t == 2 else 4) for t, n in zip(et, en)])
 
 
 def _closed_and_consistent(elems: list[np.ndarray]) -> bool:
@@ -449,12 +455,7 @@ def test_a_crescent_face_is_filled_between_its_circles(tmp_path, element):
         (s,) = [t for _, t in g.model.getEntities(2)]
         notes = fill_empty_faces(g, [s], size=1.0, curvature_elements=0, element=element, subdivided=False,
                                  label="crescent")
-        tags, xyz, _ = g.model.mesh.getNodes()
-        index = np.full(int(max(tags)) + 1, -1)
-        index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
-        x = np.asarray(xyz).reshape(-1, 3)
-        et, _, en = g.model.mesh.getElements(2, s)
-        elems = [index[np.asarray(n, dtype=np.int64)].reshape(-1, 3 if t == 2 else 4) for t, n in zip(et, en)]
+        x, elems = _face_mesh(g, s)
     assert len(notes) == 1 and "joined to it there: (0, 62, 0)" in notes[0], notes
     used = np.unique(np.concatenate([c.ravel() for c in elems]))
     p = x[used]
