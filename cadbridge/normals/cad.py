@@ -35,7 +35,10 @@ from cadbridge.nurbs.project_many import project_to_surfaces
 from cadbridge.cad.search import BEYOND_TOLERANCE, CONVERGED, FAILED, ON_BOUNDARY, Projection, index_for, project_points
 from cadbridge.normals.singular import singular_nodes
 
-__all__ = ["CadNormals", "ProjectionError", "cad_normals", "check_far"]
+__all__ = ["CadNormals", "NODE_TOLERANCE", "ProjectionError", "cad_normals", "check_far"]
+
+NODE_TOLERANCE = 1e-4
+"""`cad_normals`' default node-to-CAD tolerance, x model size."""
 
 
 class ProjectionError(ValueError):
@@ -593,7 +596,7 @@ def cad_normals(
     if len(nodes) == 0:
         raise ValueError("the mesh has no nodes")
     size = model.size()
-    tol = 1e-4 * size if tolerance is None else float(tolerance)
+    tol = NODE_TOLERANCE * size if tolerance is None else float(tolerance)
 
     proj, (mesh, flipped, nm, blocks, elem_normals, acc) = _project_with_topology(mesh, model, nodes, tol, orient)
     _warn_non_manifold(nm)

@@ -534,9 +534,9 @@ def tool_normals(mesh: Mesh, model, method: str, *, tolerance=None, flip=False, 
                 and not flip):
             cn = known
             if not allow_far:
-                from cadbridge.normals.cad import check_far
+                from cadbridge.normals.cad import NODE_TOLERANCE, check_far
 
-                check_far(np.asarray(mesh.nodes, dtype=float), cn, 1e-4 * model.size())
+                check_far(np.asarray(mesh.nodes, dtype=float), cn, NODE_TOLERANCE * model.size())
         else:
             cn = cad_normals(mesh, model, tolerance=tolerance, flip=flip, allow_far=allow_far)
         apply_fold_normals(cn, mesh, model, folds_for(model), flip=flip)  # one-sided normals on fold lines

@@ -284,6 +284,15 @@ def _zip_walk(xyz: np.ndarray, seg: np.ndarray, keep: np.ndarray, p: int, eps: f
     forward (chain A) and backward (chain B), the arc length walked on each and the largest
     distance of a zipped node from the other chain (the strip's width)."""
     n = len(xyz)
+
+    def gap(node: int, end: int, step: int) -> float:
+        """Distance of ``node`` from the other chain's segments near the rung (that chain's
+        nodes from ``end`` on, in direction ``step``); inf where it is one of those mesh nodes."""
+        other = [(end + step * j) % n for j in range(0 if end == p else -1, 4)]
+        if tags is not None and tags[node] in tags[other]:
+            return np.inf
+        return float(_point_segment_distance(xyz[node], xyz[other[:-1]], xyz[other[1:]]).min())
+
     a, b = p, p
     sa = sb = w = 0.0
     steps = 0
@@ -294,21 +303,18 @@ def _zip_walk(xyz: np.ndarray, seg: np.ndarray, keep: np.ndarray, p: int, eps: f
         # advance the chain that is behind in arc length; its next node must lie within
         # eps of the other chain's segments near the current rung
         if sa + seg[a] <= sb + seg[nb]:
-            other = [(b - j) % n for j in range(0 if b == p else -1, 4)]  # chain B near the rung
-            d = _point_segment_distance(xyz[na], xyz[other[:-1]], xyz[other[1:]]).min()
-            if d > eps or (tags is not None and tags[na] in tags[other]):
+            d = gap(na, b, -1)
+            if d > eps:
                 break
             sa += seg[a]
             a = na
-            w = max(w, d)
         else:
-            other = [(a + j) % n for j in range(0 if a == p else -1, 4)]  # chain A near the rung
-            d = _point_segment_distance(xyz[nb], xyz[other[:-1]], xyz[other[1:]]).min()
-            if d > eps or (tags is not None and tags[nb] in tags[other]):
+            d = gap(nb, a, 1)
+            if d > eps:
                 break
             sb += seg[nb]
             b = nb
-            w = max(w, d)
+        w = max(w, d)
         steps += 1
     return a, b, sa, sb, w
 
