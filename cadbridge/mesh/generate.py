@@ -1058,7 +1058,20 @@ def _generate(g, surfaces: list[int]) -> dict[int, str]:
     (`cadbridge.mesh.gmsh.empty_faces.generate_surfaces`; those surfaces are then filled)."""
     from cadbridge.mesh.gmsh.empty_faces import generate_surfaces
 
-    return generate_surfaces(g, surfaces)
+    if g.option.getNumber("Mesh.SubdivisionAlgorithm") != 1:
+        return generate_surfaces(g, surfaces)
+    # the all-quad subdivision made here (`cadbridge.mesh.gmsh.subdivide`), gmsh's needing an
+    # OCC projector per new node: production die 7.3 -> 3.5 s
+    from cadbridge.mesh.gmsh.subdivide import subdivide_to_quads
+
+    g.option.setNumber("Mesh.SubdivisionAlgorithm", 0)
+    try:
+        failed = generate_surfaces(g, surfaces)
+    finally:
+        g.option.setNumber("Mesh.SubdivisionAlgorithm", 1)
+    if not subdivide_to_quads(g):
+        g.model.mesh.refine()  # gmsh's own (nodes without parameters)
+    return failed
 
 
 def _fill_empty(g, surfaces: list[int], size: float, kw: dict, path: Path, subdivided: bool,

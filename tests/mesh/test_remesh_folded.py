@@ -118,8 +118,9 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algori
     # again with the first refold algorithm (6); the elements of every other surface are the
     # ones of the plain mesh, node for node. With algorithm 8 alone (the refold before 6 was
     # tried first) this cut-out keeps triangles there, and cadbridge's (u, v) fill meshes the
-    # face (its loop holds the seam twice). Where the fill fails too (forced), the whole model
-    # is meshed again in the subdivision pass (`_regenerate_all`): that fallback is exercised
+    # face (its loop holds the seam twice). Where the refold keeps triangles and the fill fails
+    # (both forced), the whole model is meshed again in the subdivision pass
+    # (`_regenerate_all`): that fallback is exercised
     from cadbridge.mesh import generate as G
     from cadbridge.mesh.mesh import MeshError
 
@@ -130,6 +131,8 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algori
             raise MeshError("forced: the (u, v) fill cannot mesh it")
 
         monkeypatch.setattr(G, "_fill_folds", no_fill)
+        real_left = G._surfaces_with_triangles
+        monkeypatch.setattr(G, "_surfaces_with_triangles", lambda mesh, surfaces: real_left(mesh, surfaces) | set(surfaces))
     first = G._REFOLD_ALGORITHMS["quad"][0]
     path, faces = boss_cutout
     plain = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
