@@ -101,8 +101,8 @@ def subdivide_to_quads(g) -> bool:
         e = edges[first[~on_curve]]
         uva = uv_of(e[:, 0])
         limit = np.maximum(FAR_FRACTION * np.linalg.norm(x[e[:, 1]] - x[e[:, 0]], axis=1), floor)
-        px, puv = _nearest(g, 2, s, 0.5 * (x[e[:, 0]] + x[e[:, 1]]),
-                           0.5 * (uva + _unwrap_to(uva, uv_of(e[:, 1]), period, closed)), limit, lo, hi, closed)
+        uvb = _unwrap_to(uva, uv_of(e[:, 1]), period, closed)
+        px, puv = _nearest(g, 2, s, 0.5 * (x[e[:, 0]] + x[e[:, 1]]), 0.5 * (uva + uvb), limit, lo, hi, closed)
         new = [np.arange(next_tag, next_tag + len(e))]
         next_tag += len(e)
         x[new[0]] = px
@@ -111,8 +111,8 @@ def subdivide_to_quads(g) -> bool:
         edge_mid = umid[inv.ravel()]  # per row of ``edges``
         new_uv = [puv]
         # the centres, as gmsh's second-order elements have them: the surface's point nearest
-        # a triangle's corner centroid, or a quad's serendipity centre (-1/4 of the corners +
-        # 1/2 of the edge midpoints), from the corners' mean (u, v)
+        # a triangle's barycentre (its corners and edge midpoints), or a quad's serendipity
+        # centre (-1/4 of the corners + 1/2 of the edge midpoints), from the corners' mean (u, v)
         mids_of, starts, targets, limits = [], [], [], []
         row = 0
         for el in elems:  # triangles, then quads
@@ -123,7 +123,9 @@ def subdivide_to_quads(g) -> bool:
             uv0 = uv_of(el[:, 0])
             starts.append(np.mean([uv0] + [_unwrap_to(uv0, uv_of(el[:, i]), period, closed) for i in range(1, n)], axis=0))
             corners = x[el].mean(axis=1)
-            targets.append(corners if n == 3 else 2.0 * x[mids].mean(axis=1) - corners)
+            # gmsh's: a 6-node triangle's barycenter (all 6 nodes), a 9-node quad's serendipity
+            # centre
+            targets.append(0.5 * (corners + x[mids].mean(axis=1)) if n == 3 else 2.0 * x[mids].mean(axis=1) - corners)
             limits.append(2.0 * FAR_FRACTION * np.max(np.linalg.norm(x[el] - corners[:, None], axis=2), axis=1))
         px, puv = _nearest(g, 2, s, np.concatenate(targets), np.concatenate(starts),
                            np.maximum(np.concatenate(limits), floor), lo, hi, closed)
