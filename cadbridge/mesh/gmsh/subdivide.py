@@ -79,8 +79,12 @@ def subdivide_to_quads(g) -> bool:
         x[m] = px
         curve_key.append(np.minimum(a, b) * key_base + np.maximum(a, b))
         curve_mid.append(m)
-        plan_c.append((c, np.concatenate([own, m]), np.concatenate([own_par, pt]),
-                       np.column_stack([a, m, m, b]).reshape(-1, 2)))
+        # the curve's nodes in the order of their parameter, as gmsh keeps them (its meshers
+        # walk a curve's nodes so: unsorted, its Frontal-Delaunay remesh of a face along such
+        # curves did not end, PRO20359-L6)
+        nt, par = np.concatenate([own, m]), np.concatenate([own_par, pt])
+        o = np.argsort(par[:, 0], kind="stable")
+        plan_c.append((c, nt[o], par[o], np.column_stack([a, m, m, b]).reshape(-1, 2)))
     ck = np.concatenate(curve_key) if curve_key else np.zeros(0, dtype=np.int64)
     o = np.argsort(ck, kind="stable")
     ck, cm = ck[o], (np.concatenate(curve_mid) if curve_mid else np.zeros(0, dtype=np.int64))[o]
@@ -97,8 +101,8 @@ def subdivide_to_quads(g) -> bool:
         e = edges[first[~on_curve]]
         uva = uv_of(e[:, 0])
         limit = np.maximum(FAR_FRACTION * np.linalg.norm(x[e[:, 1]] - x[e[:, 0]], axis=1), floor)
-        px, puv = _nearest(g, 2, s, 0.5 * (x[e[:, 0]] + x[e[:, 1]]),
-                           0.5 * (uva + _unwrap_to(uva, uv_of(e[:, 1]), period, closed)), limit, lo, hi, closed)
+        uvb = _unwrap_to(uva, uv_of(e[:, 1]), period, closed)
+        px, puv = _nearest(g, 2, s, 0.5 * (x[e[:, 0]] + x[e[:, 1]]), 0.5 * (uva + uvb), limit, lo, hi, closed)
         new = [np.arange(next_tag, next_tag + len(e))]
         next_tag += len(e)
         x[new[0]] = px
@@ -107,8 +111,8 @@ def subdivide_to_quads(g) -> bool:
         edge_mid = umid[inv.ravel()]  # per row of ``edges``
         new_uv = [puv]
         # the centres, as gmsh's second-order elements have them: the surface's point nearest
-        # a triangle's corner centroid, or a quad's serendipity centre (-1/4 of the corners +
-        # 1/2 of the edge midpoints), from the corners' mean (u, v)
+        # a triangle's barycentre (its corners and edge midpoints), or a quad's serendipity
+        # centre (-1/4 of the corners + 1/2 of the edge midpoints), from the corners' mean (u, v)
         mids_of, starts, targets, limits = [], [], [], []
         row = 0
         for el in elems:  # triangles, then quads
@@ -119,7 +123,9 @@ def subdivide_to_quads(g) -> bool:
             uv0 = uv_of(el[:, 0])
             starts.append(np.mean([uv0] + [_unwrap_to(uv0, uv_of(el[:, i]), period, closed) for i in range(1, n)], axis=0))
             corners = x[el].mean(axis=1)
-            targets.append(corners if n == 3 else 2.0 * x[mids].mean(axis=1) - corners)
+            # gmsh's: a 6-node triangle's barycenter (all 6 nodes), a 9-node quad's serendipity
+            # centre
+            targets.append(0.5 * (corners + x[mids].mean(axis=1)) if n == 3 else 2.0 * x[mids].mean(axis=1) - corners)
             limits.append(2.0 * FAR_FRACTION * np.max(np.linalg.norm(x[el] - corners[:, None], axis=2), axis=1))
         px, puv = _nearest(g, 2, s, np.concatenate(targets), np.concatenate(starts),
                            np.maximum(np.concatenate(limits), floor), lo, hi, closed)
@@ -261,26 +267,52 @@ def _into(par: np.ndarray, lo: np.ndarray, hi: np.ndarray, closed: np.ndarray) -
     return out
 
 
+_GAUSS = np.polynomial.legendre.leggauss(10)
+"""10-point Gauss-Legendre nodes and weights on [-1, 1] (arc lengths in `_curve_midpoints`)."""
+
+
 def _curve_midpoints(g, c: int, xa: np.ndarray, xb: np.ndarray, ta: np.ndarray, tb: np.ndarray,
                      limit: np.ndarray, lo: np.ndarray, hi: np.ndarray, closed: np.ndarray
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Midpoints (K, 3) and their parameters (K, 1) of curve ``c``'s segments from xa to xb
-    (K, 3) at parameters ta, tb (K,): the curve's point whose projection onto the chord is the
-    chord's midpoint, by Newton steps along the parameter with the chord as the tangent (one
-    evaluation a step; gmsh: the point at equal arc length both sides, the same to second order
-    in the segment's turn); OCC's search (`_nearest`'s fallback) where that ends farther than
-    ``limit`` (K,) from the chord's midpoint."""
-    chord, m = xb - xa, 0.5 * (xa + xb)
-    c2 = np.einsum("ij,ij->i", chord, chord)
-    dt = tb - ta
-    par = _into((0.5 * (ta + tb))[:, None], lo, hi, closed)
-    for _ in range(GN_ITERATIONS):
-        p = np.asarray(g.model.getValue(1, c, np.ascontiguousarray(par.ravel())), dtype=float).reshape(-1, 3)
-        step = np.where(c2 > 0, np.einsum("ij,ij->i", m - p, chord) / np.where(c2 > 0, c2, 1.0), 0.0) * dt
-        par = _into(par + step[:, None], lo, hi, closed)
-        if not np.any(np.abs(step) > 1e-9 * max(float(hi[0] - lo[0]), 1e-300)):
-            break  # every step below 1e-9 of the parameter range
-    return _nearest(g, 1, c, m, par, limit, lo, hi, closed, iterations=0)
+    (K, 3) at parameters ta, tb (K,): the point at equal arc length from both ends, as gmsh
+    places it (Newton on L(ta, t) - L(t, tb), lengths by 10-point Gauss quadrature of |C'|, one
+    batched gmsh call a step). A point that only halves the chord's projection (one step
+    cheaper) moved the boundary nodes of PRO20359-L6's face by up to 0.014 mm from gmsh's,
+    and gmsh's Frontal-Delaunay remesh of that face then did not end. OCC's search for the
+    point nearest the chord's midpoint where Newton did not settle and the point lies farther
+    than ``limit`` (K,) from it."""
+    xi, w = _GAUSS
+    par = 0.5 * (ta + tb)
+    tol = 1e-12 * max(float(hi[0] - lo[0]), 1e-300)
+    step = np.full(len(par), np.inf)
+    for _ in range(2 * GN_ITERATIONS):
+        # |C'| at the quadrature points of [ta, t] and [t, tb], and at t
+        h1, h2 = 0.5 * (par - ta), 0.5 * (tb - par)
+        q = np.concatenate([(ta + h1)[:, None] + h1[:, None] * xi, (par + h2)[:, None] + h2[:, None] * xi,
+                            par[:, None]], axis=1)  # (K, 2 n + 1)
+        d = np.asarray(g.model.getDerivative(1, c, np.ascontiguousarray(_into(q.reshape(-1, 1), lo, hi, closed).ravel())),
+                       dtype=float).reshape(len(par), q.shape[1], 3)
+        speed = np.linalg.norm(d, axis=2)
+        n = len(w)
+        f = h1 * (speed[:, :n] @ w) - h2 * (speed[:, n:2 * n] @ w)  # L(ta, t) - L(t, tb)
+        fp = 2.0 * speed[:, -1]
+        step = np.where(fp > 0, -f / np.where(fp > 0, fp, 1.0), np.inf)
+        par = np.clip(par + np.where(np.isfinite(step), step, 0.0), np.minimum(ta, tb), np.maximum(ta, tb))
+        if not np.any(~(np.abs(step) <= tol)):
+            break  # every step below 1e-12 of the parameter range
+    par = _into(par[:, None], lo, hi, closed)
+    p = np.asarray(g.model.getValue(1, c, np.ascontiguousarray(par.ravel())), dtype=float).reshape(-1, 3)
+    # OCC's search where Newton did not settle or ended far off the chord (a long segment
+    # turning more than 120 degrees ends beyond a quarter of its chord legitimately: only
+    # an unsettled one is searched again)
+    bad = ~(np.abs(step) <= tol) & ~(np.linalg.norm(p - 0.5 * (xa + xb), axis=1) <= limit)
+    bad |= ~np.all(np.isfinite(p), axis=1)
+    if np.any(bad):
+        cp, cpar = _nearest(g, 1, c, 0.5 * (xa + xb)[bad], par[bad], np.zeros(int(bad.sum())), lo, hi, closed,
+                            iterations=0)
+        p[bad], par[bad] = cp, cpar
+    return p, par
 
 
 def _nearest(g, dim: int, tag: int, target: np.ndarray, start: np.ndarray, limit: np.ndarray,
