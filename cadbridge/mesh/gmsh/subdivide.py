@@ -7,17 +7,17 @@ nearest point of the surface to each edge's midpoint, one OCC projector made per
 (``GFace::closestPoint``); on the production die that took 6.7 s of the subdivision's 7.3 s,
 more than the 2D mesh itself (6.1 s).
 
-Here the same split is made from gmsh's first-order mesh, and every new node (the midpoint
-of an element edge, the centre of an element) is the nearest point of its curve or surface
-to its straight-sided position, found by Gauss-Newton from the interpolated parameters, with
-one batched gmsh evaluation per entity and iteration. Where that does not end near the
-straight-sided position (a pole, a seam the interpolation straddled, a parametrisation that
-turns back), OCC's search gives the node (``gmsh.model.getClosestPoint``), as in gmsh. Curve
-nodes are shared by the surfaces along the curve; the nodes keep their parametric
-coordinates, so the model's mesh is what gmsh's subdivision would leave, up to where on the
-geometry a midpoint lies: gmsh takes a curve's midpoint at equal arc length on both sides,
-here it is the curve's point nearest the chord's midpoint (the same to second order in the
-element size).
+Here the same split is made from gmsh's first-order mesh and every new node goes where gmsh
+puts it: a curve's midpoint at equal arc length from both ends (`_curve_midpoints`), a
+surface edge's midpoint and an element's centre at the surface's point nearest the edge's
+midpoint, the quad's serendipity centre or the triangle's 6-node barycentre, found by
+Gauss-Newton from the interpolated parameters (`_nearest`), with one batched gmsh
+evaluation per entity and step. Where that does not settle near its target (a pole, a seam
+the interpolation straddled, a parametrisation that turns back), OCC's search gives the
+node (``gmsh.model.getClosestPoint``), as in gmsh. Curve nodes are shared by the surfaces
+along the curve and every node keeps its parameters, so the model's mesh is what gmsh's
+subdivision leaves, to the accuracy of the searches (gmsh's refold of a folded face did not
+end on boundary nodes 0.014-0.36 mm off gmsh's; these are within 1e-6 mm).
 """
 
 from __future__ import annotations
@@ -196,9 +196,9 @@ def _merge_mesh(g, plan_p: list, plan_c: list, plan_s: list, x: np.ndarray) -> N
 def _entities(g, dim: int, lower: np.ndarray, x: np.ndarray) -> dict | None:
     """{tag: (own node tags (N,), their parameters (N, dim), elements, params_of(tags) -> (K, dim))}
     of the meshed entities of dimension ``dim`` (elements: (L, 2) segments for curves, a list
-    of (E, 3) triangles and (E, 4) quads for surfaces); ``lower`` the tags of the nodes on
-    entities of lower dimension, ``x`` the nodes' coordinates by tag. None if an entity's
-    nodes come without parametric coordinates. A node on the entity's boundary takes gmsh's
+    of (E, 3) triangles and (E, 4) quads for surfaces); ``lower`` (T,) bool by node tag: the
+    node lies on an entity of lower dimension; ``x`` (T, 3) the nodes' coordinates by tag.
+    None if an entity's nodes come without parametric coordinates. A node on the entity's boundary takes gmsh's
     reparametrisation on it, one only touching it (on an embedded curve) gmsh's inversion."""
     out = {}
     for _, t in g.model.getEntities(dim):
