@@ -122,16 +122,13 @@ def _brute_crossings(a: np.ndarray, b: np.ndarray) -> set[tuple[int, int]]:
     return out
 
 
-@pytest.mark.parametrize("chunk", [65536, 7])
-def test_proper_crossings_finds_what_testing_every_pair_finds(chunk, monkeypatch):
-    """The broad phase (points at most a mean edge length apart along each edge) keeps every pair
-    that meets: random star polygons with long edges (most vertices dropped) and grid-snapped
-    ones (exact touches and shared vertices), against the all-pairs test. The pairs come
-    sorted along the loop. Chunk 7: the broad phase in many queries along the loop."""
-    import cadbridge.heal.loop_excursions as module
+def test_proper_crossings_finds_what_testing_every_pair_finds():
+    """The broad phase (a grid of cells one mean edge length wide, each edge listed in the
+    cells its pieces cross) keeps every pair that meets: random star polygons with long edges
+    (most vertices dropped) and grid-snapped ones (exact touches and shared vertices), against
+    the all-pairs test. The pairs come sorted along the loop; with a limit, they are all the
+    pairs of the edges up to the one where the limit is reached."""
     from cadbridge.heal.loop_excursions import _proper_crossings
-
-    monkeypatch.setattr(module, "_CHUNK", chunk)
 
     rng = np.random.default_rng(7)
     checked = with_hits = 0
@@ -158,6 +155,8 @@ def test_proper_crossings_finds_what_testing_every_pair_finds(chunk, monkeypatch
         part = _proper_crossings(a, b, skip=skip, limit=3)
         assert [tuple(p) for p in part.tolist()][:3] == rest[:3]
         assert len(part) >= min(3, len(rest))
+        if len(part):  # complete up to its last edge i
+            assert [tuple(p) for p in part.tolist()] == [p for p in rest if p[0] <= part[-1, 0]]
         checked += 1
         with_hits += len(got) > 0
     assert checked > 80 and with_hits > 20  # the case is not vacuous
