@@ -366,9 +366,17 @@ class _TrimCurve:
         surface, where the angle is undefined) no continuous curve is within tol: the cubic
         crosses the jump within an interval of 1e-13 x the domain length. Degree 3, domain =
         this curve's domain."""
+        from cadbridge.cad.trims import curve_ders  # compiled where the map packs (MappedCurve)
+
+        def ders(x, order):  # compiled: the analytic die's 2 120 trims in 1.1 s, not 2.6 s (the same cubics)
+            return curve_ders(self, x, order)
+
+        def at(x):
+            return ders(x, 0)[:, 0]
+
         if tol is None:
-            box = self.bbox()
-            tol = rel_tol * max(float(np.linalg.norm(box[1] - box[0])), 1e-300)
+            p = at(self.sample_parameters(16))
+            tol = rel_tol * max(float(np.linalg.norm(p.max(axis=0) - p.min(axis=0))), 1e-300)
         t = self.sample_parameters(2)  # every knot (and ArcMap break) is an interval end
         gap = 1e-13 * max(float(t[-1] - t[0]), 1e-300)  # a jump of the curve itself: bridged this narrowly
         # a break that falls on a knot within round-off (an OCC pcurve's knot at a seam angle:
@@ -381,16 +389,16 @@ class _TrimCurve:
         for _ in range(60):  # 1e-13 of the domain is reached from one interval in 44 halvings
             a, b = t[:-1], t[1:]
             h = b - a
-            d0 = self.derivatives(a, 1)
-            d1 = self.derivatives(np.nextafter(b, -np.inf), 1)  # from the left: one-sided at a knot
-            p0, p1 = d0[:, 0], self.evaluate(b)
+            d0 = ders(a, 1)
+            d1 = ders(np.nextafter(b, -np.inf), 1)  # from the left: one-sided at a knot
+            p0, p1 = d0[:, 0], at(b)
             c1, c2 = p0 + d0[:, 1] * (h / 3)[:, None], p1 - d1[:, 1] * (h / 3)[:, None]
             x = (a[:, None] + h[:, None] * s[None]).ravel()
             u = np.tile(s, len(a))[:, None]
             rep3 = lambda q: np.repeat(q, 3, axis=0)  # noqa: E731
             bez = ((1 - u) ** 3 * rep3(p0) + 3 * u * (1 - u) ** 2 * rep3(c1) + 3 * u * u * (1 - u) * rep3(c2)
                    + u ** 3 * rep3(p1))
-            err = np.linalg.norm(bez - self.evaluate(x), axis=1).reshape(-1, 3).max(axis=1)
+            err = np.linalg.norm(bez - at(x), axis=1).reshape(-1, 3).max(axis=1)
             bad = np.flatnonzero(~(err <= tol) & (h > gap))
             if bad.size == 0:
                 break
