@@ -247,3 +247,84 @@ def test_a_pole_side_trim_piece_keeps_one_vertex():
         assert area == pytest.approx(_area(face), rel=0.01)  # flat triangles of a 2 mm mesh on a 20 mm cone: ~0.3 % short
         off = [GeomAPI_ProjectPointOnSurf(gp_Pnt(*p), surface).LowerDistance() for p in xyz.tolist()]
         assert max(off) <= 1e-6 * model.size()
+
+
+def _brep_bytes(shape) -> bytes:
+    import tempfile
+
+    from OCP.BRepTools import BRepTools
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "m.brep"
+        assert BRepTools.Write_s(shape, str(path))
+        return path.read_bytes()
+
+
+@pytest.mark.parametrize("name", ["ushape_tools_nurbs.igs", "ushape_tools_analytic.igs"])
+def test_faces_built_by_two_processes_are_the_faces_built_by_one(name, monkeypatch):
+    """The chunked build (`_built_faces`: chunks of faces passed back as binary B-reps) gives
+    the same B-rep, to the byte of its written ``.brep``, with one process or with a forked
+    second one (the machine's CPU count does not change the tool), and the same fixes and
+    validity as the faces built directly. Reference: the same model built in one process."""
+    import cadbridge.common.fork_jobs as fork_jobs
+    import cadbridge.heal.brep as brep
+
+    model = read_iges(SAMPLES / name)
+    monkeypatch.setattr(brep, "FORK_FACES", 10 ** 9)
+    direct = model_brep(model)
+    monkeypatch.setattr(brep, "FORK_FACES", 1)
+    monkeypatch.setattr(fork_jobs, "_available_cpus", lambda: 1)
+    one = model_brep(model)
+    monkeypatch.setattr(fork_jobs, "_available_cpus", lambda: 2)
+    two = model_brep(model)
+    assert _brep_bytes(one.shape) == _brep_bytes(two.shape)
+    assert [(f.valid, f.fixes) for f in direct.faces] == [(f.valid, f.fixes) for f in one.faces] == [
+        (f.valid, f.fixes) for f in two.faces]
+    assert len(model.faces) > 1 and direct.free_edges == one.free_edges == two.free_edges
+    assert _brep_bytes(direct.shape) == _brep_bytes(one.shape)  # no straight pcurve here: every double kept
+
+
+def test_a_face_that_fails_in_the_forked_build_raises_its_own_error(monkeypatch):
+    """A face whose build raises (here a ValueError, as a trim no cubic follows does) raises
+    that error from `model_brep` with the fork too, not the fork's JobError: the route's
+    fallback (`cadbridge.tool.meshing._mesh_model_brep`) catches it by type."""
+    import cadbridge.heal.brep as brep
+
+    model = read_iges(SAMPLES / "ushape_tools_nurbs.igs")
+    bad = model.faces[len(model.faces) // 2]
+    real = brep._face
+
+    def failing(face, *args, **kw):
+        if face is bad:
+            raise ValueError("no cubic follows this trim")
+        return real(face, *args, **kw)
+
+    monkeypatch.setattr(brep, "_face", failing)
+    monkeypatch.setattr(brep, "FORK_FACES", 1)
+    with pytest.raises(ValueError, match="no cubic follows"):
+        model_brep(model)
+
+
+def test_one_check_of_all_faces_gives_each_faces_own_verdict():
+    """`_valid_faces` (one parallel `BRepCheck_Analyzer` over the faces' compound) gives each
+    face the verdict of checking it alone, an invalid face included (a face whose only edge
+    has lost its SameParameter flag). Reference: `BRepCheck_Analyzer` of each face."""
+    from OCP.BRep import BRep_Builder
+    from OCP.BRepCheck import BRepCheck_Analyzer
+    from OCP.TopAbs import TopAbs_EDGE
+    from OCP.TopExp import TopExp_Explorer
+    from OCP.TopoDS import TopoDS
+
+    from cadbridge.heal.brep import _valid_faces
+
+    model = read_iges(SAMPLES / "ushape_tools_nurbs.igs")
+    built = faces(model_brep(model).shape)
+    from OCP.BRepBuilderAPI import BRepBuilderAPI_Copy
+
+    broken = TopoDS.Face_s(BRepBuilderAPI_Copy(built[1]).Shape())
+    edge = TopoDS.Edge_s(TopExp_Explorer(broken, TopAbs_EDGE).Current())
+    BRep_Builder().SameParameter(edge, False)
+    every = built + [broken]
+    alone = [BRepCheck_Analyzer(f).IsValid() for f in every]
+    assert alone[-1] is False and all(alone[:-1])
+    assert _valid_faces(every) == alone
