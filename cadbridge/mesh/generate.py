@@ -44,12 +44,14 @@ revolution, NURBS) since it looks only at the boundary curves.
 from __future__ import annotations
 
 import math
+import tempfile
 import warnings
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
+from cadbridge.mesh.gmsh.presew import presew_brep
 from cadbridge.mesh.gmsh.session import GmshSession, apply_options, quiet_stdout
 from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
 
@@ -476,13 +478,20 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     }
     if kw["target_unit"]:
         opts["Geometry.OCCTargetUnit"] = kw["target_unit"]
-    apply_options(sess, opts)
-    try:
-        with quiet_stdout(not sess.verbose):  # OCC's IGES reader prints to fd 1
-            g.model.occ.importShapes(str(path))
-        g.model.occ.synchronize()
-    except Exception as exc:
-        raise MeshError(f"{path}: gmsh/OCC cannot import the file: {exc}") from exc
+    with tempfile.TemporaryDirectory(prefix="cadbridge-sewn-") as tmp:
+        source = path
+        if kw["sew"] and not kw["heal"] and not kw["target_unit"] and path.suffix.lower() == ".brep":
+            # gmsh's sewing without its area statistics (`cadbridge.mesh.gmsh.presew`)
+            sewn = Path(tmp) / path.name
+            if presew_brep(path, sewn, kw["sew_tolerance"]):
+                source, opts["Geometry.OCCSewFaces"] = sewn, 0
+        apply_options(sess, opts)
+        try:
+            with quiet_stdout(not sess.verbose):  # OCC's IGES reader prints to fd 1
+                g.model.occ.importShapes(str(source))
+            g.model.occ.synchronize()
+        except Exception as exc:
+            raise MeshError(f"{path}: gmsh/OCC cannot import the file: {exc}") from exc
     if not g.model.getEntities(2):
         raise MeshError(f"{path}: no surfaces found in the CAD file")
     unsewn = _unsew_collapsed(g, sess, path, kw) if kw["sew"] else []
