@@ -6,7 +6,9 @@ corner normals at both of its ends (a crease) or that is shared by more than two
 with differing normals gets one coefficient from *all* those normals through the
 generalized inverse (Nagata 2005, eqs. 19-33), so the patches on both sides share the edge
 curve. An edge whose elements differ at one end only (it leaves a crease node into one side:
-the mesh straddles the crease) takes, at that end, the normal most orthogonal to the edge.
+the mesh straddles the crease) takes, at that end, the normal most orthogonal to the edge;
+so does, at both ends, a crease edge whose generalized-inverse curve would turn back (an
+edge across a hairpin of the crease).
 Every other edge uses the two-normal closed form (Nagata eq. 15, with the bounded rules of
 `cadbridge.nagata.edge`). docs/toolfile.md states the same rule for readers of tool files.
 
@@ -356,7 +358,16 @@ class NagataMesh:
                 full[:] = False
             if np.any(full):  # a crease edge: one curve orthogonal to every normal (eqs. 19-33)
                 f = np.flatnonzero(full)
-                c_edge[ce[f]] = edge_coefficient_multi(d[f], n0[f], n1[f], mask[f], mask[f], self.eps_rank)
+                cf = edge_coefficient_multi(d[f], n0[f], n1[f], mask[f], mask[f], self.eps_rank)
+                c_edge[ce[f]] = cf
+                # An edge across a hairpin of the crease (its chord along a normal of both ends,
+                # both ends on the crease line: a notch narrower than the mesh) has no curve
+                # orthogonal to every normal that runs forward: eqs. 19-33 give c of size
+                # 1e3 |d| (a bulge of 33 mm on a 0.11 mm edge, on a real mesh). Such an edge,
+                # not monotone (|c . d| >= |d|^2, `cadbridge.nagata.admissibility`), takes at
+                # each end the normal most orthogonal to it, as a half-crease edge does.
+                turns_back = np.abs(np.einsum("ki,ki->k", cf, d[f])) >= np.einsum("ki,ki->k", d[f], d[f])
+                half = np.union1d(half, f[turns_back])
             if half.size:
                 # several normals at one end only: the edge leaves a crease node into one side
                 # (elements on both sides of it straddle the crease). Eqs. 19-33 would make its

@@ -463,6 +463,16 @@ def edge_coefficients(tf: ToolFile) -> Edges:
         gi = np.flatnonzero(g)
         coef[gi] = generalized_inverse(d[gi], S[gi] / m[gi, None, None], r[gi] / m[gi, None])
         kind[gi] = 2
+        # "Where that c turns the edge curve back (|c . d| >= |d . d|) take instead at each end
+        # the collected normal with the smallest |n . d| (first in element order on ties),
+        # then the two-normal formula"
+        back = gi[np.abs(np.einsum("ij,ij->i", coef[gi], d[gi])) >= np.einsum("ij,ij->i", d[gi], d[gi])]
+        for g in back:  # the (few) hairpin edges
+            rows = np.flatnonzero(gid == g)
+            rows = rows[np.argsort(el[rows], kind="stable")]
+            ends = [nn[rows][np.argmin(np.abs(nn[rows] @ d[g]))] for nn in (n0, n1)]
+            coef[g] = two_normal(d[g:g + 1], ends[0][None], ends[1][None])[0]
+            kind[g] = 1
 
     # rule 4b: an edge with an EDGE_NORMALS record and no multiple end: two-normal c plus s b
     if len(tf.edge_nodes):

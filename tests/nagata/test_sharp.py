@@ -170,3 +170,36 @@ def test_non_manifold_fins_stay_flat():
     np.testing.assert_array_equal(nm.quad_edge_coefficients, 0.0)
     g = nm.sample_grid(5)
     np.testing.assert_allclose(np.einsum("ij,ij->i", g.points - x[q[g.elem, 0]], fn[g.elem]), 0, atol=1e-15)
+
+
+def test_crease_edge_across_a_hairpin_runs_forward():
+    """A crease edge whose chord runs along the normals of both ends (an edge across a hairpin
+    notch of the crease, narrower than the mesh: nodes and CAD normals of the STEP file
+    trj10_b2 meshed in triangles, a wall (horizontal normals) meeting a plane z = 61) has no
+    curve orthogonal to every normal that runs forward: eqs. 19-33 (the published rule) give
+    c of size 1e3 |d|, a bulge of 33 mm on a 0.11 mm edge. The bounded rule takes at each end
+    the normal most orthogonal to the edge (the plane's), so the edge is its straight chord,
+    exact on the plane (analytic reference), and the plane's patch stays flat and inside."""
+    x = np.array([[-25.100261, 7.16765875, 61.0], [-25.75524132, 3.55914939, 61.0],
+                  [-24.98946616, 7.17820179, 61.0], [-24.00457128, 10.57133529, 61.0]])
+    tris = np.array([[0, 1, 2], [0, 2, 3]])  # the wall's sliver, the plane's triangle
+    wall = _unit(np.array([[0.96156284, -0.27458497, 0.0], [0.9905862, -0.13689036, 0.0],
+                           [0.96113331, -0.27608468, 0.0]]))
+    up = np.broadcast_to([0.0, 0.0, 1.0], (3, 3))
+    normals = np.stack([wall, up])
+    d = x[2] - x[0]
+    for rule, bulge in (("published", True), ("bounded", False)):
+        nm = NagataMesh(x, tris, normals, edge_rule=rule)
+        assert len(nm.crease_edges) >= 1
+        c = nm.tri_edge_coefficients[1, 0]  # the plane's edge 0 -> 2 (local edge (1, 2) -> (0, 1))
+        turns_back = abs(c @ d) >= d @ d
+        assert turns_back == bulge, rule
+        if bulge:
+            assert np.linalg.norm(c) > 100 * np.linalg.norm(d)
+            continue
+        np.testing.assert_array_equal(c, 0.0)  # both ends take (0, 0, 1): eq. 15 gives c = 0
+        g = nm.sample_grid(6)
+        on_plane = g.elem == 1
+        np.testing.assert_allclose(g.points[on_plane, 2], 61.0, rtol=0, atol=1e-12)
+        lo, hi = x[tris[1]].min(0), x[tris[1]].max(0)
+        assert np.all(g.points[on_plane, :2] >= lo[:2] - 1e-9) and np.all(g.points[on_plane, :2] <= hi[:2] + 1e-9)
