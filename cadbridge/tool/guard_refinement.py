@@ -15,15 +15,12 @@ One round of `refine_where_guards_trip`:
    round. The size holds over a ball about the element of radius its reach plus that size
    (`cadbridge.mesh.sizing.ball_marks`: the nodes gmsh makes there read it). Marks add up
    over the rounds.
-2. **Field.** The marks, graded (`cadbridge.mesh.sizing.SizeField`, `GRADATION` 0.3: the
-   sizes grow smoothly away from them), and elsewhere the first mesh's own sizes: at each
-   point the smaller of the marks' field and the mean edge length at the nearest node of the
-   first mesh (the sizes gmsh chose by its own rules, ``size`` and the curvature rule), read
-   at the nodes, the marks and balls of growing radius about the marked elements
-   (`grading_carriers`: gmsh takes the size of the nearest carrier). The first mesh's sizes
-   are not graded themselves: graded at 0.3 they spread the small sizes of fillets over the
-   faces beside them, and a round for 2 elements of a 415-face STEP part (trj8_b1, tri) made
-   67 656 nodes of 35 734 where 43 139 keep its sizes. gmsh gets it as ``background_sizes`` with the
+2. **Field.** The first mesh's nodes, each with the mean length of its edges there (the
+   sizes gmsh chose by its own rules: ``size`` and the curvature rule), and the marks; the
+   field is their graded minimum (`cadbridge.mesh.sizing.SizeField`, `GRADATION` 0.3), so the
+   smaller size wins and the sizes grow smoothly away from the marks, read at the nodes, the
+   marks and balls of growing radius about the marked elements (`grading_carriers`: gmsh
+   takes the size of the nearest carrier). gmsh gets it as ``background_sizes`` with the
    curvature rule off: gmsh clamps every size, the field's too, to the curvature rule's
    floor (``Mesh.MeshSizeMin`` = size / 20), which is what the marks must go below on a
    tight radius; the first mesh's sizes already hold that rule.
@@ -275,23 +272,21 @@ def grading_carriers(centres: np.ndarray, radius: float, reach: float) -> np.nda
 
 def local_sizes(first: Mesh, mark_points: np.ndarray, mark_sizes: np.ndarray, centres: np.ndarray,
                 radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """``background_sizes`` (points (M, 3), sizes (M,)) of a round (module docs, step 2): at
-    the nodes of the ``first`` mesh, the marks and the `grading_carriers` about the marked
-    elements' ``centres`` (K, 3) (innermost ball ``radius``), the smaller of the nearest
-    first-mesh node's `node_sizes` and the marks' graded field."""
+    """``background_sizes`` (points (M, 3), sizes (M,)) of a round (module docs, step 2): the
+    nodes of the ``first`` mesh with their `node_sizes` and the marks, graded, read at those
+    points, the marks and the `grading_carriers` about the marked elements' ``centres`` (K, 3)
+    (innermost ball ``radius``)."""
     from cadbridge.mesh.sizing import SizeField
-
-    from scipy.spatial import cKDTree
 
     h = node_sizes(first)
     used = h > 0
     h_max = float(h[used].max())
     h_min = float(np.min(mark_sizes, initial=h_max))
-    marks = SizeField(mark_points, mark_sizes, h_min=h_min, h_max=h_max, gradation=GRADATION)
-    points = np.vstack([first.nodes[used], mark_points,
-                        grading_carriers(centres, radius, (h_max - h_min) / GRADATION)])
-    _, nearest = cKDTree(first.nodes[used]).query(points)
-    return points, np.minimum(h[used][nearest], marks(points))
+    field = SizeField(np.vstack([first.nodes[used], mark_points]), np.concatenate([h[used], mark_sizes]),
+                      h_min=h_min, h_max=h_max, gradation=GRADATION)
+    # (nodes at the largest size bound nothing in the field; as carriers they keep that size)
+    extra = grading_carriers(centres, radius, (h_max - h_min) / GRADATION)
+    return field.background(extra)
 
 
 def refine_where_guards_trip(

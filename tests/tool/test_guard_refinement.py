@@ -185,34 +185,3 @@ def test_corpus_l10_quad(tmp_path):
     assert res.returncode == 1 and len(err) == 1, err
     assert "the CAD normal reverses inside elements" in err[0] and "refinement round" in err[0], err[0]
     assert "CADBRIDGE_DEBUG" not in err[0] and not out.exists()
-
-
-def test_a_round_keeps_the_first_meshs_sizes_away_from_the_marks():
-    """The field of a round (`local_sizes`): away from the marks every carrier takes the size
-    the first mesh has at its nearest node (the mean edge length there, computed here from the
-    grid spacing: analytic), not the small sizes of a fine region graded over its
-    neighbours; at a mark the mark's size, growing by `GRADATION` per unit length about it.
-    A strip of 0.1 mm squares (x <= 1) beside 1 mm squares (x >= 1), one mark at x = 9.5."""
-    from cadbridge.mesh.mesh import Mesh
-    from cadbridge.tool.guard_refinement import GRADATION, local_sizes, node_sizes
-
-    xs = np.concatenate([np.linspace(0.0, 1.0, 11), np.arange(2.0, 11.0)])
-    ys = np.array([0.0, 1.0])
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    nodes = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
-    i = np.arange(len(xs) - 1)
-    quads = np.column_stack([2 * i, 2 * i + 2, 2 * i + 3, 2 * i + 1])
-    first = Mesh(nodes, [("quad", quads)])
-    h = node_sizes(first)
-    coarse = nodes[:, 0] >= 3.0
-    # a node of the coarse part: every edge at it is 1 long
-    np.testing.assert_allclose(h[coarse & (nodes[:, 0] < 9.0)], 1.0, rtol=0, atol=1e-15)
-    mark = np.array([[9.5, 0.5, 0.0]])
-    points, sizes = local_sizes(first, mark, np.array([0.05]), mark, 0.05)
-    at_nodes = sizes[:len(nodes)]
-    far = coarse & (np.abs(nodes[:, 0] - 9.5) > (1.0 - 0.05) / GRADATION + 1.0)
-    assert far.any()
-    np.testing.assert_array_equal(at_nodes[far], h[far])  # not 0.1 + 0.3 x distance from the strip
-    assert sizes[len(nodes)] == pytest.approx(0.05)
-    near = np.linalg.norm(points - mark, axis=1)
-    assert np.all(sizes <= 0.05 + GRADATION * near + 1e-12)
