@@ -199,8 +199,11 @@ def elementary_face(surface, reversed_face: bool, loops: list[list[NurbsCurve]])
     mapped (`map_loops`)."""
     while type(surface).__name__ == "Geom_RectangularTrimmedSurface":
         surface = surface.BasisSurface()
-    pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 65)) for loop in loops for c in loop])
-    pm = param_map(surface, reversed_face, (float(pts[:, 0].min()), float(pts[:, 0].max())))
+    u_range = (0.0, 2 * np.pi)
+    if type(surface).__name__ == "Geom_SurfaceOfRevolution":  # the only map built over the loops' u
+        pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 65)) for loop in loops for c in loop])
+        u_range = (float(pts[:, 0].min()), float(pts[:, 0].max()))
+    pm = param_map(surface, reversed_face, u_range)
     if pm is None:
         return None
     res = map_loops(pm, [[([c], None) for c in loop] for loop in loops], True, True)  # each piece its own edge

@@ -36,6 +36,7 @@ import numpy as np
 
 from cadbridge.cad.model import Diagnostic, Face, Model, Trim, TrimLoop, Units
 from cadbridge.nurbs.curve import NurbsCurve
+from cadbridge.nurbs.curve_pack import PackedCurves
 from cadbridge.nurbs.edits import reverse_curve, surface_from_homogeneous
 from cadbridge.nurbs.knots import reverse
 from cadbridge.nurbs.surface import NurbsSurface
@@ -49,6 +50,8 @@ MAGIC = b"ISO-10303-21;"
 
 MAX_DELTA_REL = 1e-3
 """A face's trim tolerance (its largest edge tolerance) is at most this x the model size."""
+BOX_SAMPLES = 33
+"""Points per trim piece from which a loop's (u, v) box is taken (the largest box is the outer loop)."""
 PREPROCESSOR = "STEP (ISO 10303-21), read through OpenCASCADE"
 """`Model.preprocessor` of a model read from STEP: how `cadbridge inspect` tells the format."""
 
@@ -240,7 +243,7 @@ def _face_loops(face, flip: tuple[float, float] | None) -> tuple[list[list[Nurbs
         if outer.IsNull() or not w.IsSame(outer):
             wires.append(w)
         ex.Next()
-    loops: list[list[NurbsCurve]] = []
+    wires_pieces: list[tuple[list[NurbsCurve], list[tuple[float, float]]]] = []
     tol = 0.0
     surface = BRep_Tool.Surface_s(face)
     for w in wires:
@@ -269,30 +272,46 @@ def _face_loops(face, flip: tuple[float, float] | None) -> tuple[list[list[Nurbs
             curves.append(c)
             joints.append(joint)
             we.Next()
-        curves = _bridged(curves, joints, surface)
-        if flip is not None:
-            curves = [_mirrored_u(c, *flip) for c in curves]
         if curves:
-            loops.append(curves)
-    if not loops:
+            wires_pieces.append((curves, joints))
+    if not wires_pieces:
         return [], tol
-
-    # the outer loop: the one whose (u, v) box is largest. BRepTools.OuterWire can name a hole
-    # (K1 from CATIA V5: a planar ring whose inner wire came first)
-    def box_area(lp: list[NurbsCurve]) -> float:
-        pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 33)) for c in lp])
-        ext = pts.max(axis=0) - pts.min(axis=0)
-        return float(ext[0] * ext[1])
-
-    k = int(np.argmax([box_area(lp) for lp in loops]))
+    # every piece's ends and BOX_SAMPLES points in one compiled evaluation (the per-curve numpy
+    # path cost more than OCC's whole read on faces with many edges); the ends are the same
+    # numbers as `NurbsCurve.evaluate` gives (the same algorithm, P&T A2.2/A3.1)
+    flat = [c for curves, _ in wires_pieces for c in curves]
+    pk = PackedCurves(flat)
+    ci = np.repeat(np.arange(len(flat)), BOX_SAMPLES)
+    s01 = np.tile(np.linspace(0.0, 1.0, BOX_SAMPLES), len(flat))
+    t = pk.dom[ci, 0] + s01 * (pk.dom[ci, 1] - pk.dom[ci, 0])
+    pts = pk.evaluate(ci, t, 0)[:, 0, :2].reshape(len(flat), BOX_SAMPLES, 2)
+    ends = pk.evaluate(np.repeat(np.arange(len(flat)), 2), pk.dom.ravel(), 0)[:, 0, :2].reshape(len(flat), 2, 2)
+    loops: list[list[NurbsCurve]] = []
+    areas: list[float] = []
+    at = 0
+    for curves, joints in wires_pieces:
+        n = len(curves)
+        loop = _bridged(curves, joints, ends[at:at + n], surface)
+        box = pts[at:at + n].reshape(-1, 2)
+        ext = box.max(axis=0) - box.min(axis=0)
+        areas.append(float(ext[0] * ext[1]))
+        at += n
+        if flip is not None:
+            loop = [_mirrored_u(c, *flip) for c in loop]
+        loops.append(loop)
+    # the outer loop: the one whose (u, v) box is largest (mirroring keeps the boxes' areas).
+    # BRepTools.OuterWire can name a hole (K1 from CATIA V5: a planar ring whose inner wire came first)
+    k = int(np.argmax(areas))
     return [loops[k]] + loops[:k] + loops[k + 1:], tol
 
 
-def _bridged(curves: list[NurbsCurve], joints: list[tuple[float, float]], surface) -> list[NurbsCurve]:
+def _bridged(curves: list[NurbsCurve], joints: list[tuple[float, float]], ends: np.ndarray,
+             surface) -> list[NurbsCurve]:
     """The pieces of one wire, in order, with a straight (u, v) piece added where a piece ends
     short of the next one's start by more than both edges' tolerances but within the shared
-    vertex's (``joints[i]``: (vertex tolerance, edge tolerance) where piece i starts; 3D gap
-    on ``surface``, OCC's `Geom_Surface`).
+    vertex's (``joints[i]``: (vertex tolerance, edge tolerance) where piece i starts; ``ends``
+    (n, 2, 2): each piece's (u, v) at its start and end; 3D gap on ``surface``, OCC's
+    `Geom_Surface`).
 
     OCC's topology joins two edges through their vertex, whose tolerance may cover an edge
     curve that stops short of it (b1 from CASCADE, trj8: an edge on planar face 206 stops
@@ -300,15 +319,11 @@ def _bridged(curves: list[NurbsCurve], joints: list[tuple[float, float]], surfac
     and an open loop is no wire for the mesher ("Could not fix wire"). The straight piece is
     what the vertex stands for: the shortest join in (u, v)."""
     n = len(curves)
-    if n == 0:
-        return curves
     out: list[NurbsCurve] = []
     for i, c in enumerate(curves):
         out.append(c)
-        nxt = curves[(i + 1) % n]
         vertex_tol, edge_tol = joints[(i + 1) % n]
-        a = c.evaluate(np.array([c.domain[1]]))[0]
-        b = nxt.evaluate(np.array([nxt.domain[0]]))[0]
+        a, b = ends[i, 1], ends[(i + 1) % n, 0]
         gap = surface.Value(float(a[0]), float(a[1])).Distance(surface.Value(float(b[0]), float(b[1])))
         if max(edge_tol, joints[i][1]) < gap <= 2.0 * vertex_tol:
             out.append(NurbsCurve(1, [0.0, 0.0, 1.0, 1.0], np.array([a, b])))

@@ -252,16 +252,20 @@ def test_a_wire_gap_its_vertex_covers_is_bridged():
     # a square whose right side stops 0.4 short of the corner (10, 10)
     square = [line([0, 0], [10, 0]), line([10, 0], [10, 9.6]), line([10, 10], [0, 10]), line([0, 10], [0, 0])]
     covered = [(1e-7, 1e-7), (1e-7, 1e-7), (0.25, 1e-7), (1e-7, 1e-7)]  # the corner's tolerance 0.25: 2 x 0.25 >= 0.4
-    out = _bridged(square, covered, plane)
+
+    def piece_ends(curves):
+        return np.array([c.evaluate(np.array(c.domain)) for c in curves])
+
+    out = _bridged(square, covered, piece_ends(square), plane)
     assert len(out) == 5
     ends = np.array([[c.evaluate(np.array([t]))[0] for t in c.domain] for c in out])  # (5, 2, 2)
     np.testing.assert_allclose(ends[2], [[10, 9.6], [10, 10]], atol=1e-15)  # the bridge
     np.testing.assert_allclose(ends[:, 1], np.roll(ends[:, 0], -1, axis=0), atol=1e-15)  # closed
     # not covered: the vertex's tolerance below half the gap (OCC's wire is open too)
-    assert len(_bridged(square, [(1e-7, 1e-7), (1e-7, 1e-7), (0.15, 1e-7), (1e-7, 1e-7)], plane)) == 4
+    assert len(_bridged(square, [(1e-7, 1e-7), (1e-7, 1e-7), (0.15, 1e-7), (1e-7, 1e-7)], piece_ends(square), plane)) == 4
     # within the edges' own tolerance: left to the B-rep healing (no piece of 1e-8)
     near = [line([0, 0], [10, 0]), line([10, 0], [10, 10 - 1e-8]), line([10, 10], [0, 10]), line([0, 10], [0, 0])]
-    assert len(_bridged(near, [(0.25, 1e-7)] * 4, plane)) == 4
+    assert len(_bridged(near, [(0.25, 1e-7)] * 4, piece_ends(near), plane)) == 4
 
 
 @pytest.mark.skipif(not (CORPUS / "trj8_b1-ec-214.stp").is_file(), reason="corpus not present")
