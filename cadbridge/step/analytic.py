@@ -13,10 +13,14 @@ OCC's (u, v) on these surfaces is an affine image of the natural coordinates of
     extrusion of a circle or ellipse (centre C, radii a, b, frame X, Y), direction D:
                   P = C + a cos u X + b sin u Y + v D              natural (h, theta) = (v, u)
 
-    revolution of a non-periodic B-spline curve C(v) about the axis (O, A):
+    revolution of a curve C(v) about the axis (O, A):
                   P = Rot(A, u) C(v)                               natural (s, theta) = (v, -u)
 
-The revolution is `cadbridge.cad.analytic`'s 120 map with the generatrix's own NURBS, revolved
+The revolution's generatrix is a non-periodic B-spline curve (its own NURBS, s = v), a line (its
+segment over the loops' v, s = v) or a circle or ellipse C + a cos v X + b sin v Y (the unit
+circle's rational arc over the loops' v under the affine map [aX | bY] + C, s its parameter:
+the closed-form `ArcMap` of the angle v, as for an IGES 100 generatrix). The revolution is
+`cadbridge.cad.analytic`'s 120 map with that generatrix, revolved
 over the angles the face's loops span (a full turn where they span one, its seam then moved off
 a loop that crosses it as for a 120: `ParamMap.turned`) about -A (theta = -u): its
 S_s x S_theta is then OCC's S_u x S_v; a reversed face is revolved about A (theta = u).
@@ -49,8 +53,8 @@ from math import cos, sin, tan
 
 import numpy as np
 
-from cadbridge.cad.analytic import (Frame, ParamMap, _affine, _apply_affine, cylinder_map, map_loops, plane_map,
-                                    sphere_map, torus_map, transposed_surface)
+from cadbridge.cad.analytic import (ArcMap, Frame, ParamMap, _affine, _apply_affine, cylinder_map, map_loops,
+                                    plane_map, sphere_map, torus_map, transposed_surface)
 from cadbridge.cad.model import Trim, TrimLoop
 from cadbridge.nurbs.curve import NurbsCurve
 from cadbridge.nurbs.surface import NurbsSurface
@@ -60,7 +64,8 @@ __all__ = ["ELEMENTARY", "elementary_face"]
 ELEMENTARY = ("Geom_Plane", "Geom_CylindricalSurface", "Geom_ConicalSurface", "Geom_SphericalSurface",
               "Geom_ToroidalSurface", "Geom_SurfaceOfLinearExtrusion", "Geom_SurfaceOfRevolution")
 """The OCC surface types read here (an extrusion only of a circle or an ellipse, a revolution
-only of a non-periodic B-spline curve); every other surface goes through OCC's NURBS conversion."""
+only of a non-periodic B-spline curve, a line, a circle or an ellipse); every other surface goes
+through OCC's NURBS conversion."""
 
 
 def _vec(d) -> np.ndarray:
@@ -78,10 +83,22 @@ def _transposed(pm: ParamMap) -> ParamMap:
 
 
 def _with_pcurves(pm: ParamMap, m) -> ParamMap:
-    """``pm`` reading pcurves in OCC's (u, v): natural = m @ (u, v)."""
+    """``pm`` reading pcurves in OCC's (u, v): natural = m @ (u, v), then ``pm``'s own
+    per-coordinate `ArcMap` where it has one (a circle's angle to its arc's parameter)."""
     aff = _affine(m, np.zeros(2))
-    return dataclasses.replace(pm, pcurve_fn=lambda st: _apply_affine(aff, np.asarray(st, dtype=float)),
-                               pcurve_affine=aff, pcurve_pre=(None, None))
+    pre = pm.pcurve_pre
+    if pre == (None, None):
+        return dataclasses.replace(pm, pcurve_fn=lambda st: _apply_affine(aff, np.asarray(st, dtype=float)),
+                                   pcurve_affine=aff)
+
+    def fn(st):
+        y = _apply_affine(aff, np.asarray(st, dtype=float))
+        for k in (0, 1):
+            if pre[k] is not None:
+                y[:, k] = pre[k](y[:, k], 0)[0]
+        return y
+
+    return dataclasses.replace(pm, pcurve_fn=fn, pcurve_affine=aff)
 
 
 def _mapped(pm: ParamMap, m: np.ndarray, c: np.ndarray) -> ParamMap:
@@ -134,16 +151,49 @@ def _bspline_curve(c) -> NurbsCurve | None:
     return NurbsCurve(c.Degree(), knots, cp, w)
 
 
-def _revolution_map(surface, reversed_face: bool, u_range: tuple[float, float]) -> ParamMap | None:
-    """The `ParamMap` of a `Geom_SurfaceOfRevolution` of a non-periodic B-spline curve (module
-    docstring), or None for other generatrices. ``u_range``: OCC's angles the face's loops
-    span; the NURBS is revolved over that range only (a full turn where they span one)."""
+def _generatrix(curve, v_range: tuple[float, float]) -> tuple[NurbsCurve, ArcMap | None] | None:
+    """(NURBS, ArcMap or None) of a revolution's generatrix ``curve`` (an OCC `Geom_Curve`) in
+    OCC's v (module docstring): a non-periodic B-spline curve as it is, a line as its segment
+    over ``v_range`` (the face's loops' v), a circle or ellipse as the exact rational arc over
+    ``v_range`` (a full turn where it spans one) with the map from v to its parameter; None
+    for other curves."""
+    from cadbridge.nurbs.construct import circular_arc
+
+    while type(curve).__name__ == "Geom_TrimmedCurve":
+        curve = curve.BasisCurve()
+    kind = type(curve).__name__
+    if kind == "Geom_BSplineCurve":
+        gen = _bspline_curve(curve)
+        return None if gen is None else (gen, None)
+    lo, hi = v_range
+    if kind not in ("Geom_Line", "Geom_Circle", "Geom_Ellipse") or not hi > lo:
+        return None
+    if kind == "Geom_Line":  # P = L + v D, |D| = 1: linear in v
+        return NurbsCurve(1, [lo, lo, hi, hi], np.array([_vec(curve.Value(lo)), _vec(curve.Value(hi))])), None
+    a, b = (curve.Radius(), curve.Radius()) if kind == "Geom_Circle" else (curve.MajorRadius(), curve.MinorRadius())
+    start, end = np.array([cos(lo), sin(lo)]), np.array([cos(hi), sin(hi)])
+    if hi - lo >= 2 * np.pi * (1 - 1e-9):
+        end = start  # a full turn
+    unit = circular_arc(np.zeros(2), start, end)  # the unit circle from angle lo, domain [0, sweep]
+    ax = curve.Position()
+    pts = (_vec(ax.Location()) + a * unit.control_points[:, :1] * _vec(ax.XDirection())
+           + b * unit.control_points[:, 1:] * _vec(ax.YDirection()))
+    gen = NurbsCurve(2, unit.knots, pts, unit.weights)
+    return gen, ArcMap(lo, gen.domain[1] - gen.domain[0], 0.0)
+
+
+def _revolution_map(surface, reversed_face: bool, u_range: tuple[float, float],
+                    v_range: tuple[float, float]) -> ParamMap | None:
+    """The `ParamMap` of a `Geom_SurfaceOfRevolution` (module docstring), or None for a
+    generatrix `_generatrix` does not read. ``u_range``, ``v_range``: OCC's (u, v) the face's
+    loops span; the NURBS is revolved over that u range only (a full turn where they span one)."""
     from cadbridge.cad.analytic import revolution_map
     from cadbridge.nurbs.construct import revolved_surface
 
-    gen = _bspline_curve(surface.BasisCurve())
-    if gen is None:
+    got = _generatrix(surface.BasisCurve(), v_range)
+    if got is None:
         return None
+    gen, arc = got
     ax = surface.Axis()
     o, a = _vec(ax.Location()), _vec(ax.Direction())
     axis = a if reversed_face else -a
@@ -151,21 +201,23 @@ def _revolution_map(surface, reversed_face: bool, u_range: tuple[float, float]) 
     if hi - lo >= 2 * np.pi * (1 - 1e-9):
         lo, hi = 0.0, 2 * np.pi
     s = revolved_surface(gen, o, axis, lo, hi)
-    pm = revolution_map(s, lo, hi, None, None, (o, axis), gen)
+    pm = revolution_map(s, lo, hi, None, arc, (o, axis), gen)
     return _with_pcurves(pm, [[0.0, 1.0], [1.0 if reversed_face else -1.0, 0.0]])
 
 
-def param_map(surface, reversed_face: bool, u_range: tuple[float, float] = (0.0, 2 * np.pi)) -> ParamMap | None:
+def param_map(surface, reversed_face: bool, u_range: tuple[float, float] = (0.0, 2 * np.pi),
+              v_range: tuple[float, float] = (0.0, 1.0)) -> ParamMap | None:
     """The `ParamMap` of OCC surface ``surface`` (located, one of `ELEMENTARY`) for a face on
     it, oriented as the face (``reversed_face``: OCC's REVERSED), or None for other types.
-    ``u_range``: OCC's u the face's loops span (a revolution is built over it)."""
+    ``u_range``, ``v_range``: OCC's (u, v) the face's loops span (a revolution is built over
+    them)."""
     kind = type(surface).__name__
     if kind not in ELEMENTARY:
         return None
     if kind == "Geom_SurfaceOfLinearExtrusion":
         return _extrusion_map(surface, reversed_face)
     if kind == "Geom_SurfaceOfRevolution":
-        return _revolution_map(surface, reversed_face, u_range)
+        return _revolution_map(surface, reversed_face, u_range, v_range)
     ax = surface.Position()
     o, a, x = _vec(ax.Location()), _vec(ax.Direction()), _vec(ax.XDirection())
     direct = bool(ax.Direct())
@@ -199,11 +251,12 @@ def elementary_face(surface, reversed_face: bool, loops: list[list[NurbsCurve]])
     mapped (`map_loops`)."""
     while type(surface).__name__ == "Geom_RectangularTrimmedSurface":
         surface = surface.BasisSurface()
-    u_range = (0.0, 2 * np.pi)
-    if type(surface).__name__ == "Geom_SurfaceOfRevolution":  # the only map built over the loops' u
+    u_range, v_range = (0.0, 2 * np.pi), (0.0, 1.0)
+    if type(surface).__name__ == "Geom_SurfaceOfRevolution":  # the only map built over the loops' (u, v)
         pts = np.vstack([c.evaluate(np.linspace(c.domain[0], c.domain[1], 65)) for loop in loops for c in loop])
         u_range = (float(pts[:, 0].min()), float(pts[:, 0].max()))
-    pm = param_map(surface, reversed_face, u_range)
+        v_range = (float(pts[:, 1].min()), float(pts[:, 1].max()))
+    pm = param_map(surface, reversed_face, u_range, v_range)
     if pm is None:
         return None
     res = map_loops(pm, [[([c], None) for c in loop] for loop in loops], True, True)  # each piece its own edge

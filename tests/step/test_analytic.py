@@ -22,7 +22,7 @@ pytest.importorskip("OCP")
 from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeFace  # noqa: E402
 from OCP.BRepGProp import BRepGProp  # noqa: E402
 from OCP.Geom import (Geom_BSplineCurve, Geom_Circle, Geom_ConicalSurface, Geom_CylindricalSurface,  # noqa: E402
-                      Geom_Ellipse, Geom_Plane, Geom_SphericalSurface, Geom_SurfaceOfLinearExtrusion,
+                      Geom_Ellipse, Geom_Line, Geom_Plane, Geom_SphericalSurface, Geom_SurfaceOfLinearExtrusion,
                       Geom_SurfaceOfRevolution, Geom_ToroidalSurface)
 from OCP.GeomAPI import GeomAPI_ProjectPointOnSurf  # noqa: E402
 from OCP.GeomLProp import GeomLProp_SLProps  # noqa: E402
@@ -63,6 +63,16 @@ def _surface(kind: str, direct: bool):
         return Geom_SurfaceOfLinearExtrusion(curve, gp_Dir(d)), (-1.3657, 4.5073, -1.9, 8.4)
     if kind.startswith("revolution"):
         axis = gp_Ax1(gp_Pnt(0.5, -1.0, 0.0), gp_Dir(0.1, 0.2, 1.0))
+        if " of " in kind:  # a generatrix in the plane through the axis, off it
+            plane = gp_Ax2(gp_Pnt(7.0, 0.0, 1.0), gp_Dir(gp_Vec(0.2, -0.1, 0.0).Crossed(gp_Vec(0.1, 0.2, 1.0))),
+                           gp_Dir(0.2, -0.1, 0.0))
+            if "circle" in kind:  # a pipe bend (OCC's torus, written as a revolution)
+                gen, box = Geom_Circle(plane, 2.0), (-1.0, 2.5, -2.0, 1.5)
+            elif "ellipse" in kind:
+                gen, box = Geom_Ellipse(plane, 3.0, 1.2), (0.3, 4.0, 2.0, 2 * math.pi + 2.0)
+            else:
+                gen, box = Geom_Line(gp_Ax1(gp_Pnt(6.0, -1.0, -3.0), gp_Dir(0.2, 0.1, 1.0))), (0.0, 2 * math.pi, -2.0, 4.0)
+            return Geom_SurfaceOfRevolution(gen, axis), box
         box = (-1.0, 2.5, 0.0, 1.0) if kind.endswith("seam") else (0.0, 2 * math.pi, 0.1, 0.9)
         return Geom_SurfaceOfRevolution(_generatrix(), axis), box
     curve = Geom_Circle(gp_Ax2(gp_Pnt(1.0, 2.0, 0.0), gp_Dir(0, 0, 1), gp_Dir(1, 0, 0)), 3.0)
@@ -89,7 +99,8 @@ def _generatrix():
 
 
 KINDS = ["plane", "cylinder", "cylinder full turn", "cone", "sphere", "torus", "elliptic extrusion across the seam",
-         "oblique circular extrusion", "revolution across the seam", "revolution full turn"]
+         "oblique circular extrusion", "revolution across the seam", "revolution full turn",
+         "revolution of a circle across both seams", "revolution of an ellipse, a full turn of it", "revolution of a line"]
 
 
 def _occ_area(face) -> float:
