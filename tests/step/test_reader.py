@@ -369,3 +369,28 @@ def test_bspline_extrusion_keeps_its_pcurves(spline_prism):
     spline = cq.Workplane("XY").spline(SPLINE, includeCurrent=False).val()
     ref[side] = 15.0 * GCPnts_AbscissaPoint.Length_s(BRepAdaptor_Curve(spline.wrapped), 1e-12)
     np.testing.assert_allclose(mine, ref, rtol=1e-6)
+
+
+def test_line_pcurves_are_occs_conversion():
+    """`_line_piece` (a pcurve that is a Geom2d_Line, also behind a trimmed curve) gives the
+    numbers of OCC's own conversion, `Geom2dConvert.CurveToBSplineCurve` of the trimmed line
+    (reference), exactly, and backwards those of `reverse_curve` of that; other curves are
+    left to it (None)."""
+    from OCP.Geom2d import Geom2d_Circle, Geom2d_Line, Geom2d_TrimmedCurve
+    from OCP.Geom2dConvert import Geom2dConvert
+    from OCP.gp import gp_Ax2d, gp_Dir2d, gp_Pnt2d
+
+    from cadbridge.nurbs.edits import reverse_curve
+    from cadbridge.step.reader import _line_piece, nurbs_curve2d
+
+    line = Geom2d_Line(gp_Pnt2d(0.3, -1.7), gp_Dir2d(0.6, 0.8))
+    for c2, (a, b) in ((line, (-2.25, 7.125)), (Geom2d_TrimmedCurve(line, -5.0, 9.0), (0.1, 3.3))):
+        got = _line_piece(c2, a, b)
+        ref = nurbs_curve2d(Geom2dConvert.CurveToBSplineCurve_s(Geom2d_TrimmedCurve(c2, a, b)))
+        assert got.degree == ref.degree == 1
+        assert np.array_equal(got.knots, ref.knots)
+        assert np.array_equal(got.control_points, ref.control_points)
+        back, ref_back = _line_piece(c2, a, b, True), reverse_curve(ref)  # a REVERSED edge's piece
+        assert np.array_equal(back.knots, ref_back.knots)
+        assert np.array_equal(back.control_points, ref_back.control_points)
+    assert _line_piece(Geom2d_Circle(gp_Ax2d(gp_Pnt2d(0, 0), gp_Dir2d(1, 0)), 2.0), 0.0, 1.0) is None
