@@ -87,9 +87,6 @@ def _with_pcurves(pm: ParamMap, m) -> ParamMap:
     per-coordinate `ArcMap` where it has one (a circle's angle to its arc's parameter)."""
     aff = _affine(m, np.zeros(2))
     pre = pm.pcurve_pre
-    if pre == (None, None):
-        return dataclasses.replace(pm, pcurve_fn=lambda st: _apply_affine(aff, np.asarray(st, dtype=float)),
-                                   pcurve_affine=aff)
 
     def fn(st):
         y = _apply_affine(aff, np.asarray(st, dtype=float))

@@ -321,9 +321,10 @@ def _line_piece(c2, first: float, last: float, backwards: bool = False) -> Nurbs
     if type(base).__name__ != "Geom2d_Line":
         return None
     a, b = c2.Value(first), c2.Value(last)
-    if backwards:  # knots (first + last) - reversed knots, as `cadbridge.nurbs.knots.reverse`
-        return NurbsCurve(1, (first + last) - np.array([last, last, first, first]), [[b.X(), b.Y()], [a.X(), a.Y()]])
-    return NurbsCurve(1, [first, first, last, last], [[a.X(), a.Y()], [b.X(), b.Y()]])
+    knots, poles = np.array([first, first, last, last]), np.array([[a.X(), a.Y()], [b.X(), b.Y()]])
+    if backwards:
+        knots, poles = reverse(knots, 1, poles)
+    return NurbsCurve(1, knots, poles)
 
 
 def _bridged(curves: list[NurbsCurve], joints: list[tuple[float, float]], ends: np.ndarray,
