@@ -122,6 +122,28 @@ def test_size_field_grading_and_floor():
     assert np.all(got <= f(y) + 1e-12)
 
 
+@pytest.mark.parametrize("levels", [64, 6])
+def test_size_field_is_the_graded_minimum(levels):
+    """`SizeField.__call__` (nearest sample per size level, each level querying only the
+    points it can still lower, within the distance where it can) against the formula by brute
+    force: min_i (h_i + g |x - x_i|) over every sample, clipped to [h_min, h_max]. Samples of
+    sizes over four decades, query points inside and far outside their box. With
+    ``max_levels`` 6 the sizes are first rounded down to levels (`LEVEL_RATIO` apart); the
+    reference then takes the same rounded sizes."""
+    rng = np.random.default_rng(11)
+    pts = rng.uniform(0.0, 10.0, (400, 3))
+    sizes = 10.0 ** rng.uniform(-3.0, 1.0, 400)
+    f = SizeField(pts, sizes, h_min=2e-3, h_max=5.0, gradation=0.3)
+    f.max_levels = levels
+    x = np.vstack([rng.uniform(-5.0, 15.0, (3000, 3)), pts[:50]])
+    h = np.maximum(sizes, f.h_min)
+    if len(np.unique(h[h < f.h_max])) > levels:
+        h = f.h_min * f.LEVEL_RATIO ** np.floor(np.log(h / f.h_min) / np.log(f.LEVEL_RATIO) + 1e-9)
+    d = np.linalg.norm(x[:, None, :] - pts[None, :, :], axis=2)
+    ref = np.clip(np.min(np.where(sizes < f.h_max, h, np.inf)[None, :] + 0.3 * d, axis=1), f.h_min, f.h_max)
+    np.testing.assert_allclose(f(x), ref, rtol=1e-14, atol=0)
+
+
 def test_curvature_samples_ushape_die():
     """The die's only curved face is the R5 shoulder: k_max = 1/5 there, 0 on the planes."""
     from pathlib import Path
