@@ -25,7 +25,10 @@ from numpy.typing import NDArray
 
 from cadbridge.nagata.patch import QUAD_EDGES, TRI_EDGES
 
-__all__ = ["EdgeAdmissibility", "edge_admissibility"]
+__all__ = ["MAX_BEND_DEG", "EdgeAdmissibility", "edge_admissibility"]
+
+MAX_BEND_DEG = 100.0
+"""Largest angle between an admissible edge curve's end tangents (condition 3) [degrees]."""
 
 
 @dataclass
@@ -56,7 +59,7 @@ class EdgeAdmissibility:
     bend_mask: NDArray = None  # type: ignore[assignment]
 
 
-def edge_admissibility(nm, max_bend: float = 100.0, eps: float = 1e-10) -> EdgeAdmissibility:
+def edge_admissibility(nm, max_bend: float = MAX_BEND_DEG, eps: float = 1e-10) -> EdgeAdmissibility:
     """Admissibility (module docs) of every edge of the `NagataMesh` ``nm``."""
     topo = nm.edges
     ne = len(topo["edges"])

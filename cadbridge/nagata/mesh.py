@@ -34,6 +34,7 @@ from typing import NamedTuple, Sequence
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cadbridge.nagata.admissibility import MAX_BEND_DEG
 from cadbridge.nagata.edge import (
     EPS_RANK,
     EPS_SINGULAR,
@@ -365,8 +366,20 @@ class NagataMesh:
                 # orthogonal to every normal that runs forward: eqs. 19-33 give c of size
                 # 1e3 |d| (a bulge of 33 mm on a 0.11 mm edge, on a real mesh). Such an edge,
                 # not monotone (|c . d| >= |d|^2, `cadbridge.nagata.admissibility`), takes at
-                # each end the normal most orthogonal to it, as a half-crease edge does.
-                turns_back = np.abs(np.einsum("ki,ki->k", cf, d[f])) >= np.einsum("ki,ki->k", d[f], d[f])
+                # each end the normal most orthogonal to it, as a half-crease edge does. So does
+                # an edge bent sharply (its end tangents d - c, d + c more than `MAX_BEND_DEG`
+                # apart, `cadbridge.nagata.admissibility` condition 3): where the two ends carry
+                # nearly the same normal (5.6e-5 rad apart) and the chord runs along it (an
+                # element standing on its face), n . (d - c) = 0 at one end and n' . (d + c) = 0
+                # at the other contradict each other and the least-squares c runs across d, as
+                # (n - n') / |n - n'|^2: |c| = 3.3e4 on a 0.96 edge of trj8_b1 (STEP), where
+                # |c . d| stays below |d|^2.
+                dd_f = np.einsum("ki,ki->k", d[f], d[f])
+                t0, t1 = d[f] - cf, d[f] + cf
+                cos_bend = np.einsum("ki,ki->k", t0, t1) / np.maximum(
+                    np.linalg.norm(t0, axis=1) * np.linalg.norm(t1, axis=1), 1e-300)
+                turns_back = ((np.abs(np.einsum("ki,ki->k", cf, d[f])) >= dd_f)
+                              | (cos_bend < np.cos(np.radians(MAX_BEND_DEG))))
                 half = np.union1d(half, f[turns_back])
             if half.size:
                 # several normals at one end only: the edge leaves a crease node into one side

@@ -463,10 +463,15 @@ def edge_coefficients(tf: ToolFile) -> Edges:
         gi = np.flatnonzero(g)
         coef[gi] = generalized_inverse(d[gi], S[gi] / m[gi, None, None], r[gi] / m[gi, None])
         kind[gi] = 2
-        # "Where that c turns the edge curve back (|c . d| >= |d . d|) take instead at each end
-        # the collected normal with the smallest |n . d| (first in element order on ties),
-        # then the two-normal formula"
-        back = gi[np.abs(np.einsum("ij,ij->i", coef[gi], d[gi])) >= np.einsum("ij,ij->i", d[gi], d[gi])]
+        # "Where that c turns the edge curve back (|c . d| >= |d . d|) or bends it sharply
+        # ((d - c) . (d + c) < cos(100°) |d - c| |d + c|) take instead at each end the
+        # collected normal with the smallest |n . d| (first in element order on ties), then
+        # the two-normal formula"
+        cg, dg = coef[gi], d[gi]
+        lo_t, hi_t = dg - cg, dg + cg
+        sharp = np.einsum("ij,ij->i", lo_t, hi_t) < np.cos(np.deg2rad(100.0)) * (
+            np.linalg.norm(lo_t, axis=1) * np.linalg.norm(hi_t, axis=1))
+        back = gi[(np.abs(np.einsum("ij,ij->i", cg, dg)) >= np.einsum("ij,ij->i", dg, dg)) | sharp]
         for g in back:  # the (few) hairpin edges
             rows = np.flatnonzero(gid == g)
             rows = rows[np.argsort(el[rows], kind="stable")]

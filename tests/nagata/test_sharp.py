@@ -203,3 +203,37 @@ def test_crease_edge_across_a_hairpin_runs_forward():
         np.testing.assert_allclose(g.points[on_plane, 2], 61.0, rtol=0, atol=1e-12)
         lo, hi = x[tris[1]].min(0), x[tris[1]].max(0)
         assert np.all(g.points[on_plane, :2] >= lo[:2] - 1e-9) and np.all(g.points[on_plane, :2] <= hi[:2] + 1e-9)
+
+
+def test_crease_edge_standing_on_its_face_stays_bounded():
+    """A crease edge whose two ends carry nearly the same normal (5.6e-5 rad apart) with its
+    chord along it: an element standing on its face (nodes and CAD normals of the STEP file
+    trj8_b1 meshed in triangles: a wall in the plane y = 27 meeting a face tilted 15 degrees
+    from it, the standing triangle's corners on both). n . (d - c) = 0 at one end and
+    n' . (d + c) = 0 at the other contradict each other; the generalized inverse of eqs.
+    19-33 (the published rule) gives c across d of size 1e4 |d|, while |c . d| < |d|^2 (the
+    hairpin test alone does not see it). Its end tangents d - c, d + c are then nearly
+    opposite, far beyond the admissible bend (`MAX_BEND_DEG`): the bounded rule takes at each
+    end the normal most orthogonal to the edge, and the edge bulges less than its chord."""
+    from cadbridge.nagata.admissibility import MAX_BEND_DEG
+
+    x = np.array([[158.0, 27.0, -12.53589838], [158.0, 27.0, -13.5], [149.23230679, 27.0, -10.18668445],
+                  [165.0, 27.0, -13.0]])
+    tris = np.array([[0, 1, 2], [1, 0, 3]])  # the standing triangle, the wall's triangle across edge 0-1
+    tilted = np.array([[2.87479207e-05, 0.258819045, 0.965925826], [-2.72490310e-05, 0.258819045, 0.965925826],
+                       [0.482946147, 0.258819083, 0.836525972]])
+    wall = np.broadcast_to([0.0, 1.0, 0.0], (3, 3))
+    normals = np.stack([_unit(tilted), wall])
+    d = x[1] - x[0]
+    for rule in ("published", "bounded"):
+        nm = NagataMesh(x, tris, normals, edge_rule=rule)
+        c = nm.tri_edge_coefficients[0, 0]  # edge 0 -> 1 of the standing triangle
+        assert abs(c @ d) < d @ d  # monotone: the hairpin test passes it
+        t0, t1 = d - c, d + c
+        bend = np.degrees(np.arccos(t0 @ t1 / np.linalg.norm(t0) / np.linalg.norm(t1)))
+        if rule == "published":
+            assert np.linalg.norm(c) > 1e3 * np.linalg.norm(d) and bend > MAX_BEND_DEG
+        else:
+            assert np.linalg.norm(c) <= np.linalg.norm(d) and bend <= MAX_BEND_DEG
+            g = nm.sample_grid(6)
+            assert np.max(np.abs(g.points[g.elem == 0] - x[:3].mean(0))) < 2 * np.linalg.norm(x[2] - x[0])
