@@ -345,6 +345,8 @@ def mesh_cad(
     embed_faces: Sequence | None = None,
     face_anchors=None,
     exact_curve_nodes: bool = False,
+    keep: dict | None = None,
+    min_size: float | None = None,
 ) -> Mesh:
     """Mesh the surfaces of an IGES (or STEP/BREP) file with gmsh's OpenCASCADE kernel.
 
@@ -405,6 +407,14 @@ def mesh_cad(
         (F, 5) rows (u, v, x, y, z) = a point S(u, v) of its surface: a curve is then
         embedded in the surface of its face, checked by the anchor, without the geometric
         search (which misses a knot line that runs mostly outside its trimmed face).
+    keep : a dict the caller keeps across the refinement rounds of one model
+        (`cadbridge.mesh.gmsh.kept`): a call without ``"snapshot"`` in it stores gmsh's mesh
+        there; a later call with ``"snapshot"`` and ``"finer"`` (``finer(xyz (N, 3)) -> (N,)
+        bool``, where the round asks for elements finer than that mesh's) meshes again only
+        the curves and surfaces where ``finer`` is true and keeps the rest of the mesh.
+    min_size : with ``curvature_elements``, the floor of every size instead of ``size`` / 20
+        (the curvature rule's floor) where it is smaller: a background field below that floor
+        (refinement marks) is then followed, and the curvature rule goes below it too.
     mesher : "gmsh" (default) or "qit": the quasi-isotropic triangulation of
         `cadbridge.mesh.qit.mesher` (IGES only; ``size`` is its target edge length R; the gmsh
         options do not apply).
@@ -434,7 +444,7 @@ def mesh_cad(
               embed_curves=list(embed_curves), size_callback=size_callback, curve_size=curve_size,
               background_sizes=background_sizes, loop_cuts=list(loop_cuts), straight_splines=straight_splines,
               embed_faces=None if embed_faces is None else list(embed_faces), face_anchors=face_anchors,
-              exact_curve_nodes=exact_curve_nodes)
+              exact_curve_nodes=exact_curve_nodes, keep=keep, min_size=min_size)
     try:
         return _mesh_once(path, verbose, heal=False, **kw)
     except MeshError as first:
@@ -555,6 +565,13 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     # every generate() meshes only what has no mesh yet: the faces meshed before it, and the
     # rest of a model after `g.model.mesh.clear()`
     sess.set("Mesh.MeshOnlyEmpty", 1)
+    kept = None  # (surfaces meshed again, surfaces kept) where a refinement round keeps the rest
+    keep = kw["keep"]
+    if (keep is not None and "snapshot" in keep and keep.get("finer") is not None and kw["element"] == "tri"
+            and not kw["structured"]):  # (quads: `_all_quads_possible` and the subdivision mesh everything)
+        from cadbridge.mesh.gmsh.kept import restore
+
+        kept = restore(g, keep["snapshot"], keep["finer"], heal=kw["heal"])
     hopeless = kw["element"] == "quad" and not _all_quads_possible(g, sess, surfaces)
     if not hopeless:
         mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, False, redone, sess)
@@ -584,6 +601,10 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     # farther apart stay apart (a chain of short CAD edges, each step below the tolerance)
     from cadbridge.mesh.cleanup import merge_close_nodes
 
+    if keep is not None and "snapshot" not in keep:  # the first mesh of a model: kept for its rounds
+        from cadbridge.mesh.gmsh.kept import snapshot
+
+        keep["snapshot"] = snapshot(g, heal=kw["heal"], subdivided=subdivided)
     if kw["parametric"]:
         mesh = _collect(g, surfaces, True, path)
     if kw["exact_curve_nodes"]:
@@ -598,6 +619,9 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
                           f"algorithm " + ", ".join(f"{' then '.join(map(str, a))} on {t}" for t, (_, a) in sorted(redone.items())))
     if merged:
         mesh.notes.append(f"mesh: {merged.summary()}")
+    if kept is not None and not subdivided:  # (a subdivision pass meshed everything again)
+        mesh.notes.append(f"mesh: meshed again {kept[0]} of {sum(kept)} surfaces, those where the refinement asks "
+                          f"for finer elements; the other {kept[1]} kept their mesh")
     if unsewn:
         mesh.notes.append(f"mesh: {len(unsewn)} face(s) closed around a collapsed edge (a pole or apex) meshed unsewn, "
                           f"their borders joined by the node merge (gmsh's sewing drops collapsed edges)")
@@ -894,7 +918,7 @@ def _set_sizes(g, sess: GmshSession, kw: dict, size: float, scale: float) -> Non
         "Mesh.MeshSizeMax": scale * size,
         # curvature sizing refines at most 20 x below the size (a pole or a sliver face
         # of tiny radius would otherwise ask for elements without end)
-        "Mesh.MeshSizeMin": scale * size / 20.0 if n else 0.0,
+        "Mesh.MeshSizeMin": scale * min(size / 20.0, kw["min_size"] or math.inf) if n else 0.0,
         # elements per 2 pi of the normal's turn: size 2 pi R / n
         "Mesh.MeshSizeFromCurvature": math.ceil(n / scale) if n else 0,
     })

@@ -60,6 +60,8 @@ def mesh_for_tools(
     local_sizes=None,
     route: str = "model",
     brep_cache: dict | None = None,
+    keep: dict | None = None,
+    min_size: float | None = None,
 ) -> tuple[Mesh, list[str]]:
     """The mesh `convert` builds its tools on, and what was done on the way.
 
@@ -77,6 +79,8 @@ def mesh_for_tools(
     be meshed: the notes then hold `FILE_ROUTE_NOTE`) or "file" (the file as OCC reads it).
     ``brep_cache``: a dict the caller keeps across calls on the same ``model`` (the guards'
     refinement rounds), so the model's B-rep is built once (`_mesh_model_brep`).
+    ``keep``, ``min_size``: `cadbridge.mesh.generate.mesh_cad`'s (gmsh's first mesh, kept by the
+    rounds; the floor of the curvature rule there).
 
     Returns (mesh, notes): the notes are the healed excursions and the mesher's notes.
     """
@@ -100,7 +104,7 @@ def mesh_for_tools(
     opts = dict(element=element, size=size, structured=structured, radius_divisions=radius_divisions,
                 length_divisions=length_divisions, curvature_elements=curvature_elements,
                 embed_curves=[c for _, c in lines], mesher=mesher, loop_cuts=excursions,
-                background_sizes=local_sizes)
+                background_sizes=local_sizes, keep=keep, min_size=min_size)
     mesh, tried = _mesh_model_brep(model, lines, opts, brep_cache) if mesher == "gmsh" and route == "model" else (None, [])
     if mesh is None:  # QIT (it meshes the file's faces itself), or the B-rep could not be meshed
         with mesh_source(cad, model) as source:  # the file as cadbridge read it (faces re-read by the reader)

@@ -137,8 +137,11 @@ def _guarded_on(route: str, cad, model, excursions, build, progress, unchecked_o
     from cadbridge.tool.guard_refinement import GuardRefinement, refine_where_guards_trip
 
     breps: dict = {}  # the model's B-reps, built once for all rounds (`mesh_for_tools` ``brep_cache``)
+    # gmsh's first mesh, kept by the rounds where they ask for nothing finer (triangles:
+    # `cadbridge.mesh.gmsh.kept`)
+    first: dict | None = {} if mesh_options.get("element", "quad") == "tri" else None
     mesh, notes = mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route,
-                                 brep_cache=breps, **mesh_options)
+                                 brep_cache=breps, keep=first, **mesh_options)
     try:
         tools = build(mesh)
     except (MeshError, ProjectionError) as e:
@@ -148,11 +151,16 @@ def _guarded_on(route: str, cad, model, excursions, build, progress, unchecked_o
         return GuardRefinement(mesh, [], notes)
     if mesh_options.get("mesher", "gmsh") != "gmsh":
         return GuardRefinement(mesh, tools, notes)
-    return refine_where_guards_trip(
-        mesh, tools, notes, model, progress=progress, build=build,
-        remesh=lambda sizes: mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route,
-                                            brep_cache=breps, **{**mesh_options, "curvature_elements": 0},
-                                            local_sizes=sizes))
+
+    def remesh(sizes, finer=None, floor=None):  # a round: the first mesh kept where finer is false (tri)
+        if finer is None:
+            return mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route, brep_cache=breps,
+                                  **{**mesh_options, "curvature_elements": 0}, local_sizes=sizes)
+        return mesh_for_tools(cad, model, excursions=excursions, progress=progress, route=route, brep_cache=breps,
+                              **mesh_options, local_sizes=sizes, min_size=floor, keep={**first, "finer": finer})
+
+    return refine_where_guards_trip(mesh, tools, notes, model, progress=progress, build=build, remesh=remesh,
+                                    keep_first=first is not None and "snapshot" in first)
 
 
 def nagata_from_mesh(

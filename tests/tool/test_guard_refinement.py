@@ -148,7 +148,7 @@ def test_nothing_trips_nothing_changes():
     none = GuardTrips(*(np.zeros(0, dtype=np.int64),) * 3)
     tools, mesh = [SimpleNamespace(trips=none)], object()
 
-    def remesh(_):
+    def remesh(*_):
         raise AssertionError("remeshed without a tripping element")
 
     out = refine_where_guards_trip(mesh, tools, ["note"], None, remesh=remesh, build=remesh)
