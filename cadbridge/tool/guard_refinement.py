@@ -28,9 +28,9 @@ One round of `refine_where_guards_trip`:
 
 Triangles (``keep_first``): the first mesh is kept wherever the marks ask for nothing finer.
 Only the curves and surfaces where the marks, graded at `GRADATION`, ask for elements finer
-than the first mesh's (`finer_than`), and the surfaces those curves bound, are meshed again
+than the first mesh's, and the surfaces those curves bound, are meshed again
 (`cadbridge.mesh.gmsh.kept`), by the first mesh's own rules (``size`` and the curvature rule)
-and the graded marks alone (`mark_sizes`), their floor below the curvature rule's: the kept
+and the graded marks alone (`sizes_keeping_first`), their floor below the curvature rule's: the kept
 curves where they meet the rest were made by the same rules, so the sizes agree there. A
 round for 2 straddling elements of a 415-face STEP part (trj8_b1) re-meshed all of it with
 the field of step 2 and doubled its nodes, 35 732 -> 67 639; now 27 of its 422 gmsh surfaces
@@ -55,9 +55,8 @@ from cadbridge.common.progress import NoProgress
 from cadbridge.mesh.mesh import Mesh
 from cadbridge.tool.build import ToolResult
 
-__all__ = ["GUARD_ROUNDS", "GRADATION", "MIN_FACTOR", "TURN_PER_ELEMENT", "GuardRefinement", "finer_than", "mark_sizes",
-           "node_sizes",
-           "refine_where_guards_trip", "trip_marks"]
+__all__ = ["GUARD_ROUNDS", "GRADATION", "MIN_FACTOR", "TURN_PER_ELEMENT", "GuardRefinement", "node_sizes",
+           "refine_where_guards_trip", "sizes_keeping_first", "trip_marks"]
 
 GUARD_ROUNDS = 3
 """Rounds of refinement at most before the guards' message stands."""
@@ -302,24 +301,15 @@ def local_sizes(first: Mesh, mark_points: np.ndarray, mark_sizes: np.ndarray, ce
     return field.background(extra)
 
 
-def mark_sizes(first: Mesh, mark_points: np.ndarray, mark_sizes_: np.ndarray, centres: np.ndarray,
-               radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """``background_sizes`` (points (M, 3), sizes (M,)) of a round that keeps the first mesh
-    (module docs): the marks graded at `GRADATION` up to the first mesh's largest
-    `node_sizes`, read at the marks and the `grading_carriers` about the marked elements'
-    ``centres`` (K, 3) (innermost ball ``radius``); the first mesh's own sizes come from
-    gmsh's rules, as they did."""
-    from cadbridge.mesh.sizing import SizeField
-
-    h_max = float(node_sizes(first).max())
-    h_min = float(np.min(mark_sizes_, initial=h_max))
-    field = SizeField(mark_points, mark_sizes_, h_min=h_min, h_max=h_max, gradation=GRADATION)
-    return field.background(grading_carriers(centres, radius, (h_max - h_min) / GRADATION))
-
-
-def finer_than(first: Mesh, mark_points: np.ndarray, mark_sizes: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """``finer(xyz (N, 3)) -> (N,) bool``: where the marks (points (M, 3), sizes (M,)), graded
-    at `GRADATION`, ask for a size below the first mesh's at its nearest node (`node_sizes`)."""
+def sizes_keeping_first(first: Mesh, mark_points: np.ndarray, mark_sizes: np.ndarray, centres: np.ndarray,
+                        radius: float) -> tuple[tuple[np.ndarray, np.ndarray], Callable[[np.ndarray], np.ndarray]]:
+    """The sizes of a round that keeps the first mesh (module docs), from one field: the
+    marks (points (M, 3), sizes (M,)) graded at `GRADATION` up to the first mesh's largest
+    `node_sizes`. Returns ``background_sizes`` (the field read at the marks and the
+    `grading_carriers` about the marked elements' ``centres`` (K, 3), innermost ball
+    ``radius``; the first mesh's own sizes come from gmsh's rules, as they did) and
+    ``finer(xyz (N, 3)) -> (N,) bool``: where the field is below the first mesh's size at the
+    nearest node."""
     from scipy.spatial import cKDTree
 
     from cadbridge.mesh.sizing import SizeField
@@ -327,14 +317,15 @@ def finer_than(first: Mesh, mark_points: np.ndarray, mark_sizes: np.ndarray) -> 
     h = node_sizes(first)
     used = h > 0
     h, tree = h[used], cKDTree(first.nodes[used])
-    marks = SizeField(mark_points, mark_sizes, h_min=float(np.min(mark_sizes, initial=h.max())), h_max=float(h.max()),
-                      gradation=GRADATION)
+    h_max = float(h.max())
+    h_min = float(np.min(mark_sizes, initial=h_max))
+    marks = SizeField(mark_points, mark_sizes, h_min=h_min, h_max=h_max, gradation=GRADATION)
 
     def finer(xyz: np.ndarray) -> np.ndarray:
         _, nearest = tree.query(np.asarray(xyz, dtype=float).reshape(-1, 3), workers=-1)
         return marks(xyz) < h[nearest]
 
-    return finer
+    return marks.background(grading_carriers(centres, radius, (h_max - h_min) / GRADATION)), finer
 
 
 def refine_where_guards_trip(
@@ -357,7 +348,7 @@ def refine_where_guards_trip(
                   a local size field (`cadbridge.tool.meshing.mesh_for_tools` with
                   ``local_sizes``); with ``keep_first`` False (``finer`` and ``floor`` None) the
                   curvature rule off; with it, the first mesh kept where ``finer``
-                  (`finer_than`) is false and the curvature rule as in the first mesh, its
+                  (`sizes_keeping_first`) is false and the curvature rule as in the first mesh, its
                   floor at most ``floor`` (``min_size``)
     build         ``build(mesh) -> tools``: the tools of a mesh, as ``tools`` were built
     rounds        rounds at most
@@ -377,8 +368,8 @@ def refine_where_guards_trip(
                        f"tool guards tripped ({'; '.join(where)}; sizes down to {h.min():.3g})")
         try:
             if keep_first:
-                new_mesh, new_notes = remesh(mark_sizes(mesh, marks_p, marks_h, centres, float(marks_h.min())),
-                                             finer_than(mesh, marks_p, marks_h), float(marks_h.min()))
+                sizes, finer = sizes_keeping_first(mesh, marks_p, marks_h, centres, float(marks_h.min()))
+                new_mesh, new_notes = remesh(sizes, finer, float(marks_h.min()))
             else:
                 new_mesh, new_notes = remesh(local_sizes(mesh, marks_p, marks_h, centres, float(marks_h.min())),
                                              None, None)

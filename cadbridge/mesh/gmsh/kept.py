@@ -115,17 +115,23 @@ def restore(g, snap: dict, finer: Callable[[np.ndarray], np.ndarray], *, heal: b
         g.model.mesh.generate(1)
     finally:
         g.option.setNumber("Mesh.Renumber", renumber)
-    for (d, tag), (ntags, xyz, par, etypes, etags, enodes) in snap["entities"].items():
-        if d != 2 or tag in surfaces:
-            continue
-        new = int(g.model.mesh.getMaxNodeTag()) + 1 + np.arange(len(ntags), dtype=np.int64)
+    own = [(tag, e) for (d, tag), e in snap["entities"].items() if d == 2 and tag not in surfaces]
+    old_tags = np.concatenate([e[0] for _, e in own])
+    new_tags = int(g.model.mesh.getMaxNodeTag()) + 1 + np.arange(len(old_tags), dtype=np.int64)
+    order = np.argsort(old_tags)
+    old_sorted, new_sorted = old_tags[order], new_tags[order]
+
+    def moved(n: np.ndarray) -> np.ndarray:  # a kept surface's own nodes to their new tags, the rest as they are
+        if not len(old_sorted):
+            return n
+        i = np.minimum(np.searchsorted(old_sorted, n), len(old_sorted) - 1)
+        return np.where(old_sorted[i] == n, new_sorted[i], n)
+
+    start = 0
+    for tag, (ntags, xyz, par, etypes, _, enodes) in own:
         if len(ntags):
-            g.model.mesh.addNodes(2, tag, new.tolist(), xyz.ravel().tolist(), par.tolist())
-        order = np.argsort(ntags)
-        def moved(n: np.ndarray) -> np.ndarray:  # the surface's own nodes to their new tags
-            i = np.clip(np.searchsorted(ntags[order], n), 0, max(len(ntags) - 1, 0))
-            own = (ntags[order][i] == n) if len(ntags) else np.zeros(len(n), dtype=bool)
-            return np.where(own, new[order][i] if len(ntags) else n, n)
+            g.model.mesh.addNodes(2, tag, new_tags[start:start + len(ntags)].tolist(), xyz.ravel().tolist(), par.tolist())
+        start += len(ntags)
         g.model.mesh.addElements(2, tag, etypes, [[] for _ in etypes], [moved(n).tolist() for n in enodes])
     return len(surfaces), n_surfaces - len(surfaces)
 
