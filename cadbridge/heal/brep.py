@@ -89,9 +89,11 @@ class ModelBrep:
     sew_tolerance: float
     free_edges: int
 
-    anchors: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
-    """(F, 5) one point per model face, (u, v, x, y, z): S(u, v) at the centre of the face's
-    surface domain (for the mesher to check that its k-th face is the model's k-th)."""
+    anchors: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
+    """(F, 9) one row per model face, (u, v, x, y, z, umin, umax, vmin, vmax): S(u, v) at the
+    centre of the face's surface domain, and the (u, v) box of the built face
+    (``BRepTools::UVBounds``), for the mesher to tell which of its faces is which model face
+    (`cadbridge.mesh.generate`'s ``face_anchors``)."""
 
     def notes(self) -> list[str]:
         """One line per face that the healing changed or that OCC finds invalid."""
@@ -452,11 +454,14 @@ def model_brep(model: Model, *, sew_tolerance: float | None = None) -> ModelBrep
     b.MakeCompound(compound)
     for f in faces:
         b.Add(compound, f)
-    anchors = np.zeros((len(model.faces), 5))
-    for k, f in enumerate(model.faces):  # one point per face
+    from OCP.BRepTools import BRepTools
+
+    anchors = np.zeros((len(model.faces), 9))
+    for k, f in enumerate(model.faces):  # one point and one box per face
         u0, u1, v0, v1 = f.surface.domain
         uv = np.array([0.5 * (u0 + u1), 0.5 * (v0 + v1)])
-        anchors[k, :2], anchors[k, 2:] = uv, f.surface.evaluate(uv[:1], uv[1:])[0]
+        anchors[k, :2], anchors[k, 2:5] = uv, f.surface.evaluate(uv[:1], uv[1:])[0]
+        anchors[k, 5:] = BRepTools.UVBounds_s(faces[k])  # as gmsh's OCCFace takes its bounds
     return ModelBrep(compound, reports, float(sew_tolerance), int(sew.NbFreeEdges()), anchors)
 
 

@@ -18,6 +18,10 @@ Parametric information per node (``Mesh.point_data``)
     the knot-vector parameters). NaN where ``node_entity`` is -1.
 ``cell_data["element_entity"]`` (E,) int64
     gmsh surface tag each element was meshed on.
+``cell_data["element_face"]`` (E,) int64
+    only with ``face_anchors`` (the file is the model's own B-rep, `cadbridge.heal.brep`):
+    the model face (index) each element was meshed on, -1 where it could not be told
+    (`_model_faces`); as the QIT mesher writes it.
 
 Structured mode and fillets
 ---------------------------
@@ -607,6 +611,14 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         keep["snapshot"] = snapshot(g, heal=kw["heal"], subdivided=subdivided)
     if kw["parametric"]:
         mesh = _collect(g, surfaces, True, path)
+    if kw["face_anchors"] is not None:  # the model's own B-rep: each element's model face
+        face_of = _model_faces(g, sorted(set(np.asarray(mesh.cell_data["element_entity"]).tolist())),
+                               kw["face_anchors"])
+        ent = np.asarray(mesh.cell_data["element_entity"])
+        lookup = np.full(int(ent.max()) + 1, -1, dtype=np.int64)
+        for s_, k_ in face_of.items():
+            lookup[s_] = k_
+        mesh.cell_data["element_face"] = lookup[ent]
     if kw["exact_curve_nodes"]:
         _exact_curve_nodes(g, mesh, diag)
     tol = _merge_tolerance(size, subdivided)
@@ -1190,7 +1202,7 @@ def _known_hosts(g, embed_faces, anchors) -> list[int | None] | None:
     None where the face is not known or its anchor is not on the surface at the same (u, v)."""
     if embed_faces is None or anchors is None:
         return None
-    anchors = np.asarray(anchors, dtype=float).reshape(-1, 5)
+    anchors = np.asarray(anchors, dtype=float).reshape(len(anchors), -1)
     surf = [t for _, t in g.model.getEntities(2)]
     if len(surf) != len(anchors):
         return None  # the import split or dropped faces: no face-by-face correspondence
@@ -1203,8 +1215,40 @@ def _known_hosts(g, embed_faces, anchors) -> list[int | None] | None:
             continue
         t = surf[int(k)]
         x = np.asarray(g.model.getValue(2, t, anchors[int(k), :2].tolist()), dtype=float)
-        tags.append(t if float(np.linalg.norm(x - anchors[int(k), 2:])) <= tol else None)
+        tags.append(t if float(np.linalg.norm(x - anchors[int(k), 2:5])) <= tol else None)
     return tags
+
+
+def _model_faces(g, surfaces, anchors) -> dict[int, int]:
+    """The model face (index) of each gmsh surface where the file is the model itself
+    (`cadbridge.heal.brep`; ``anchors`` its (F, 9) `ModelBrep.anchors`): the face on the same
+    surface (gmsh's S at the face's anchor (u, v) is the anchor's point, within 1e-9 x the
+    model's size) whose (u, v) box holds the largest share of the gmsh surface's (faces split
+    by embedded curves keep their model face; the halves of a cylinder share one surface and
+    split its (u, v)). A surface with no such face, or two equally good, is left out. Tags
+    follow every import, sewing and fragment of the session, since they are matched by
+    geometry at the end."""
+    anchors = np.asarray(anchors, dtype=float).reshape(len(anchors), -1)
+    if anchors.shape[1] < 9 or not len(anchors):
+        return {}
+    bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
+    tol = 1e-9 * float(np.linalg.norm(bb[3:] - bb[:3]))
+    u0, u1, v0, v1 = anchors[:, 5], anchors[:, 6], anchors[:, 7], anchors[:, 8]
+    out: dict[int, int] = {}
+    for s in surfaces:  # loop over surfaces, vectorised over the model's faces
+        lo, hi = g.model.getParametrizationBounds(2, int(s))
+        du = np.minimum(u1, hi[0]) - np.maximum(u0, lo[0])
+        dv = np.minimum(v1, hi[1]) - np.maximum(v0, lo[1])
+        area = max((hi[0] - lo[0]) * (hi[1] - lo[1]), 1e-300)
+        share = np.where((du >= 0) & (dv >= 0), np.maximum(du, 0) * np.maximum(dv, 0) / area, -1.0)
+        cand = np.flatnonzero(share >= 0)
+        if not len(cand):
+            continue
+        x = np.asarray(g.model.getValue(2, int(s), anchors[cand, :2].ravel().tolist()), dtype=float).reshape(-1, 3)
+        cand = cand[np.linalg.norm(x - anchors[cand, 2:5], axis=1) <= tol]
+        if len(cand) == 1 or (len(cand) > 1 and np.sort(share[cand])[-2] < share[cand].max()):
+            out[int(s)] = int(cand[np.argmax(share[cand])])
+    return out
 
 
 def _embed_curves(g, curves: list, path: Path, known: list[int | None] | None = None) -> None:

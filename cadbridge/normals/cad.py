@@ -147,20 +147,26 @@ def _corner_mean_kernel(cells, face, status, u, v, out_face, out_u, out_v, conve
         out_v[e] = sv / k
 
 
-def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, proj: Projection
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, proj: Projection,
+                   meshed_on: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Face index and centroid (u, v) of every element (all blocks, global order), (E,) each.
 
-    An element whose corners all project CONVERGED onto one face lies on that face: its
-    centroid parameters are the mean of the corners' (exact for the side of a knot line,
-    which is all they are used for). The other elements get their centroid projected.
+    ``meshed_on`` (E,): the model face the mesher meshed each element on, -1 where not known
+    (``cell_data["element_face"]``: gmsh on the model's own B-rep, QIT). Where it is known
+    and the element's corners lie on that face's surface (`_off_surface`), it is the
+    element's face, its centroid projected onto that surface: no nearest-face rule can tell
+    an element across a face narrower than its chord sag from the face beside it.
+
+    Otherwise, an element whose corners all project CONVERGED onto one face lies on that
+    face: its centroid parameters are the mean of the corners' (exact for the side of a knot
+    line, which is all they are used for). The other elements get their centroid projected
+    (`_faces_holding_the_corners`).
     """
     if not blocks:
         return np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0)
     face = np.empty(sum(len(c) for c in blocks), dtype=np.int64)
     u = np.empty(len(face))
     v = np.empty(len(face))
-    todo = []
     offset = 0
     pf = np.ascontiguousarray(proj.face, dtype=np.int64)
     ps = np.ascontiguousarray(proj.status)
@@ -170,12 +176,13 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
         if len(c):
             _corner_mean_kernel(np.ascontiguousarray(c, dtype=np.int64), pf, ps, pu, pv, face[sl], u[sl], v[sl],
                                 CONVERGED)
-        todo.append(offset + np.flatnonzero(face[sl] < 0))
         offset += len(c)
-    todo = np.concatenate(todo)
+    starts = np.cumsum([0] + [len(c) for c in blocks])
+    if meshed_on is not None:
+        _faces_meshed_on(nodes, blocks, starts, np.asarray(meshed_on, dtype=np.int64), pf, model, face, u, v)
+    todo = np.flatnonzero(face < 0)
     if len(todo):
         # the centroids of those elements only, block by block (no copy of the whole cell arrays)
-        starts = np.cumsum([0] + [len(c) for c in blocks])
         cent = np.concatenate([nodes[c[todo[(todo >= a) & (todo < a + len(c))] - a]].mean(axis=1)
                                for a, c in zip(starts[:-1], blocks)])
         cp = project_points(cent, model, max_distance=None)
@@ -183,6 +190,56 @@ def _element_faces(nodes: np.ndarray, blocks: list[np.ndarray], model: Model, pr
         _faces_holding_the_corners(nodes, blocks, starts, todo, cent, pf, model, face, u, v)
     _seam_means(blocks, model, face, pu, pv, u, v)
     return face, u, v
+
+
+def _corners_of(blocks: list[np.ndarray], starts: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Corner nodes (R, k) of the elements ``rows`` (global numbering, ascending), -1 padded."""
+    k = max(c.shape[1] for c in blocks)
+    corners = np.full((len(rows), k), -1, dtype=np.int64)
+    for a, c in zip(starts[:-1], blocks):
+        sel = (rows >= a) & (rows < a + len(c))
+        corners[sel, :c.shape[1]] = c[rows[sel] - a]
+    return corners
+
+
+def _off_surface(model: Model, f: int, x: np.ndarray) -> np.ndarray:
+    """(len(x),) whether each point (M, 3) lies farther from face f's surface than the face's
+    tolerance (2 x its trim delta, at least 1e-7 x the model's size)."""
+    from cadbridge.nurbs.project import project_to_surface
+
+    size = model.size()
+    d = project_to_surface(model.faces[f].surface, x).distance
+    out = d > 1e-7 * size  # within the floor of tol: no need for the trim delta
+    if np.any(out):  # (its first read computes the deltas of all faces of the file)
+        tol = max(2.0 * float(getattr(model.faces[f], "trim_delta", 0.0) or 0.0), 1e-7 * size)
+        out = d > tol
+    return out
+
+
+def _faces_meshed_on(nodes, blocks, starts, meshed_on, pf, model, face, u, v) -> None:
+    """Elements whose mesher's face (``meshed_on`` (E,), -1: not known) is not the one face all
+    their corners project onto take it, where their corners lie on its surface, with their
+    centroid's (u, v) projected onto it (in place; the others keep ``face``, -1 included).
+    One projection per face of the corners that projected elsewhere and of the centroids."""
+    from cadbridge.nurbs.project import project_to_surface
+
+    rows = np.flatnonzero((meshed_on >= 0) & (meshed_on != face))
+    if not len(rows):
+        return
+    corners = _corners_of(blocks, starts, rows)
+    want = meshed_on[rows]
+    off = (corners >= 0) & (pf[np.maximum(corners, 0)] != want[:, None])
+    for f in np.unique(want):  # loop over faces, vectorised over their elements
+        mine = np.flatnonzero(want == f)
+        r, j = np.nonzero(off[mine])
+        bad = np.unique(r[_off_surface(model, int(f), nodes[corners[mine[r], j]])])
+        mine = np.delete(mine, bad)
+        if not len(mine):
+            continue
+        cn = corners[mine]
+        cent = np.where((cn >= 0)[..., None], nodes[np.maximum(cn, 0)], 0.0).sum(axis=1) / (cn >= 0).sum(axis=1)[:, None]
+        p = project_to_surface(model.faces[int(f)].surface, cent)
+        face[rows[mine]], u[rows[mine]], v[rows[mine]] = f, p.u, p.v
 
 
 def _closed_face_corners(model: Model, c: np.ndarray, ef: np.ndarray, node_u: np.ndarray, node_v: np.ndarray):
@@ -223,36 +280,39 @@ def _seam_means(blocks: list[np.ndarray], model: Model, face: np.ndarray, pu: np
 
 
 def _faces_holding_the_corners(nodes, blocks, starts, todo, cent, pf, model, face, u, v) -> None:
-    """Where a centroid's nearest face is none of its corners' faces and does not hold the
-    corners (each within 2 x the face's trim delta of its surface), the element takes the
-    nearest to the centroid of its corners' faces that holds them all (in place). Surfaces in
-    contact need it: the Inventor spring's end coil rests on the next turn, and an element
-    of the coil had its centroid 0.030 from the turn's face and 0.038 (its chord sag) from
-    its own. Such elements are few: a loop over them."""
+    """Where the centroid's nearest face does not hold the element's corners (each within 2 x
+    the face's trim delta of its surface, `_off_surface`), the element takes the nearest to
+    the centroid of its corners' faces that holds them all (in place).
+
+    Two cases need it. Surfaces in contact: the Inventor spring's end coil rests on the next
+    turn, and an element of the coil had its centroid 0.030 from the turn's face and 0.038
+    (its chord sag) from its own. A face narrower than the chord sag of its elements, where
+    the mesher does not say which face it meshed (a mesh read from a file, or gmsh on the
+    file as OCC reads it): an element across bug32596's 0.40 mm wide cylinder band (radius
+    7.14) has its centroid 0.18 inside the cylinder and 0.13 above the annular plane beside
+    it, two of its corners 0.40 off that plane.
+
+    The first test runs for all elements (``todo``), one projection per face onto its surface
+    of the corners that did not project onto it; the choice among the corners' faces only
+    for the (few) that fail it, in a loop."""
     from cadbridge.nurbs.project import project_to_surface
 
-    k = max(c.shape[1] for c in blocks)
-    corners = np.full((len(todo), k), -1, dtype=np.int64)
-    for a, c in zip(starts[:-1], blocks):
-        sel = (todo >= a) & (todo < a + len(c))
-        corners[sel, :c.shape[1]] = c[todo[sel] - a]
+    corners = _corners_of(blocks, starts, todo)
     cf = np.where(corners >= 0, pf[np.maximum(corners, 0)], -1)
-    size = model.size()
+    ft = face[todo]
+    off = (corners >= 0) & (cf != ft[:, None])  # corners that projected onto another face
+    held = np.ones(len(todo), dtype=bool)
+    rows_off = np.flatnonzero(off.any(axis=1))
+    for f in np.unique(ft[rows_off]):  # loop over faces, vectorised over their elements
+        rows = rows_off[ft[rows_off] == f]
+        r, j = np.nonzero(off[rows])
+        held[np.unique(rows[r[_off_surface(model, int(f), nodes[corners[rows[r], j]])]])] = False
 
-    def holds(f: int, x: np.ndarray) -> bool:
-        d = project_to_surface(model.faces[f].surface, x).distance
-        if np.all(d <= 1e-7 * size):  # within the floor of tol: no need for the trim delta
-            return True  # (its first read computes the deltas of all faces of the file)
-        tol = max(2.0 * float(getattr(model.faces[f], "trim_delta", 0.0) or 0.0), 1e-7 * size)
-        return bool(np.all(d <= tol))
-
-    for i in np.flatnonzero(~(cf == face[todo][:, None]).any(axis=1)):  # rare: faces in contact
+    for i in np.flatnonzero(~held):  # rare: faces in contact, faces narrower than the sag
         x = nodes[corners[i][corners[i] >= 0]]
-        if holds(int(face[todo[i]]), x):
-            continue
         best = None
-        for f in sorted(set(cf[i].tolist()) - {-1}):
-            if holds(f, x):
+        for f in sorted(set(cf[i].tolist()) - {-1, int(ft[i])}):
+            if not np.any(_off_surface(model, f, x)):
                 r = project_to_surface(model.faces[f].surface, cent[i:i + 1])
                 if best is None or r.distance[0] < best[0]:
                     best = (r.distance[0], f, r.u[0], r.v[0])
@@ -610,7 +670,8 @@ def cad_normals(
     # element faces and the (u, v) of their centroids: from the nodes where all corners lie
     # inside one face (CONVERGED on it); elsewhere (elements at face borders) by projecting
     # the element centroid
-    elem_face_all, elem_u, elem_v = _element_faces(nodes, blocks, model, proj)
+    meshed_on = mesh.cell_data.get("element_face")
+    elem_face_all, elem_u, elem_v = _element_faces(nodes, blocks, model, proj, meshed_on)
 
     # orient node normals with the winding: sum of element normals around each node (acc)
     dots = np.einsum("ij,ij->i", node_n, acc)

@@ -56,7 +56,8 @@ def test_built_faces_have_occs_trimmed_areas(name):
 @pytest.mark.parametrize("name", ["ushape_tools_nurbs.igs", "trimmed_hole.igs"])
 def test_gmsh_surface_k_is_model_face_k(name):
     """Face identity between mesh and model holds by construction: gmsh's surface k + 1 of
-    the written .brep evaluates to the model's face k at the same (u, v)."""
+    the written .brep evaluates to the model's face k at the same (u, v), and has the
+    (u, v) box the B-rep's anchors give it."""
     import gmsh
 
     model = read_iges(SAMPLES / name)
@@ -77,7 +78,11 @@ def test_gmsh_surface_k_is_model_face_k(name):
                 mine = face.surface.evaluate(uv[:, 0], uv[:, 1])
                 assert np.max(np.linalg.norm(theirs - mine, axis=1)) <= 1e-9 * size, k
                 anchor = np.array(gmsh.model.getValue(2, tag, brep.anchors[k, :2].tolist()))
-                assert np.linalg.norm(anchor - brep.anchors[k, 2:]) <= 1e-9 * size
+                assert np.linalg.norm(anchor - brep.anchors[k, 2:5]) <= 1e-9 * size
+                # the face's (u, v) box, as gmsh's OCC face takes it (`generate._model_faces`)
+                lo, hi = gmsh.model.getParametrizationBounds(2, tag)
+                np.testing.assert_allclose([lo[0], hi[0], lo[1], hi[1]], brep.anchors[k, 5:],
+                                           atol=1e-12 * max(u1 - u0, v1 - v0))
         finally:
             gmsh.finalize()
 
