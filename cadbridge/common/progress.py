@@ -49,7 +49,8 @@ class Progress:
 
     def _line(self, frac: float | None) -> str:
         bar = "" if frac is None else f"  [{'#' * int(self.width * frac):.<{self.width}}] {100 * frac:3.0f}%"
-        return f"{self.label} [{self.stages:>2}] {self.text[:60]}{bar}  {time.perf_counter() - self.t0:.1f} s"
+        text = self.text[:60] if self.mode == "tty" else self.text  # a log line keeps it whole
+        return f"{self.label} [{self.stages:>2}] {text}{bar}  {time.perf_counter() - self.t0:.1f} s"
 
     def _draw(self, frac: float | None) -> None:
         if self.mode == "tty":

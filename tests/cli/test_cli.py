@@ -339,6 +339,17 @@ def test_progress_off_a_terminal_writes_plain_lines(monkeypatch):
     assert lines[2].startswith("cadbridge test: done in") and all(PROGRESS_LINE.match(ln) for ln in lines)
 
 
+def test_progress_in_a_log_keeps_the_whole_stage():
+    """A terminal line is cut to its width; a log line keeps what the stage says (the
+    refinement notes run to a few hundred characters)."""
+    text = "refinement round 1 of at most 3: meshing again finer at 84 elements (" + "x" * 200 + ")"
+    buf, tty = io.StringIO(), io.StringIO()
+    Progress("cadbridge test", stream=buf).stage(text)
+    Progress("cadbridge test", enabled=True, stream=tty).stage(text)
+    assert text in buf.getvalue()
+    assert text not in tty.getvalue() and text[:60] in tty.getvalue()
+
+
 def test_quiet_silences_progress(tmp_path, capsys):
     code = main(["--quiet", "convert", str(SAMPLES / "ushape_blankholder_nurbs.igs"), "-o", str(tmp_path / "o")])
     assert code == EXIT_OK and capsys.readouterr().err == ""
