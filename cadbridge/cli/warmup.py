@@ -1,5 +1,5 @@
-"""`cadbridge warmup`: compile the numba kernels of the main job (`cadbridge ushape`) ahead of
-its first run, as the README's install command does.
+"""`cadbridge warmup`: compile the numba kernels of the main job (`cadbridge ushape`) and of a
+first `convert` ahead of their first run, as the README's install command does.
 
 The kernels are ``@numba.njit(cache=True)``: compiled on first use, then loaded from numba's
 cache (``__pycache__`` next to the sources, or ``NUMBA_CACHE_DIR``). A fresh install has an
@@ -112,21 +112,33 @@ event.register("numba:compile", Recorder())
 from cadbridge.cli import main
 
 rc = main(["--quiet", "ushape", "-o", sys.argv[2]])
+for i, sample in enumerate(sys.argv[3:]):  # free meshes of trimmed CAD: kernels ushape does not call
+    for element in ("tri", "quad"):
+        rc = rc or main(["--quiet", "convert", sample, "-o", f"{sys.argv[2]}_{i}_{element}", "--element", element])
 with open(sys.argv[1], "w") as f:
     json.dump(rows, f)
 sys.exit(rc)
 """
 
+RECORDED_SAMPLES = ("trimmed_hole.igs", "torus_patch.igs", "cone_apex.igs", "multiple_knots.igs")
+"""Samples of ``iges_samples/`` converted (tri and quad) after the ushape when the list is
+recorded: a first `convert` of real CAD after the warm-up compiled for 8-12 s more
+(OCC131-2 tri: 25.0 s, then 4.5 s warm), as free meshes of trimmed faces, poles and C0 knot
+lines call kernels and argument types the structured U-shape does not."""
+
 
 def record_kernels() -> list[Entry]:
-    """The kernels a `cadbridge ushape` compiles when called from Python (those compile the
-    kernels they call) with their argument types and compile seconds: one cold run in a
-    temporary, empty NUMBA_CACHE_DIR, in a subprocess. Raises RuntimeError if the run fails
+    """The kernels a `cadbridge ushape`, then tri and quad converts of `RECORDED_SAMPLES`,
+    compile when called from Python (those compile the kernels they call) with their argument
+    types and compile seconds: one cold run in a temporary, empty NUMBA_CACHE_DIR, in a
+    subprocess. Raises RuntimeError if the run fails
     or a type does not read back (`parse_signature`) as recorded."""
     with tempfile.TemporaryDirectory(prefix="cadbridge-record-") as tmp:
         out = Path(tmp) / "kernels.json"
         env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
-        run = subprocess.run([sys.executable, "-c", _RECORDER, str(out), str(Path(tmp) / "ushape")], env=env,
+        samples = Path(__file__).resolve().parents[2] / "iges_samples"
+        run = subprocess.run([sys.executable, "-c", _RECORDER, str(out), str(Path(tmp) / "ushape"),
+                              *[str(samples / n) for n in RECORDED_SAMPLES if (samples / n).is_file()]], env=env,
                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         if run.returncode != 0 or not out.exists():
             raise RuntimeError(f"cadbridge ushape failed (exit {run.returncode}): {run.stderr.strip()[-500:]}")
@@ -141,8 +153,9 @@ def record_kernels() -> list[Entry]:
 
 def write_list(entries: list[Entry], path: Path = LIST_FILE) -> None:
     """Write ``entries`` as the module `cadbridge.cli.warmup_kernels`."""
-    lines = ['"""The kernels a `cadbridge ushape` compiles on an empty cache, called from Python (they compile',
-             "the kernels they call), with their argument types: what `cadbridge warmup` compiles.",
+    lines = ['"""The kernels a `cadbridge ushape` and converts of the samples `RECORDED_SAMPLES` compile on an',
+             "empty cache, called from Python (they compile the kernels they call), with their argument",
+             "types: what `cadbridge warmup` compiles.",
              "",
              "Written by `cadbridge warmup --record` (do not edit): (module, function, argument types,",
              'compile seconds of that recording)."""', "", "KERNELS = ("]

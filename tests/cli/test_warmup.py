@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import inspect
 import os
+import re
 import subprocess
 import sys
 
@@ -95,7 +96,10 @@ def test_ushape_after_warmup_compiles_nothing(tmp_path):
     w = subprocess.run([sys.executable, "-m", "cadbridge", "warmup"], env=env, capture_output=True, text=True,
                        timeout=900)
     assert w.returncode == 0, w.stderr
-    assert f"compiled {len(KERNELS)} kernels (0 already in the cache, 0 failed)" in w.stdout
+    # an empty cache: every listed kernel compiled here, by one of the two processes (a kernel that
+    # another listed one calls may be in the cache already when its own turn comes)
+    m = re.search(r"compiled (\d+) kernels \((\d+) already in the cache, 0 failed\)", w.stdout)
+    assert m and int(m.group(1)) + int(m.group(2)) == len(KERNELS) and int(m.group(1)) > len(KERNELS) // 2, w.stdout
     u = subprocess.run([sys.executable, "-m", "cadbridge", "ushape", "-o", str(tmp_path / "out")], env=env,
                        capture_output=True, text=True, timeout=900)
     assert u.returncode == 0, u.stderr
