@@ -408,9 +408,11 @@ def mesh_cad(
     embed_faces, face_anchors : where the file is the model itself (`cadbridge.heal.brep`: face
         k of the model is the k-th OCC face, on the same surface parametrisation), the model
         face each of ``embed_curves`` lies on (index, or None) and one anchor per model face,
-        (F, 5) rows (u, v, x, y, z) = a point S(u, v) of its surface: a curve is then
-        embedded in the surface of its face, checked by the anchor, without the geometric
-        search (which misses a knot line that runs mostly outside its trimmed face).
+        (F, 9) rows (u, v, x, y, z, umin, umax, vmin, vmax), `ModelBrep.anchors`: a point
+        S(u, v) of its surface and the face's (u, v) box. A curve is then embedded in the
+        surface of its face, checked by the anchor, without the geometric search (which misses
+        a knot line that runs mostly outside its trimmed face), and every element gets its
+        model face (``cell_data["element_face"]``, `_model_faces`).
     keep : a dict the caller keeps across the refinement rounds of one model
         (`cadbridge.mesh.gmsh.kept`): a call without ``"snapshot"`` in it stores gmsh's mesh
         there; a later call with ``"snapshot"`` and ``"finer"`` (``finer(xyz (N, 3)) -> (N,)
@@ -613,13 +615,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
     if kw["parametric"]:
         mesh = _collect(g, surfaces, True, path)
     if kw["face_anchors"] is not None:  # the model's own B-rep: each element's model face
-        face_of = _model_faces(g, sorted(set(np.asarray(mesh.cell_data["element_entity"]).tolist())),
-                               kw["face_anchors"])
-        ent = np.asarray(mesh.cell_data["element_entity"])
-        lookup = np.full(int(ent.max()) + 1, -1, dtype=np.int64)
-        for s_, k_ in face_of.items():
-            lookup[s_] = k_
-        mesh.cell_data["element_face"] = lookup[ent]
+        mesh.cell_data["element_face"] = _model_faces(g, np.asarray(mesh.cell_data["element_entity"]),
+                                                      kw["face_anchors"])
     if kw["exact_curve_nodes"]:
         _exact_curve_nodes(g, mesh, diag)
     tol = _merge_tolerance(size, subdivided)
@@ -1262,23 +1259,24 @@ def _known_hosts(g, embed_faces, anchors) -> list[int | None] | None:
     return tags
 
 
-def _model_faces(g, surfaces, anchors) -> dict[int, int]:
-    """The model face (index) of each gmsh surface where the file is the model itself
+def _model_faces(g, ent: np.ndarray, anchors) -> np.ndarray:
+    """(E,) the model face (index) of each element, meshed on gmsh surface ``ent`` (E,), where
+    the file is the model itself
     (`cadbridge.heal.brep`; ``anchors`` its (F, 9) `ModelBrep.anchors`): the face on the same
     surface (gmsh's S at the face's anchor (u, v) is the anchor's point, within 1e-9 x the
     model's size) whose (u, v) box holds the largest share of the gmsh surface's (faces split
     by embedded curves keep their model face; the halves of a cylinder share one surface and
-    split its (u, v)). A surface with no such face, or two equally good, is left out. Tags
-    follow every import, sewing and fragment of the session, since they are matched by
-    geometry at the end."""
+    split its (u, v)). -1 on a surface with no such face, or two equally good. Tags follow
+    every import, sewing and fragment of the session, since they are matched by geometry at
+    the end."""
+    out = np.full(int(ent.max()) + 1 if len(ent) else 1, -1, dtype=np.int64)  # gmsh tag -> model face
     anchors = np.asarray(anchors, dtype=float).reshape(len(anchors), -1)
     if anchors.shape[1] < 9 or not len(anchors):
-        return {}
+        return out[ent]
     bb = np.array(g.model.getBoundingBox(-1, -1), dtype=float)
     tol = 1e-9 * float(np.linalg.norm(bb[3:] - bb[:3]))
     u0, u1, v0, v1 = anchors[:, 5], anchors[:, 6], anchors[:, 7], anchors[:, 8]
-    out: dict[int, int] = {}
-    for s in surfaces:  # loop over surfaces, vectorised over the model's faces
+    for s in np.unique(ent):  # loop over surfaces, vectorised over the model's faces
         lo, hi = g.model.getParametrizationBounds(2, int(s))
         du = np.minimum(u1, hi[0]) - np.maximum(u0, lo[0])
         dv = np.minimum(v1, hi[1]) - np.maximum(v0, lo[1])
@@ -1290,8 +1288,8 @@ def _model_faces(g, surfaces, anchors) -> dict[int, int]:
         x = np.asarray(g.model.getValue(2, int(s), anchors[cand, :2].ravel().tolist()), dtype=float).reshape(-1, 3)
         cand = cand[np.linalg.norm(x - anchors[cand, 2:5], axis=1) <= tol]
         if len(cand) == 1 or (len(cand) > 1 and np.sort(share[cand])[-2] < share[cand].max()):
-            out[int(s)] = int(cand[np.argmax(share[cand])])
-    return out
+            out[s] = cand[np.argmax(share[cand])]
+    return out[ent]
 
 
 def _embed_curves(g, curves: list, path: Path, known: list[int | None] | None = None) -> None:
