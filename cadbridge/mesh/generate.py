@@ -550,6 +550,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         # boundary sizes across them, filling a plane next to a small round with small elements)
         sess.set("Mesh.MeshSizeExtendFromBoundary", 0)
     _set_sizes(g, sess, kw, size, 1.0)
+    if not kw["structured"]:
+        _narrow_face_curves(g, surfaces, kw, size, 1.0)
     if kw["straight_splines"] and kw["size_callback"] is None and kw["background_sizes"] is None:
         _one_segment_straight_splines(g, size)
     if kw["structured"]:
@@ -598,6 +600,8 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         if kw["structured"]:
             for c, n in counts.items():
                 g.model.mesh.setTransfiniteCurve(c, max(1, math.ceil(n / 2)) + 1)
+        else:
+            _narrow_face_curves(g, surfaces, kw, size, 2.0)
         _one_segment_short_curves(g, 4.0 * MERGE_TOLERANCE * size, set(counts) if kw["structured"] else set())
         mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, True, redone, sess, oversized)
         if len(mesh.triangles):
@@ -980,6 +984,28 @@ def _set_sizes(g, sess: GmshSession, kw: dict, size: float, scale: float) -> Non
                                      (lambda dim, tag, x, y, z, lc: scale * cb(dim, tag, x, y, z, lc / scale)))
     if kw["background_sizes"] is not None:
         _background_field(g, sess, kw["background_sizes"], scale)
+
+
+def _narrow_face_curves(g, surfaces: list[int], kw: dict, size: float, scale: float) -> None:
+    """Uniform node counts on the curved boundary curves of narrow faces, whose chords at
+    gmsh's sizes (times ``scale``) would cut the face (`cadbridge.mesh.gmsh.narrow_faces`).
+    Not with a size callback, whose sizes along a curve are not known before gmsh asks (a
+    uniform count could then be coarser than the callback's)."""
+    from cadbridge.mesh.gmsh.narrow_faces import narrow_curve_counts
+
+    if kw["size_callback"] is not None:
+        return
+
+    n = kw["curvature_elements"]
+    size_at = _size_at(kw)
+    counts = narrow_curve_counts(
+        g, surfaces, size=scale * size, curvature_elements=math.ceil(n / scale) if n else 0,
+        min_size=scale * min(size / 20.0, kw["min_size"] or math.inf),
+        size_at=None if size_at is None else (lambda x: scale * size_at(x)),
+        cache=kw.setdefault("narrow_cache", {}),
+    )
+    for c, m in counts.items():
+        g.model.mesh.setTransfiniteCurve(c, m + 1)
 
 
 def _wound_against_surface(g, mesh: Mesh, s: int) -> bool:
