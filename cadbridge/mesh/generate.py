@@ -1385,8 +1385,20 @@ def _collect(g, surfaces: list[int], parametric: bool, path: Path) -> Mesh:
                 tri.append(t)
                 tri_ent.append(np.full(len(t), s, dtype=np.int64))
             elif et == 3:
-                quad.append(index[en].reshape(-1, 4))
-                quad_ent.append(np.full(len(en) // 4, s, dtype=np.int64))
+                q = index[en].reshape(-1, 4)
+                # a quad with two adjacent corners on one node (gmsh, at a pole: [a, p, p, b]) is
+                # the triangle of its other three, as `merge_close_nodes` makes it; with more
+                # repeats it has no area (hemisphere_pole at size 1.4995 left one of each kind)
+                same = q == np.roll(q, -1, axis=1)
+                distinct = 1 + (np.diff(np.sort(q, axis=1), axis=1) != 0).sum(axis=1)
+                three = (distinct == 3) & same.any(axis=1)
+                if np.any(three):
+                    t = q[three][~same[three]].reshape(-1, 3)
+                    tri.append(t)
+                    tri_ent.append(np.full(len(t), s, dtype=np.int64))
+                q = q[distinct == 4]
+                quad.append(q)
+                quad_ent.append(np.full(len(q), s, dtype=np.int64))
             else:
                 name = g.model.mesh.getElementProperties(et)[0]
                 raise MeshError(f"{path}: gmsh produced unsupported element type {name!r} on surface {s}")
