@@ -91,6 +91,12 @@ def mesh_for_tools(
     from cadbridge.tool.build import consistently_oriented
 
     progress = progress or NoProgress()
+    if size is None and mesher == "gmsh":
+        # the part's diagonal / 20, from its trimmed faces (`cadbridge.cad.extent`), not gmsh's
+        # box of the untrimmed surfaces: trj6_b1's 304 mm part has faces on surfaces 26.5 m long
+        from cadbridge.cad.extent import default_mesh_size
+
+        size = default_mesh_size(model)
     if size is not None and size > 0 and math.isfinite(size):  # a size far too small: refused before meshing
         from cadbridge.mesh.element_count import check_element_count
 
