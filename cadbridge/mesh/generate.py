@@ -1002,7 +1002,7 @@ def _narrow_face_curves(g, surfaces: list[int], kw: dict, size: float, scale: fl
         g, surfaces, size=scale * size, curvature_elements=math.ceil(n / scale) if n else 0,
         min_size=scale * min(size / 20.0, kw["min_size"] or math.inf),
         size_at=None if size_at is None else (lambda x: scale * size_at(x)),
-        cache=kw.setdefault("narrow_cache", {}),
+        cache=kw.setdefault("narrow_cache", {}), even=kw["element"] == "quad" and scale == 1.0,
     )
     for c, m in counts.items():
         g.model.mesh.setTransfiniteCurve(c, m + 1)

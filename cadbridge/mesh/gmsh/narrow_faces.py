@@ -48,13 +48,17 @@ def narrow_curve_counts(
     min_size: float,
     size_at: Callable[[np.ndarray], np.ndarray] | None = None,
     cache: dict | None = None,
+    even: bool = False,
 ) -> dict[int, int]:
     """{gmsh curve tag: segments} for the curves of ``surfaces`` whose chords would cut a
     narrow face (module docs). ``size``, ``curvature_elements``, ``min_size``: gmsh's
     ``Mesh.MeshSizeMax``, ``Mesh.MeshSizeFromCurvature`` and ``Mesh.MeshSizeMin`` as set;
     ``size_at(xyz (N, 3)) -> (N,)``: the size the other rules ask at points (background field
     or callback), or None; ``cache``: a dict kept between calls on one gmsh model (the curves'
-    samples). ``g`` the gmsh module with the model loaded."""
+    samples); ``even``: even counts only (quads: a face whose boundary has an odd number of
+    segments cannot be all quads, and the mesh would go through the subdivision at twice the
+    size, with twice the nodes: the bearing in quads). ``g`` the gmsh module with the model
+    loaded."""
     cache = {} if cache is None else cache
     samples = cache.setdefault("samples", {})  # {curve: (x, t, k) or None}
     ends = cache.setdefault("ends", {})  # {curve: its vertices}
@@ -96,7 +100,8 @@ def narrow_curve_counts(
             n_need = float(np.sum(ds / np.maximum(0.5 * (hh[1:] + hh[:-1]), 1e-300)))
             if n_need > _MORE * max(n_own, 2.0):  # (gmsh gives a curve 2 segments at least)
                 need[c] = max(need.get(c, 0.0), n_need)
-    return {c: int(math.ceil(n)) for c, n in need.items()}
+    counts = {c: int(math.ceil(n)) for c, n in need.items()}
+    return {c: m + (m % 2) for c, m in counts.items()} if even else counts
 
 
 def _sample(g, c: int):
