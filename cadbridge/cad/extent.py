@@ -1,12 +1,12 @@
 """The extent of a model's trimmed faces: the part, not its untrimmed surfaces.
 
-`Model.bbox` bounds the control nets, which hold the untrimmed surfaces. A writer may trim a
-small face out of a very large surface: trj6_b1 (Open CASCADE 4.0 STEP), a part 304 mm across,
-has two faces on surfaces 26.5 m long, so the control-net box says 26 516 mm. A default
-element size taken from that box (diagonal / 20: 1 326 mm, floored by the curvature rule at
-66 mm) meshes a part 304 mm across whose narrow faces are 2 mm wide. The trimmed extent is what
-an engineer means by the part's size: OCC's `BRepBndLib::AddOptimal` gives 304 mm there, and
-so does this box.
+`Model.bbox` bounds the control nets, which hold the untrimmed surfaces. A rational patch can
+keep far poles with tiny weights: trj6_b1 (Open CASCADE 4.0 STEP), a part 304 mm across, has
+two degree-8 faces whose nets reach 26.5 m, so the nets' box says 26 516 mm and the default
+element size (gmsh's box of the nets / 20) is 1 326 mm. The trimmed extent is what an
+engineer means by the part's size: OCC's `BRepBndLib::AddOptimal` gives 304 mm there, and so
+does this box. `convert` and `mesh` say so in their notes where the two differ by more than
+4 x (`cadbridge.tool.meshing._far_nets_note`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import numpy as np
 
 from cadbridge.cad.model import Model, points_in_polygon
 
-__all__ = ["trimmed_box", "default_mesh_size", "GRID"]
+__all__ = ["trimmed_box", "GRID"]
 
 GRID = 9
 """Points a side of each face's (u, v) grid (inside its outer loop), beside the loops' samples."""
@@ -71,9 +71,3 @@ def _trimmed_box(model: Model) -> np.ndarray:
     if not np.all(np.isfinite(lo)):
         return model.bbox()
     return np.array([lo, hi])
-
-
-def default_mesh_size(model: Model) -> float:
-    """The element size when none is asked: the diagonal of `trimmed_box` / 20 (model units)."""
-    b = trimmed_box(model)
-    return float(np.linalg.norm(b[1] - b[0])) / 20.0

@@ -18,8 +18,7 @@ def add_mesh_options(p: argparse.ArgumentParser) -> None:
     add_mesher_option(p)
     p.add_argument("--element", choices=["tri", "quad"], default=None,
                    help="element type (default quad; tri with --mesher qit, which makes triangles only)")
-    p.add_argument("--size", type=float, default=None,
-                   help="target element size in model units (default: the diagonal of the trimmed faces' box / 20)")
+    p.add_argument("--size", type=float, default=None, help="target element size in model units")
     p.add_argument("--structured", action="store_true", help="structured (transfinite) mesh on four-sided faces")
     p.add_argument("--radius-divisions", type=int, default=3, help="elements across fillet radii (structured)")
     p.add_argument("--length-divisions", type=int, default=None, help="elements along fillets (structured)")

@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
+
 from cadbridge.cad.model import Model
 from cadbridge.common.progress import NoProgress
 from cadbridge.heal.loop_excursions import Excursion
@@ -91,12 +93,7 @@ def mesh_for_tools(
     from cadbridge.tool.build import consistently_oriented
 
     progress = progress or NoProgress()
-    if size is None and mesher == "gmsh":
-        # the part's diagonal / 20, from its trimmed faces (`cadbridge.cad.extent`), not gmsh's
-        # box of the untrimmed surfaces: trj6_b1's 304 mm part has faces on surfaces 26.5 m long
-        from cadbridge.cad.extent import default_mesh_size
-
-        size = default_mesh_size(model)
+    size_note = _far_nets_note(model) if size is None and mesher == "gmsh" else None
     if size is not None and size > 0 and math.isfinite(size):  # a size far too small: refused before meshing
         from cadbridge.mesh.element_count import check_element_count
 
@@ -124,8 +121,30 @@ def mesh_for_tools(
         raise MeshError(f"{Path(cad).name}: the mesher made no elements (element size "
                         f"{'the bounding box diagonal / 20' if size is None else f'{size:g}'}; the model's bounding box "
                         f"runs from ({', '.join(f'{x:.6g}' for x in lo)}) to ({', '.join(f'{x:.6g}' for x in hi)}))")
-    notes = healed_notes(excursions) + list(mesh.notes)
+    notes = healed_notes(excursions) + ([size_note] if size_note else []) + list(mesh.notes)
     return consistently_oriented(mesh, True), notes
+
+
+def _far_nets_note(model: Model) -> str | None:
+    """A note where the default element size (gmsh's box of the control nets / 20) is far above
+    the part's (`cadbridge.cad.extent.trimmed_box` / 20): rational faces with far poles of tiny
+    weight (trj6_b1: nets reaching 26.5 m on a 304 mm part, 87 x). None where the two boxes
+    agree within `FAR_NETS` x. The default itself stays the nets' box: taken from the trimmed
+    faces it moved every file's mesh and exposed gmsh failures at the new sizes (a segfault in
+    algorithm 8 on bug24283's sphere, an odd curve in the spring's quads)."""
+    from cadbridge.cad.extent import trimmed_box
+
+    lo, hi = trimmed_box(model)
+    part = float(np.linalg.norm(hi - lo))
+    if not part > 0 or model.size() <= FAR_NETS * part:
+        return None
+    return (f"mesh: the default element size comes from the faces' control nets, whose box ({model.size():.4g}) is "
+            f"{model.size() / part:.3g} x the trimmed part's ({part:.4g}; rational faces with far poles); "
+            f"--size {part / 20:.3g} sizes the mesh by the part")
+
+
+FAR_NETS = 4.0
+"""The nets' box above this x the trimmed part's diagonal gets `_far_nets_note`."""
 
 
 def _mesh_model_brep(model: Model, lines: list, opts: dict, cache: dict | None = None) -> tuple[Mesh | None, list[str]]:

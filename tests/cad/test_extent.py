@@ -3,9 +3,8 @@
 A rational patch can keep a pole very far away with a tiny weight: a circular arc of nearly
 180 degrees as one quadratic span has its middle pole at R / cos(89.9 deg) = 573 R. trj6_b1
 (Open CASCADE 4.0 STEP, a part 304 mm across) has two such faces whose nets reach 26.5 m. The
-default element size was the box of the nets (gmsh's and `Model.bbox`) / 20: 1 326 mm, with
-the curvature rule floored at 66 mm. It is now the trimmed faces' extent / 20
-(`cadbridge.cad.extent`).
+default element size is the box of the nets (gmsh's) / 20: 1 326 mm there. The trimmed faces'
+box (`cadbridge.cad.extent`) is the part's, and convert's notes name it where the two differ.
 
 Sample: a half cylinder R 20, 30 high (179.8 degrees), as one rational quadratic x linear
 patch (OCP), written as STEP. References: OCC's `BRepBndLib::AddOptimal` (the shape's tight
@@ -88,20 +87,14 @@ def test_trimmed_box_is_occs_tight_box(name, far_pole):
     assert np.abs(ours - occ).max() <= 2e-3 * diag
 
 
-def test_default_size_follows_the_part(far_pole, tmp_path):
-    """convert without --size: elements about the part's diagonal / 20 (2.5 mm), not the net's
-    (573 mm: the half cylinder was 8 elements, its flat error 1.9); the nodes lie on the
-    analytic cylinder."""
+def test_convert_notes_a_default_size_far_above_the_part(far_pole, tmp_path):
+    """convert without --size on the far-pole patch: its notes give the nets' box against the
+    part's (the half cylinder's box 2R x R x H, analytic) and the size that follows the part;
+    the tool is still made."""
     from cadbridge import convert
-    from cadbridge.io.toolfile import read_toolfile
 
-    convert(str(far_pole), str(tmp_path), element="tri")
-    (tf,) = tmp_path.glob("*.nagata")
-    t = read_toolfile(tf)
-    x = t.nodes
-    assert np.abs(np.hypot(x[:, 0], x[:, 1]) - R).max() < 1e-6 * R
-    tri = t.triangles
-    edges = np.linalg.norm(x[tri] - x[np.roll(tri, -1, axis=1)], axis=2)
-    diag = math.hypot(2 * R, math.hypot(R, H))  # the half cylinder's box: 2R x R x H
-    assert len(tri) > 100
-    assert edges.max() <= 2 * diag / 20
+    run = convert(str(far_pole), str(tmp_path), element="tri")
+    (note,) = [n for n in run.notes if "control nets" in n]
+    diag = math.hypot(2 * R, math.hypot(R, H))
+    assert f"--size {diag / 20:.3g}" in note
+    assert run.tools
