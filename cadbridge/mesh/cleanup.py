@@ -97,12 +97,7 @@ def merge_close_nodes(mesh: Mesh, tol: float, anchors: np.ndarray | None = None)
         blocks.append(CellBlock(b.type, c[ok]))
         cell_take.append(ids[ok])
         if b.type == "quad":
-            # one edge collapsed (two cyclically adjacent corners merged): a triangle of the
-            # other three in their cyclic order; a merged diagonal (a, b, a, d) has no area
-            rep_next = c == np.roll(c, -1, axis=1)
-            three = (distinct == 3) & rep_next.any(axis=1)
-            q, m = c[three], rep_next[three]
-            tri = q[~m].reshape(-1, 3)
+            tri, three = collapsed_quads(c)
             tri_from_quad.append((tri, ids[three]))
             dropped += int(len(c) - ok.sum() - three.sum())
         else:
@@ -123,6 +118,17 @@ def merge_close_nodes(mesh: Mesh, tol: float, anchors: np.ndarray | None = None)
         name=mesh.name,
     )
     return out, MergeReport(int(n - keep.sum()), dropped, to_tri, where, float(tol))
+
+
+def collapsed_quads(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Quads (Q, 4) with one edge collapsed (two cyclically adjacent corners on one node, e.g.
+    gmsh's [a, p, p, b] at a pole): (the triangles of their other three corners in cyclic
+    order (T, 3), which quads those are (Q,) bool). A quad with a merged diagonal (a, b, a, d)
+    or more repeats has no area and is not among them."""
+    same = q == np.roll(q, -1, axis=1)
+    distinct = 1 + (np.diff(np.sort(q, axis=1), axis=1) != 0).sum(axis=1)
+    three = (distinct == 3) & same.any(axis=1)
+    return q[three][~same[three]].reshape(-1, 3), three
 
 
 def _drop_folds(blocks: list[CellBlock], cell_take: list[np.ndarray]) -> int:

@@ -1385,18 +1385,17 @@ def _collect(g, surfaces: list[int], parametric: bool, path: Path) -> Mesh:
                 tri.append(t)
                 tri_ent.append(np.full(len(t), s, dtype=np.int64))
             elif et == 3:
+                from cadbridge.mesh.cleanup import collapsed_quads
+
                 q = index[en].reshape(-1, 4)
                 # a quad with two adjacent corners on one node (gmsh, at a pole: [a, p, p, b]) is
                 # the triangle of its other three, as `merge_close_nodes` makes it; with more
                 # repeats it has no area (hemisphere_pole at size 1.4995 left one of each kind)
-                same = q == np.roll(q, -1, axis=1)
-                distinct = 1 + (np.diff(np.sort(q, axis=1), axis=1) != 0).sum(axis=1)
-                three = (distinct == 3) & same.any(axis=1)
-                if np.any(three):
-                    t = q[three][~same[three]].reshape(-1, 3)
+                t, _ = collapsed_quads(q)
+                if len(t):
                     tri.append(t)
                     tri_ent.append(np.full(len(t), s, dtype=np.int64))
-                q = q[distinct == 4]
+                q = q[np.all(np.diff(np.sort(q, axis=1), axis=1) != 0, axis=1)]
                 quad.append(q)
                 quad_ent.append(np.full(len(q), s, dtype=np.int64))
             else:
