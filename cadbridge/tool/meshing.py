@@ -132,8 +132,11 @@ def _far_nets_note(model: Model) -> str | None:
     agree within `FAR_NETS` x. The default itself stays the nets' box: taken from the trimmed
     faces it moved every file's mesh and exposed gmsh failures at the new sizes (a segfault in
     algorithm 8 on bug24283's sphere, an odd curve in the spring's quads)."""
-    from cadbridge.cad.extent import trimmed_box
+    from cadbridge.cad.extent import loop_start_box, trimmed_box
 
+    lo, hi = loop_start_box(model)  # a part at least this large: most models stop here
+    if model.size() <= FAR_NETS * float(np.linalg.norm(hi - lo)):
+        return None
     lo, hi = trimmed_box(model)
     part = float(np.linalg.norm(hi - lo))
     if not part > 0 or model.size() <= FAR_NETS * part:

@@ -98,3 +98,18 @@ def test_convert_notes_a_default_size_far_above_the_part(far_pole, tmp_path):
     diag = math.hypot(2 * R, math.hypot(R, H))
     assert f"--size {diag / 20:.3g}" in note
     assert run.tools
+
+
+@pytest.mark.parametrize("name", ["far_pole", "trj6_b1-ec-214.stp"])
+def test_loop_start_box_lies_inside_the_trimmed_box(name, far_pole):
+    """The cheap lower bound `_far_nets_note` asks first is inside OCC's tight box."""
+    from cadbridge import read_cad
+    from cadbridge.cad.extent import loop_start_box
+
+    path = far_pole if name == "far_pole" else CORPUS / name
+    if not path.is_file():
+        pytest.skip(f"{path} not present")
+    occ = _occ_tight_box(path)
+    low = loop_start_box(read_cad(path))
+    tol = 1e-6 * float(np.linalg.norm(occ[1] - occ[0]))
+    assert np.all(low[0] >= occ[0] - tol) and np.all(low[1] <= occ[1] + tol)
