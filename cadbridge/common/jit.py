@@ -13,7 +13,7 @@ from __future__ import annotations
 import sys
 from typing import TextIO
 
-__all__ = ["COMPILE_SECONDS", "announce_compilation"]
+__all__ = ["COMPILE_SECONDS", "announce_compilation", "parallel_kernels", "serial_kernels_only"]
 
 # cold minus warm `cadbridge ushape -o DIR` (empty NUMBA_CACHE_DIR, then the same again):
 # 17.9 s - 11.2 s wall, 16.3 s - 7.0 s CPU on a shared 2-core machine; rounded up, as a
@@ -23,6 +23,23 @@ __all__ = ["COMPILE_SECONDS", "announce_compilation"]
 COMPILE_SECONDS = 40
 
 _listener = None
+_parallel = True
+
+
+def serial_kernels_only() -> None:
+    """From now on, surface evaluation and Newton projection call their serial kernels only
+    (the batched projection of `cadbridge.nurbs.project_many` and the fitting kernels have no
+    serial twin, and a meshing child does not call them). For a forked child
+    (`cadbridge.mesh.gmsh.isolated`): GNU OpenMP, numba's threading layer on Linux, terminates a
+    child that starts a parallel region after its parent did ("fork() called from a process
+    already using GNU OpenMP, this is unsafe")."""
+    global _parallel
+    _parallel = False
+
+
+def parallel_kernels() -> bool:
+    """Whether this process may call numba's parallel (prange) kernels (`serial_kernels_only`)."""
+    return _parallel
 
 
 def announce_compilation(stream: TextIO | None = None, seconds: float = COMPILE_SECONDS, quiet: bool = False) -> None:

@@ -32,6 +32,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from cadbridge.common.jit import parallel_kernels
 from cadbridge.nurbs.newton import CHECK_K, CHECK_SEEDS, EDGE_SEEDS, FAILED_SEEDS, global_seeds, newton_range
 from cadbridge.nurbs.surface import NurbsSurface
 
@@ -602,7 +603,7 @@ def _newton(
     # absolute round-off of r = S - P per point: a few ulps of the largest coordinate involved
     noise = 64.0 * np.finfo(float).eps * (np.max(np.abs(pts), axis=1) + size) if n else np.zeros(0)
     if n:
-        kernel = _newton_parallel if n >= _NEWTON_PARALLEL_MIN else _newton_serial
+        kernel = _newton_parallel if n >= _NEWTON_PARALLEL_MIN and parallel_kernels() else _newton_serial
         kernel(surface._pw, surface.knots_u, surface.knots_v, surface.degree_u, surface.degree_v,
                surface.rational, u0, u1, v0, v1, cu, cv, eps1, eps2,
                np.ascontiguousarray(pts, dtype=float), noise, u, v, iters, int(max_iter))

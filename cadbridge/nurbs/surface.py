@@ -7,6 +7,7 @@ from math import comb
 import numba
 import numpy as np
 
+from cadbridge.common.jit import parallel_kernels
 from cadbridge.nurbs.basis import (ders1_basis_one, ders_basis_funs, ders_basis_one, find_span, find_span_one,
                                    validate_knots)
 
@@ -353,12 +354,13 @@ class NurbsSurface:
             # higher orders the generic `_ders_range`; the serial kernels are called directly and
             # the parallel (prange) ones, slower to compile, only for many points
             args = (self._pw, self.knots_u, self.knots_v, self.degree_u, self.degree_v, d, self.rational, u, v, out)
+            many = u.size >= _PARALLEL_MIN and parallel_kernels()
             if d <= 1:
-                if u.size >= _PARALLEL_MIN:
+                if many:
                     _d01_parallel(*args)
                 else:
                     d01_range(*args, 0, u.size)
-            elif u.size >= _PARALLEL_MIN:
+            elif many:
                 _ders_parallel(*args, _binomials(d))
             else:
                 _ders_range(*args, 0, u.size, _binomials(d))
