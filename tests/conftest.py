@@ -7,8 +7,17 @@ examples each run (and keeps failures in .hypothesis/).
 
 import os
 
+import pytest
 from hypothesis import settings
 
 settings.register_profile("ci", derandomize=True, deadline=None, print_blob=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
+
+
+
+@pytest.fixture
+def gmsh_unwatched(monkeypatch):
+    """`mesh_cad`'s gmsh attempts run in this process, not in a watched child
+    (`cadbridge.mesh.gmsh.isolated.WATCH`): for tests that record what happens inside them."""
+    monkeypatch.setattr("cadbridge.mesh.gmsh.isolated.WATCH", False)

@@ -55,6 +55,7 @@ from typing import Sequence
 
 import numpy as np
 
+from cadbridge.mesh.gmsh.isolated import gmsh_call
 from cadbridge.mesh.gmsh.presew import presew_brep
 from cadbridge.mesh.gmsh.session import GmshSession, apply_options, quiet_stdout
 from cadbridge.mesh.mesh import CellBlock, Mesh, MeshError
@@ -452,7 +453,7 @@ def mesh_cad(
               embed_faces=None if embed_faces is None else list(embed_faces), face_anchors=face_anchors,
               exact_curve_nodes=exact_curve_nodes, keep=keep, min_size=min_size)
     try:
-        return _mesh_once(path, verbose, heal=False, **kw)
+        return _mesh_watched(path, verbose, heal=False, **kw)
     except MeshError as first:
         if "gmsh failed" not in str(first):
             raise
@@ -460,9 +461,44 @@ def mesh_cad(
         # loops ("The 1D mesh seems not to be forming a closed loop"); OCC's shape fixing
         # (Geometry.OCCFixDegenerated / OCCFixSmallEdges) on import repairs them
         try:
-            return _mesh_once(path, verbose, heal=True, **kw)
+            return _mesh_watched(path, verbose, heal=True, **kw)
         except MeshError as second:
             raise MeshError(f"{second} (also after OCC shape healing; first attempt: {first})") from second
+
+
+MAX_HALTS = 3
+"""Surfaces one meshing attempt may leave to cadbridge's (u, v) fill after gmsh stalled or
+crashed on them (`_mesh_watched`); one more halt fails the attempt."""
+
+
+def _mesh_watched(path: Path, verbose: bool, heal: bool, **kw) -> Mesh:
+    """`_mesh_once` in a forked child, watched (`cadbridge.mesh.gmsh.isolated`). Where gmsh
+    stalls or crashes on a surface, the attempt runs again with that surface hidden from gmsh
+    and meshed by cadbridge in its (u, v) (`cadbridge.mesh.gmsh.empty_faces`, whose note names
+    it), up to `MAX_HALTS` surfaces. Raises `MeshError` ("gmsh failed: ...") where gmsh halts
+    outside a surface, twice on one surface, or more often."""
+    from cadbridge.mesh.gmsh.isolated import GmshHalted, run_isolated
+
+    keep = kw["keep"]
+    first = keep is not None and "snapshot" not in keep
+    skip: dict[int, str] = {}
+    while True:
+        attempt = dict(kw, skip=dict(skip))
+
+        def job() -> tuple[Mesh, dict | None]:
+            mesh = _mesh_once(path, verbose, heal, **attempt)
+            return mesh, keep.get("snapshot") if first else None  # the child's keep: sent back
+
+        try:
+            mesh, snap = run_isolated(job, echo_gmsh=verbose)
+        except GmshHalted as halt:
+            if halt.surface is None or halt.surface in skip or len(skip) >= MAX_HALTS:
+                raise MeshError(f"{path}: gmsh failed: {halt}") from None
+            skip[halt.surface] = halt.reason
+            continue
+        if first and snap is not None:
+            keep["snapshot"] = snap
+        return mesh
 
 
 def _mesh_once(path: Path, verbose: bool, heal: bool, **kw) -> Mesh:
@@ -581,7 +617,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         from cadbridge.mesh.gmsh.kept import restore
 
         kept = restore(g, keep["snapshot"], keep["finer"], heal=kw["heal"])
-    hopeless = kw["element"] == "quad" and not _all_quads_possible(g, sess, surfaces)
+    hopeless = kw["element"] == "quad" and not _all_quads_possible(g, sess, surfaces, kw)
     if not hopeless:
         mesh, filled = _generate_unfolded(g, surfaces, size, kw, path, False, redone, sess, oversized)
     subdivided = False
@@ -625,7 +661,7 @@ def _mesh_in_session(sess: GmshSession, path: Path, **kw) -> Mesh:
         _exact_curve_nodes(g, mesh, diag)
     tol = _merge_tolerance(size, subdivided)
     mesh, merged = merge_close_nodes(mesh, tol, anchors=_vertex_nodes(g, mesh))
-    mesh.notes += filled
+    mesh.notes += list(dict.fromkeys(filled))  # a face filled in each pass: one note
     folded = {t: v for t, v in redone.items() if v[0] > 0}
     if folded:
         mesh.notes.append(f"mesh: gmsh's mesh folded over itself on surface(s) "
@@ -783,7 +819,7 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
     Returns (mesh without the nodes' (u, v), which the caller collects once at the end; notes
     of the filled faces). A quad mesh that leaves triangles before the subdivision is returned
     as it is: the subdivision pass follows."""
-    failed = _generate(g, surfaces)
+    failed = _generate(g, surfaces, kw)
     filled = _fill_empty(g, surfaces, size, kw, path, subdivided=subdivided, failed=failed)
     _check_all_meshed(g, surfaces, path)
     mesh = _collect(g, surfaces, False, path)
@@ -815,7 +851,7 @@ def _generate_unfolded(g, surfaces: list[int], size: float, kw: dict, path: Path
         # MeshAdapt pass took 14 of the refold's 15 s and folded as well.
         sess.set("Mesh.AlgorithmSwitchOnFailure", 0)
         try:
-            failed = _generate(g, sorted(new))  # those alone: Mesh.MeshOnlyEmpty
+            failed = _generate(g, sorted(new), kw)  # those alone: Mesh.MeshOnlyEmpty
         finally:
             sess.set("Mesh.AlgorithmSwitchOnFailure", 1)
             if subdivided:
@@ -893,7 +929,7 @@ def _regenerate_all(g, surfaces: list[int], size: float, kw: dict, path: Path) -
     """The whole model meshed again in the subdivision pass (its options set), each surface
     with the algorithm it has now: (mesh, notes of the faces `_fill_empty` meshed)."""
     g.model.mesh.clear()
-    failed = _generate(g, surfaces)
+    failed = _generate(g, surfaces, kw)
     filled = _fill_empty(g, surfaces, size, kw, path, subdivided=True, failed=failed)
     _check_all_meshed(g, surfaces, path)
     return _collect(g, surfaces, False, path), filled
@@ -912,7 +948,7 @@ ALL_QUAD_PROBES = (0.02, 0.1)
 """`_all_quads_possible` meshes these growing shares of the faces, fewest boundary nodes first."""
 
 
-def _all_quads_possible(g, sess: GmshSession, surfaces: list[int]) -> bool:
+def _all_quads_possible(g, sess: GmshSession, surfaces: list[int], kw: dict) -> bool:
     """Whether gmsh's quad mesh at the target size (recombined triangles) may close without
     triangles on every face, tried cheaply before the whole model is meshed. Blossom cannot pair
     the triangles of a face with an odd number of boundary nodes, and on real CAD it leaves a
@@ -924,7 +960,8 @@ def _all_quads_possible(g, sess: GmshSession, surfaces: list[int]) -> bool:
     the others hidden (``Mesh.MeshOnlyVisible``), stopping at the first share that keeps a
     triangle. False then or if a face is odd; the probed faces' elements stay (with
     ``Mesh.MeshOnlyEmpty`` the next generate meshes the rest)."""
-    g.model.mesh.generate(1)
+    with gmsh_call(surfaces=False):
+        g.model.mesh.generate(1)
     b = _boundary_nodes(g, surfaces)
     if np.any(b % 2):
         return False
@@ -939,7 +976,7 @@ def _all_quads_possible(g, sess: GmshSession, surfaces: list[int]) -> bool:
         g.model.setVisibility(hidden, 0)
         sess.set("Mesh.MeshOnlyVisible", 1)
         try:
-            _generate(g, probe)
+            _generate(g, probe, kw)
         finally:
             sess.set("Mesh.MeshOnlyVisible", 0)
             g.model.setVisibility(hidden, 1)
@@ -1164,20 +1201,22 @@ def _curve_need(g, c: int, curve_size, samples: int = 65) -> float:
     return float(np.sum(ds / np.asarray(h, dtype=float)))
 
 
-def _generate(g, surfaces: list[int]) -> dict[int, str]:
+def _generate(g, surfaces: list[int], kw: dict) -> dict[int, str]:
     """gmsh's 2D meshing, going on past a surface it cannot mesh: {failed surface: gmsh's error}
-    (`cadbridge.mesh.gmsh.empty_faces.generate_surfaces`; those surfaces are then filled)."""
+    (`cadbridge.mesh.gmsh.empty_faces.generate_surfaces`; those surfaces are then filled), and
+    ``kw["skip"]``'s surfaces (gmsh stalled or crashed on them in an earlier attempt) left to
+    the fill too."""
     from cadbridge.mesh.gmsh.empty_faces import generate_surfaces
 
     if g.option.getNumber("Mesh.SubdivisionAlgorithm") != 1:
-        return generate_surfaces(g, surfaces)
+        return generate_surfaces(g, surfaces, kw.get("skip"))
     # the all-quad subdivision made here (`cadbridge.mesh.gmsh.subdivide`), gmsh's needing an
     # OCC projector per new node: production die 7.3 -> 3.5 s
     from cadbridge.mesh.gmsh.subdivide import subdivide_to_quads
 
     g.option.setNumber("Mesh.SubdivisionAlgorithm", 0)
     try:
-        failed = generate_surfaces(g, surfaces)
+        failed = generate_surfaces(g, surfaces, kw.get("skip"))
     finally:
         g.option.setNumber("Mesh.SubdivisionAlgorithm", 1)
     if not subdivide_to_quads(g):

@@ -53,7 +53,7 @@ def test_odd_faces_skip_the_first_attempt():
         g.model.mesh.generate(1)
         odd = _boundary_nodes(g, surfaces) % 2 == 1
         assert odd.any()  # the disks: 15 nodes each at this size
-        assert not _all_quads_possible(g, sess, surfaces)
+        assert not _all_quads_possible(g, sess, surfaces, {})
         assert not any(len(g.model.mesh.getElements(2, s)[0]) for s in surfaces)  # nothing meshed in vain
 
 

@@ -112,7 +112,7 @@ def test_a_reversed_element_is_seen_by_both_checks(boss_cutout):
 
 
 @pytest.mark.parametrize("algorithms, fill_fails", [(None, False), ((8,), False), ((8,), True)])
-def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algorithms, fill_fails):
+def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algorithms, fill_fails, gmsh_unwatched):
     # reference: the same call without the fold. A surface reported folded once (the test
     # reports the largest as folded, with an element wound against it) is cleared and meshed
     # again with the first refold algorithm (6); the elements of every other surface are the
@@ -165,7 +165,7 @@ def test_a_folded_surface_is_meshed_again_alone(boss_cutout, monkeypatch, algori
     assert _winding_against_occ(again, faces) == [0, 0, 0]
 
 
-def test_the_refold_pass_meshes_with_the_algorithm_asked(boss_cutout, monkeypatch):
+def test_the_refold_pass_meshes_with_the_algorithm_asked(boss_cutout, monkeypatch, gmsh_unwatched):
     # gmsh quietly remeshes with MeshAdapt a surface whose Delaunay-based mesh it finds
     # invalid (Mesh.AlgorithmSwitchOnFailure); in the refold pass the chain (next algorithm,
     # then the (u, v) fill) follows anyway, and on the production die's binder that MeshAdapt
@@ -178,8 +178,8 @@ def test_the_refold_pass_meshes_with_the_algorithm_asked(boss_cutout, monkeypatc
     _folds_once(monkeypatch, G, big)
     switch = []
     real = G._generate
-    monkeypatch.setattr(G, "_generate", lambda g, s: switch.append(
-        g.option.getNumber("Mesh.AlgorithmSwitchOnFailure")) or real(g, s))
+    monkeypatch.setattr(G, "_generate", lambda g, s, kw: switch.append(
+        g.option.getNumber("Mesh.AlgorithmSwitchOnFailure")) or real(g, s, kw))
     again = G.mesh_cad(path, element="quad", size=72.46, curvature_elements=12)
     # the model's passes with gmsh's default, the refold pass (the last call) without the switch
     assert switch[-1] == 0.0 and set(switch[:-1]) == {1.0}, switch

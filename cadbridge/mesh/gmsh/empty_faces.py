@@ -42,6 +42,7 @@ import math
 
 import numpy as np
 
+from cadbridge.mesh.gmsh.isolated import gmsh_call
 from cadbridge.mesh.mesh import MeshError
 
 __all__ = ["fill_empty_faces", "generate_surfaces", "EPS_FACTOR"]
@@ -58,7 +59,7 @@ def _has_elements(g, s: int) -> bool:
     return any(len(t) for t in g.model.mesh.getElements(2, s)[1])
 
 
-def generate_surfaces(g, surfaces: list[int]) -> dict[int, str]:
+def generate_surfaces(g, surfaces: list[int], skip: dict[int, str] | None = None) -> dict[int, str]:
     """``gmsh.model.mesh.generate(2)`` that does not stop at the first surface gmsh cannot mesh.
 
     By default (``General.AbortOnError`` 2) gmsh throws on the first error, e.g. "Impossible
@@ -71,21 +72,33 @@ def generate_surfaces(g, surfaces: list[int]) -> dict[int, str]:
     when an error names no surface (e.g. "The 1D mesh seems not to be forming a closed loop"),
     those left without elements. Raises gmsh's ``Exception`` (as a throwing ``generate`` would)
     for an error naming no surface when every surface has elements: an error this fallback
-    cannot locate."""
+    cannot locate. ``skip`` {surface: why}: surfaces not given to gmsh (hidden, as
+    ``Mesh.MeshOnlyVisible`` hides them), returned as failed with that reason: those gmsh
+    stalled or crashed on in an earlier attempt (`cadbridge.mesh.gmsh.isolated`)."""
     import re
 
+    hidden = [(2, s) for s in surfaces if s in (skip or {}) and g.model.getVisibility(2, s)]
     prev = g.option.getNumber("General.AbortOnError")
+    prev_visible = g.option.getNumber("Mesh.MeshOnlyVisible")
     g.option.setNumber("General.AbortOnError", 0)
+    if hidden:
+        g.model.setVisibility(hidden, 0)
+        g.option.setNumber("Mesh.MeshOnlyVisible", 1)
     g.logger.start()
     try:
-        g.model.mesh.generate(2)
+        with gmsh_call():
+            g.model.mesh.generate(2)
         log = g.logger.get()
     finally:
         g.logger.stop()
         g.option.setNumber("General.AbortOnError", prev)
+        if hidden:
+            g.model.setVisibility(hidden, 1)
+            g.option.setNumber("Mesh.MeshOnlyVisible", prev_visible)
+    skipped = {s: (skip or {})[s] for s in surfaces if s in (skip or {}) and not _has_elements(g, s)}
     errors = [m for m in log if m.startswith("Error")]
     if not errors:
-        return {}
+        return skipped
     known = set(surfaces)
     named: dict[int, list[str]] = {}
     for m in errors:
@@ -93,7 +106,7 @@ def generate_surfaces(g, surfaces: list[int]) -> dict[int, str]:
             if int(t) in known:
                 named.setdefault(int(t), []).append(m)
     unnamed = [m for m in errors if not re.search(r"surface \d+", m)]
-    empty = [s for s in surfaces if s not in named and not _has_elements(g, s)] if unnamed else []
+    empty = [s for s in surfaces if s not in named and s not in skipped and not _has_elements(g, s)] if unnamed else []
     if unnamed and not empty:
         raise Exception(unnamed[-1].removeprefix("Error").lstrip(": "))
     failed = {s: "; ".join(named[s]) for s in named}
@@ -101,7 +114,7 @@ def generate_surfaces(g, surfaces: list[int]) -> dict[int, str]:
     for s in named:
         if _has_elements(g, s):
             g.model.mesh.clear([(2, s)])  # a surface an error names starts again from its boundary
-    return {s: m.replace("Error: ", "") for s, m in failed.items()}
+    return {s: m.replace("Error: ", "") for s, m in failed.items()} | skipped
 
 
 def fill_empty_faces(g, surfaces: list[int], *, size: float, curvature_elements: int, element: str,

@@ -29,6 +29,8 @@ from typing import Callable
 
 import numpy as np
 
+from cadbridge.mesh.gmsh.isolated import gmsh_call
+
 __all__ = ["restore", "snapshot"]
 
 
@@ -112,7 +114,8 @@ def restore(g, snap: dict, finer: Callable[[np.ndarray], np.ndarray], *, heal: b
     renumber = g.option.getNumber("Mesh.Renumber")
     g.option.setNumber("Mesh.Renumber", 0)
     try:
-        g.model.mesh.generate(1)
+        with gmsh_call(surfaces=False):
+            g.model.mesh.generate(1)
     finally:
         g.option.setNumber("Mesh.Renumber", renumber)
     own = [(tag, e) for (d, tag), e in snap["entities"].items() if d == 2 and tag not in surfaces]

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cadbridge.mesh.gmsh.isolated import gmsh_call
+
 __all__ = ["mesh_loops_in_parameter_space", "mesh_planar_loops"]
 
 
@@ -160,7 +162,8 @@ def _mesh_planar_once(loops_uv: list[np.ndarray], scale: np.ndarray, size: float
         sess.set("Mesh.RecombinationAlgorithm", recombination)
         sess.set("Mesh.ElementOrder", 1)
         try:
-            g.model.mesh.generate(2)
+            with gmsh_call(surfaces=False):
+                g.model.mesh.generate(2)
         except Exception as exc:  # gmsh raises a plain Exception
             raise MeshError(f"{label}: the gmsh fallback could not mesh the face ({exc})") from exc
         tags, xyz, _ = g.model.mesh.getNodes()

@@ -37,8 +37,13 @@ class GmshSession:
                 gmsh.initialize(readConfigFiles=False, interruptible=False)
                 self._owner = True
                 _restore_python_signals()
-            self.set("General.Terminal", 1 if self.verbose else 0)
-            self.set("General.Verbosity", 5 if self.verbose else 1)
+            # in a watched child, gmsh's Info lines (one per curve and surface) go to the parent
+            # (`cadbridge.mesh.gmsh.isolated`), which passes them on only where verbose
+            from cadbridge.mesh.gmsh.isolated import in_child
+
+            watched = in_child()
+            self.set("General.Terminal", 1 if self.verbose or watched else 0)
+            self.set("General.Verbosity", 5 if self.verbose else 4 if watched else 1)
             gmsh.model.add(self._model)
         except BaseException:
             self._cleanup()

@@ -68,7 +68,7 @@ def cylinder(tmp_path_factory):
 
 
 @pytest.mark.parametrize("element", ["tri", "quad"])
-def test_surfaces_that_keep_folding_are_filled_on_the_cylinder(cylinder, element, monkeypatch):
+def test_surfaces_that_keep_folding_are_filled_on_the_cylinder(cylinder, element, monkeypatch, gmsh_unwatched):
     from cadbridge.mesh import generate as G
 
     real = G._folded_surfaces
