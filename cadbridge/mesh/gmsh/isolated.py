@@ -110,8 +110,9 @@ def _can_fork() -> bool:
 def run_isolated(job: Callable[[], T], *, stall_seconds: float = STALL_SECONDS, echo_gmsh: bool = False) -> T:
     """``job()`` run in a forked child, watched (module docs): its result, or what it raised
     (the same exception, unpickled; a `RuntimeError` with its traceback where that cannot be
-    pickled). Raises `GmshHalted` where gmsh stalled or the child crashed. The child's other
-    output to fd 1 is passed on; gmsh's own lines only with ``echo_gmsh``. Temporary files the
+    pickled). Raises `GmshHalted` where gmsh stalled or the child crashed. gmsh's own lines
+    (its Info, warnings and errors) are passed on to stdout only with ``echo_gmsh``; the
+    child's other output to its fd 1 and 2 goes to stderr. Temporary files the
     child made (``tempfile``) are removed whatever happened to it."""
     if not _can_fork():
         return job()
@@ -171,8 +172,14 @@ def _run_child(job: Callable[[], object], r: int, w: int, tmp: str, result: str)
 
             faulthandler.disable()
         os.close(r)
+        # fd 1 and 2 (gmsh's Info lines, its warnings and errors) to the parent; Python's own
+        # stderr (warnings, notices) stays where it was: a terminal stays a terminal
+        err = os.dup(2)
         os.dup2(w, 1)
+        os.dup2(w, 2)
         os.close(w)
+        sys.stderr = open(err, "w", buffering=1, encoding=getattr(sys.stderr, "encoding", None) or "utf-8",
+                          errors="backslashreplace")
         tempfile.tempdir = tmp  # removed by the parent, whatever happens here
         from cadbridge.common.jit import serial_kernels_only
 
@@ -237,10 +244,12 @@ def _watch(pid: int, r: int, stall_seconds: float, echo_gmsh: bool) -> GmshHalte
                 m = _SURFACE.search(line)
                 if m and regions and regions[-1]:
                     surface = int(m.group(1))
-                if not echo_gmsh:
-                    continue
-            sys.stdout.write(line + "\n")
+                if echo_gmsh:
+                    sys.stdout.write(line + "\n")
+                continue
+            sys.stderr.write(line + "\n")  # what the child wrote to its old stderr object
     sys.stdout.flush()
+    sys.stderr.flush()
     _, status = os.waitpid(pid, 0)
     if os.WIFSIGNALED(status):
         sig = os.WTERMSIG(status)

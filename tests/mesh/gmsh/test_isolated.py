@@ -177,3 +177,21 @@ def test_a_kernel_another_thread_is_compiling_at_the_fork_does_not_block_the_chi
     finally:
         done.set()
         t.join()
+
+
+def test_gmsh_warnings_stay_quiet_and_the_childs_own_messages_pass(capfd):
+    """gmsh prints its warnings to fd 2 in the child (its terminal output is on there, for the
+    Info lines the watcher reads): they are dropped unless asked, as a session in this process
+    keeps them quiet; what cadbridge itself writes reaches stderr."""
+    import sys
+
+    def job():
+        os.write(2, b"Warning : Cannot apply Blossom: odd number of triangles (5) in surface 8\n")
+        os.write(2, b"a line of the child's C code\n")
+        print("a notice of the child's Python", file=sys.stderr)
+        return 1
+
+    assert run_isolated(job) == 1
+    out, err = capfd.readouterr()
+    assert "Blossom" not in out + err
+    assert "a line of the child's C code" in err and "a notice of the child's Python" in err
