@@ -161,3 +161,30 @@ def test_convert_quarter_cylinder_normal_error_is_small(tmp_path):
     degenerate gmsh quads (180-degree corners) and undefined patch normals."""
     result = convert(str(SAMPLES / "rational_quarter_cylinder.igs"), str(tmp_path / "o"))
     assert result.tools[0].stats["max_normal_error_deg"] < 10.0
+
+
+def test_a_guard_that_stays_tripped_refuses_before_the_errors_are_measured(tmp_path, monkeypatch):
+    """A tool whose guards stayed tripped after the refinement rounds is refused whatever its
+    errors: `convert` says so without measuring them first (trj4_s1 in quads spent 42 of its
+    82 s measuring a tool it then refused). Reference: the refusal names the guard's line, no
+    measurement ran, nothing is written; with --allow-worse the tool is measured and written."""
+    from cadbridge.tool import pipeline as P
+    from cadbridge.tool.build import ToolQualityError
+
+    real = P.guarded_mesh
+
+    def tripped(*a, **k):
+        g = real(*a, **k)
+        g.tools[0].diagnosis.append("the CAD normal reverses inside elements 1")
+        return g
+
+    measured = []
+    real_measure = P.measure_tool
+    monkeypatch.setattr(P, "guarded_mesh", tripped)
+    monkeypatch.setattr(P, "measure_tool", lambda *a, **k: measured.append(1) or real_measure(*a, **k))
+    out = tmp_path / "o"
+    with pytest.raises(ToolQualityError, match="reverses inside elements 1"):
+        convert(str(SAMPLES / "ushape_blankholder_nurbs.igs"), str(out))
+    assert measured == [] and not out.exists()
+    run = convert(str(SAMPLES / "ushape_blankholder_nurbs.igs"), str(out), allow_worse=True)
+    assert measured and run.tools[0].stats["max_abs_surface_error"] >= 0 and out.is_dir()
