@@ -77,7 +77,8 @@ def generate_surfaces(g, surfaces: list[int], skip: dict[int, str] | None = None
     stalled or crashed on in an earlier attempt (`cadbridge.mesh.gmsh.isolated`)."""
     import re
 
-    hidden = [(2, s) for s in surfaces if s in (skip or {}) and g.model.getVisibility(2, s)]
+    skip = skip or {}
+    hidden = [(2, s) for s in surfaces if s in skip and g.model.getVisibility(2, s)]
     prev = g.option.getNumber("General.AbortOnError")
     prev_visible = g.option.getNumber("Mesh.MeshOnlyVisible")
     g.option.setNumber("General.AbortOnError", 0)
@@ -95,7 +96,7 @@ def generate_surfaces(g, surfaces: list[int], skip: dict[int, str] | None = None
         if hidden:
             g.model.setVisibility(hidden, 1)
             g.option.setNumber("Mesh.MeshOnlyVisible", prev_visible)
-    skipped = {s: (skip or {})[s] for s in surfaces if s in (skip or {}) and not _has_elements(g, s)}
+    skipped = {s: skip[s] for s in surfaces if s in skip and not _has_elements(g, s)}
     errors = [m for m in log if m.startswith("Error")]
     if not errors:
         return skipped

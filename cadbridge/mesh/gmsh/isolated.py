@@ -2,9 +2,10 @@
 not the run.
 
 gmsh has no time limit of its own, and a crash in its C++ ends the Python process that called
-it. On the OCC corpus both happen: gmsh's Frontal-Delaunay ran for more than 10 minutes on a
-1 mm^2 face of trj6_b1 (edges of 8e-5 to 3e-3 mm), and its quad algorithm 8 segfaulted on a
-refold of bug24283's spheres at size 0.2674. `run_isolated(job)` forks; the child runs ``job``
+it. On the OCC corpus both happen at sizes other than the default: gmsh's Frontal-Delaunay ran
+for more than 10 minutes on a 1 mm^2 face of trj6_b1 (edges of 8e-5 to 3e-3 mm, at a size that
+follows the part), and its quad algorithm 8 segfaulted on a refold of bug24283's spheres at
+size 0.2674. `run_isolated(job)` forks; the child runs ``job``
 (one meshing attempt, with its own gmsh session) and sends its result back pickled (a `Mesh`:
 numpy arrays, milliseconds). The parent reads gmsh's Info lines from the child's file
 descriptor 1, one per curve and surface meshed, and the child's own marks around each gmsh
