@@ -135,7 +135,7 @@ def run_isolated(job: Callable[[], T], *, stall_seconds: float = STALL_SECONDS, 
             raise status
         with open(result, "rb") as f:
             kind, value = pickle.load(f)
-    except BaseException:
+    except BaseException:  # a stall, an interrupt, an unreadable result: the child ends here (if it has not)
         with contextlib.suppress(ProcessLookupError):
             os.kill(pid, signal.SIGKILL)
         with contextlib.suppress(ChildProcessError):
@@ -211,8 +211,9 @@ def _run_child(job: Callable[[], object], r: int, w: int, tmp: str, result: str)
 
 
 def _watch(pid: int, r: int, stall_seconds: float, echo_gmsh: bool) -> GmshHalted | None:
-    """Read the child's fd 1 until it closes, killing the child on a stall (module docs); wait
-    for it. None where it exited normally, else the `GmshHalted` to raise."""
+    """Read the child's fd 1 until it closes and wait for the child, or stop reading on a stall
+    (module docs; `run_isolated` then kills and waits for it). None where it exited normally,
+    else the `GmshHalted` to raise."""
     regions: list[bool] = []  # the watched calls the child is in: True where they mesh the model's surfaces
     surface: int | None = None
     last = time.monotonic()
@@ -221,9 +222,7 @@ def _watch(pid: int, r: int, stall_seconds: float, echo_gmsh: bool) -> GmshHalte
         wait = max(0.05, last + stall_seconds - time.monotonic()) if regions else None
         ready, _, _ = select.select([r], [], [], wait)
         if not ready:
-            if regions and time.monotonic() - last >= stall_seconds:
-                os.kill(pid, signal.SIGKILL)
-                os.waitpid(pid, 0)
+            if regions and time.monotonic() - last >= stall_seconds:  # the caller kills the child
                 return GmshHalted(surface if regions[-1] else None,
                                   f"made no progress for {stall_seconds:g} s")
             continue
